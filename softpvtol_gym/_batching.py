@@ -1,0 +1,40 @@
+"""Shape checking and broadcasting shared by the public batched functions."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .params import SoftPVTOLParams
+
+
+def as_batch(name: str, value, size: int) -> np.ndarray:
+    """``value`` as a float64 array of shape (..., size), with a clear error otherwise."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a real array of shape (..., {size}), got {value!r}") from exc
+    if arr.ndim == 0 or arr.shape[-1] != size:
+        raise ValueError(f"{name} must have shape (..., {size}), got shape {arr.shape}")
+    return arr
+
+
+def broadcast_batch(**arrays: tuple[object, int]) -> tuple[tuple[int, ...], list[np.ndarray]]:
+    """Broadcast the leading axes of several (..., k) inputs; returns (lead_shape, flat (N, k) arrays)."""
+    checked = {name: as_batch(name, v, k) for name, (v, k) in arrays.items()}
+    try:
+        lead = np.broadcast_shapes(*(a.shape[:-1] for a in checked.values()))
+    except ValueError as exc:
+        shapes = ", ".join(f"{n}{a.shape}" for n, a in checked.items())
+        raise ValueError(f"leading (batch) axes do not broadcast: {shapes}") from exc
+    flat = [
+        np.ascontiguousarray(np.broadcast_to(a, lead + a.shape[-1:]).reshape(-1, a.shape[-1]))
+        for a in checked.values()
+    ]
+    return lead, flat
+
+
+def param_matrix(params: SoftPVTOLParams) -> np.ndarray:
+    """(1, 10) parameter matrix for the batched kernels."""
+    if not isinstance(params, SoftPVTOLParams):
+        raise TypeError(f"params must be a SoftPVTOLParams, got {type(params).__name__}")
+    return params.array.reshape(1, -1)

@@ -1,0 +1,332 @@
+"""Compiled physics kernels: the single source of truth of the Soft-PVTOL model.
+
+Everything physical (D, C, g, the input maps, forward dynamics, energies, tip positions, the RK4 step)
+is written once here as numba-compiled functions of one state and the flat parameter vector
+``p = SoftPVTOLParams.array``. The public batched API (:mod:`softpvtol_gym.dynamics`,
+:mod:`softpvtol_gym.integrators`), the env, the vector env and the controller all call these.
+
+Why numba: the model is a few dozen flops per state, so NumPy's per-call overhead (~1 us per ufunc on
+tiny arrays) would dominate both the single env (hundreds of ufunc calls per RK4 step) and batched
+rollouts (many temporaries). ``njit(cache=True)`` compiles the scalar code once per machine, keeps one
+copy of the physics for single and batched use, and ``fastmath`` stays off so that results are bit for
+bit identical between the single env and every sub-env of the vector env.
+
+Conventions: q = (x, z, theta, q_l, q_r); p in ``PARAM_FIELDS`` order
+(m, m_l, m_r, I, I_l, I_r, l_l, l_r, g, epsilon); actuators a = (T_l, T_r, tau_l, tau_r).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from ._series import COEFFICIENTS
+
+_S0 = COEFFICIENTS["S0"]
+_C1 = COEFFICIENTS["C1"]
+_A = COEFFICIENTS["A"]
+_D1P = COEFFICIENTS["D1p"]
+_D2 = COEFFICIENTS["D2"]
+_D2PQ = COEFFICIENTS["D2pq"]
+
+INPUT_MAP_PAPER = 0
+INPUT_MAP_EXACT = 1
+
+_jit = njit(cache=True, fastmath=False, nogil=True)
+
+
+@_jit
+def horner(c, s):
+    acc = c[c.shape[0] - 1]
+    for k in range(c.shape[0] - 2, -1, -1):
+        acc = acc * s + c[k]
+    return acc
+
+
+@_jit
+def arm_basis(q):
+    """(D1, D2, dD1/dq, dD2/dq) of one arm's curvature q: branch-free power series."""
+    s = q * q
+    return q * horner(_A, s), horner(_D2, s), horner(_D1P, s), q * horner(_D2PQ, s)
+
+
+@_jit
+def sinc(q):
+    return horner(_S0, q * q)
+
+
+@_jit
+def one_minus_cos_over_q2(q):
+    return horner(_C1, q * q)
+
+
+# --------------------------------------------------------------------------------------- model terms
+@_jit
+def mass_matrix_into(q, p, out):
+    """D(q) (5x5) into ``out``. Only q_l, q_r enter: theta decouples (paper eq. (inertia))."""
+    ml, mr, ll, lr = p[1], p[2], p[6], p[7]
+    d1l, d2l, _, _ = arm_basis(q[3])
+    d1r, d2r, _, _ = arm_basis(q[4])
+    M = p[0] + p[1] + p[2]
+    out[:, :] = 0.0
+    out[0, 0] = M
+    out[1, 1] = M
+    out[2, 2] = p[3]
+    out[0, 3] = out[3, 0] = ml * ll * d1l
+    out[1, 3] = out[3, 1] = ml * ll * d2l
+    out[0, 4] = out[4, 0] = -mr * lr * d1r
+    out[1, 4] = out[4, 1] = mr * lr * d2r
+    out[3, 3] = ml * ll * ll * (d1l * d1l + d2l * d2l) + p[4]
+    out[4, 4] = mr * lr * lr * (d1r * d1r + d2r * d2r) + p[5]
+
+
+@_jit
+def coriolis_matrix_into(q, qd, p, out):
+    """C(q, qdot) from Christoffel symbols of the first kind, so that Ddot - 2C is skew."""
+    ml, mr, ll, lr = p[1], p[2], p[6], p[7]
+    d1l, d2l, d1pl, d2pl = arm_basis(q[3])
+    d1r, d2r, d1pr, d2pr = arm_basis(q[4])
+    out[:, :] = 0.0
+    out[0, 3] = ml * ll * d1pl * qd[3]
+    out[1, 3] = ml * ll * d2pl * qd[3]
+    out[0, 4] = -mr * lr * d1pr * qd[4]
+    out[1, 4] = mr * lr * d2pr * qd[4]
+    out[3, 3] = ml * ll * ll * (d1l * d1pl + d2l * d2pl) * qd[3]
+    out[4, 4] = mr * lr * lr * (d1r * d1pr + d2r * d2pr) * qd[4]
+
+
+@_jit
+def gravity_vector_into(q, p, out):
+    """g(q) = dP/dq."""
+    _, d2l, _, _ = arm_basis(q[3])
+    _, d2r, _, _ = arm_basis(q[4])
+    out[0] = 0.0
+    out[1] = p[8] * (p[0] + p[1] + p[2])
+    out[2] = 0.0
+    out[3] = p[8] * p[1] * p[6] * d2l
+    out[4] = p[8] * p[2] * p[7] * d2r
+
+
+@_jit
+def generalized_forces_into(q, a, p, input_map, out):
+    """tau = B(q) a for a = (T_l, T_r, tau_l, tau_r).
+
+    ``INPUT_MAP_PAPER``: the paper's map as printed (eq. 'control input in vector form').
+    ``INPUT_MAP_EXACT``: virtual work of the thrusts applied at the (body-rotated) arm tips: adds
+    the moment of the horizontal thrust components and of epsilon to tau_theta, and the work
+    T_i l_i (1 - cos q_i)/q_i^2 of each thrust on its own curvature.
+    """
+    th, ql, qr = q[2], q[3], q[4]
+    Tl, Tr = a[0], a[1]
+    sl, cl = math.sin(ql), math.cos(ql)
+    sr, cr = math.sin(qr), math.cos(qr)
+    vx = Tl * sl - Tr * sr
+    vz = Tl * cl + Tr * cr
+    st, ct = math.sin(th), math.cos(th)
+    out[0] = ct * vx - st * vz
+    out[1] = st * vx + ct * vz
+    ll, lr, eps = p[6], p[7], p[9]
+    if input_map == INPUT_MAP_PAPER:
+        out[2] = lr * Tr * cr * sinc(qr) - ll * Tl * cl * sinc(ql)
+        out[3] = a[2]
+        out[4] = a[3]
+    else:
+        out[2] = Tr * (eps * cr + lr * sinc(qr)) - Tl * (eps * cl + ll * sinc(ql))
+        out[3] = a[2] + Tl * ll * one_minus_cos_over_q2(ql)
+        out[4] = a[3] + Tr * lr * one_minus_cos_over_q2(qr)
+
+
+@_jit
+def qddot(ql, qr, vl, vr, tau, p):
+    """qddot = D^-1 (tau - C qdot - g) as a 5-tuple.
+
+    D, C and g depend only on the curvatures and their rates, so only (q_l, q_r, q_l', q_r') enter.
+    The solve uses the block structure of D: theta decouples, and the body block M*I2 is eliminated
+    by a Schur complement, leaving a 2x2 system for the arms. Allocation-free (scalars only).
+    """
+    ml, mr, ll, lr = p[1], p[2], p[6], p[7]
+    M = p[0] + p[1] + p[2]
+    d1l, d2l, d1pl, d2pl = arm_basis(ql)
+    d1r, d2r, d1pr, d2pr = arm_basis(qr)
+    wl = vl * vl
+    wr = vr * vr
+    kl = ml * ll
+    kr = mr * lr
+    # coupling columns a = D[0:2, 3], b = D[0:2, 4]
+    a0, a1 = kl * d1l, kl * d2l
+    b0, b1 = -kr * d1r, kr * d2r
+    dll = kl * ll * (d1l * d1l + d2l * d2l) + p[4]
+    drr = kr * lr * (d1r * d1r + d2r * d2r) + p[5]
+    g = p[8]
+    # right-hand side tau - C qdot - g
+    r0 = tau[0] - (kl * d1pl * wl - kr * d1pr * wr)
+    r1 = tau[1] - (kl * d2pl * wl + kr * d2pr * wr) - g * M
+    r3 = tau[3] - kl * ll * (d1l * d1pl + d2l * d2pl) * wl - g * kl * d2l
+    r4 = tau[4] - kr * lr * (d1r * d1pr + d2r * d2pr) * wr - g * kr * d2r
+    # Schur complement of the body block M*I2
+    s11 = dll - (a0 * a0 + a1 * a1) / M
+    s22 = drr - (b0 * b0 + b1 * b1) / M
+    s12 = -(a0 * b0 + a1 * b1) / M
+    h3 = r3 - (a0 * r0 + a1 * r1) / M
+    h4 = r4 - (b0 * r0 + b1 * r1) / M
+    det = s11 * s22 - s12 * s12
+    qdd_l = (s22 * h3 - s12 * h4) / det
+    qdd_r = (s11 * h4 - s12 * h3) / det
+    return (
+        (r0 - a0 * qdd_l - b0 * qdd_r) / M,
+        (r1 - a1 * qdd_l - b1 * qdd_r) / M,
+        tau[2] / p[3],
+        qdd_l,
+        qdd_r,
+    )
+
+
+@_jit
+def forward_dynamics_into(q, qd, tau, p, out):
+    a = qddot(q[3], q[4], qd[3], qd[4], tau, p)
+    for i in range(5):
+        out[i] = a[i]
+
+
+@_jit
+def kinetic_energy(q, qd, p):
+    ml, mr, ll, lr = p[1], p[2], p[6], p[7]
+    M = p[0] + p[1] + p[2]
+    d1l, d2l, _, _ = arm_basis(q[3])
+    d1r, d2r, _, _ = arm_basis(q[4])
+    # 2T = M|v|^2 + I th'^2 + sum_i (m_i |v + l_i q_i' dr_i|^2 - m_i |v|^2) + I_i q_i'^2, expanded
+    vx, vz = qd[0], qd[1]
+    e = M * (vx * vx + vz * vz) + p[3] * qd[2] * qd[2]
+    e += 2.0 * qd[3] * ml * ll * (d1l * vx + d2l * vz) + 2.0 * qd[4] * mr * lr * (-d1r * vx + d2r * vz)
+    e += (ml * ll * ll * (d1l * d1l + d2l * d2l) + p[4]) * qd[3] * qd[3]
+    e += (mr * lr * lr * (d1r * d1r + d2r * d2r) + p[5]) * qd[4] * qd[4]
+    return 0.5 * e
+
+
+@_jit
+def potential_energy(q, p):
+    """P = g (M z + m_l z_l^tip + m_r z_r^tip), tip heights l q (1 - cos q)/q^2 above the body."""
+    zl = p[6] * q[3] * one_minus_cos_over_q2(q[3])
+    zr = p[7] * q[4] * one_minus_cos_over_q2(q[4])
+    return p[8] * ((p[0] + p[1] + p[2]) * q[1] + p[1] * zl + p[2] * zr)
+
+
+@_jit
+def arm_offset(q_arm, length, eps, side):
+    """Body-frame (x, z) of the tip of an arm of curvature q_arm; side = -1 left, +1 right."""
+    return side * (eps + length * sinc(q_arm)), length * q_arm * one_minus_cos_over_q2(q_arm)
+
+
+@_jit
+def tip_positions_into(q, p, out):
+    """World (x, z) of the left (out[0]) and right (out[1]) tips: p_v + R(theta) r_i(q_i)."""
+    ct, st = math.cos(q[2]), math.sin(q[2])
+    for i in range(2):
+        side = -1.0 if i == 0 else 1.0
+        rx, rz = arm_offset(q[3 + i], p[6 + i], p[9], side)
+        out[i, 0] = q[0] + ct * rx - st * rz
+        out[i, 1] = q[1] + st * rx + ct * rz
+
+
+@_jit
+def rk4_step_into(q, qd, tau, p, dt, q_out, qd_out):
+    """One classical RK4 step of (q, qdot) with the generalized force tau held over the step.
+
+    Allocation-free; ``q_out``/``qd_out`` may alias ``q``/``qd``.
+    """
+    h = 0.5 * dt
+    k1 = qddot(q[3], q[4], qd[3], qd[4], tau, p)
+    # stage 2 at t + dt/2: positions q + h*v, velocities v + h*k1 (only the arm entries enter qddot)
+    k2 = qddot(q[3] + h * qd[3], q[4] + h * qd[4], qd[3] + h * k1[3], qd[4] + h * k1[4], tau, p)
+    # stage 3: positions q + h*(v + h*k1), velocities v + h*k2
+    k3 = qddot(
+        q[3] + h * (qd[3] + h * k1[3]),
+        q[4] + h * (qd[4] + h * k1[4]),
+        qd[3] + h * k2[3],
+        qd[4] + h * k2[4],
+        tau,
+        p,
+    )
+    # stage 4: positions q + dt*(v + h*k2), velocities v + dt*k3
+    k4 = qddot(
+        q[3] + dt * (qd[3] + h * k2[3]),
+        q[4] + dt * (qd[4] + h * k2[4]),
+        qd[3] + dt * k3[3],
+        qd[4] + dt * k3[4],
+        tau,
+        p,
+    )
+    c = dt / 6.0
+    for i in range(5):
+        v = qd[i]
+        # position slopes of the four stages: v, v + h k1, v + h k2, v + dt k3
+        dq = v + 2.0 * (v + h * k1[i]) + 2.0 * (v + h * k2[i]) + (v + dt * k3[i])
+        dv = k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]
+        q_out[i] = q[i] + c * dq
+        qd_out[i] = v + c * dv
+
+
+# ------------------------------------------------------------------------------- batched wrappers
+# Each takes contiguous (N, ...) float64 arrays and a parameter matrix P of shape (N, 10) or (1, 10).
+# ``prange`` splits the batch over threads; results do not depend on the thread count.
+
+
+@njit(cache=True, parallel=True)
+def batch_mass_matrix(q, P, out):
+    ps = np.int64(P.shape[0] > 1)
+    for n in prange(q.shape[0]):
+        mass_matrix_into(q[n], P[n * ps], out[n])
+
+
+@njit(cache=True, parallel=True)
+def batch_coriolis_matrix(q, qd, P, out):
+    ps = np.int64(P.shape[0] > 1)
+    for n in prange(q.shape[0]):
+        coriolis_matrix_into(q[n], qd[n], P[n * ps], out[n])
+
+
+@njit(cache=True, parallel=True)
+def batch_gravity_vector(q, P, out):
+    ps = np.int64(P.shape[0] > 1)
+    for n in prange(q.shape[0]):
+        gravity_vector_into(q[n], P[n * ps], out[n])
+
+
+@njit(cache=True, parallel=True)
+def batch_generalized_forces(q, a, P, input_map, out):
+    ps = np.int64(P.shape[0] > 1)
+    for n in prange(q.shape[0]):
+        generalized_forces_into(q[n], a[n], P[n * ps], input_map, out[n])
+
+
+@njit(cache=True, parallel=True)
+def batch_forward_dynamics(q, qd, tau, P, out):
+    ps = np.int64(P.shape[0] > 1)
+    for n in prange(q.shape[0]):
+        forward_dynamics_into(q[n], qd[n], tau[n], P[n * ps], out[n])
+
+
+@njit(cache=True, parallel=True)
+def batch_energies(q, qd, P, out):
+    """out[n] = (kinetic, potential)."""
+    ps = np.int64(P.shape[0] > 1)
+    for n in prange(q.shape[0]):
+        p = P[n * ps]
+        out[n, 0] = kinetic_energy(q[n], qd[n], p)
+        out[n, 1] = potential_energy(q[n], p)
+
+
+@njit(cache=True, parallel=True)
+def batch_tip_positions(q, P, out):
+    ps = np.int64(P.shape[0] > 1)
+    for n in prange(q.shape[0]):
+        tip_positions_into(q[n], P[n * ps], out[n])
+
+
+@njit(cache=True, parallel=True)
+def batch_rk4_step(q, qd, tau, P, dt, q_out, qd_out):
+    ps = np.int64(P.shape[0] > 1)
+    for n in prange(q.shape[0]):
+        rk4_step_into(q[n], qd[n], tau[n], P[n * ps], dt, q_out[n], qd_out[n])
