@@ -1,0 +1,36 @@
+"""Reference trajectories (q_ref, qdot_ref, qddot_ref), each (..., 5) with the arm entries zero.
+
+Arm curvature references are produced by the allocation in the actuated loop (see closed_loop).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["paper_reference", "hover_reference"]
+
+
+def paper_reference(t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The paper's eq. (traj_des): x = 4 sin(t/2), z = 3 cos(-t/10) + 4, theta = 0.
+
+    Derivatives are computed correctly: zdot = -0.3 sin(t/10) (the paper prints -0.3 sin(-t/10), a sign
+    error) and zddot = -0.03 cos(t/10). ``t`` [s] scalar or array; outputs (..., 5).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    z = np.zeros(t.shape + (5,))
+    q, qd, qdd = z.copy(), z.copy(), z.copy()
+    q[..., 0] = 4.0 * np.sin(0.5 * t)
+    qd[..., 0] = 2.0 * np.cos(0.5 * t)
+    qdd[..., 0] = -np.sin(0.5 * t)
+    q[..., 1] = 3.0 * np.cos(-0.1 * t) + 4.0
+    qd[..., 1] = -0.3 * np.sin(0.1 * t)
+    qdd[..., 1] = -0.03 * np.cos(0.1 * t)
+    return q, qd, qdd
+
+
+def hover_reference(x=0.0, z=0.0, theta=0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A constant set-point (x [m], z [m], theta [rad]); arrays broadcast. Outputs (..., 5)."""
+    x, z, theta = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (x, z, theta)))
+    q = np.zeros(x.shape + (5,))
+    q[..., 0], q[..., 1], q[..., 2] = x, z, theta
+    return q, np.zeros_like(q), np.zeros_like(q)
