@@ -1,0 +1,1 @@
+"""Baselines: paper reproduction, training, evaluation and the leaderboard (scripts live here)."""
