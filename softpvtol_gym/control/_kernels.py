@@ -118,7 +118,7 @@ def allocate_exact_into(tau, theta, p, input_map, warm, use_warm, qmax, out, inf
             break
         hi *= 2.0
     x = 0.5 * uz
-    if use_warm:
+    if use_warm and math.isfinite(warm[0] + warm[2]):  # a NaN row means: cold start
         x = warm[0] * math.cos(warm[2])
     if not (lo < x < hi):
         x = 0.5 * (lo + hi)
@@ -201,7 +201,7 @@ def allocate_paper_into(tau, theta, p, warm, use_warm, out, info):
     ux = ct * tau[0] + st * tau[1]
     uz = -st * tau[0] + ct * tau[1]
     tt = tau[2]
-    if use_warm:
+    if use_warm and math.isfinite(warm[2] + warm[3]):  # a NaN row means: cold start
         ql, qr = warm[2], warm[3]
     else:
         ql, qr = 0.4, -0.2

@@ -55,7 +55,8 @@ def allocate(
             atan2 (valid when a rotor must push downwards), residual <= 1e-10 through
             :func:`~softpvtol_gym.dynamics.generalized_forces`.
         input_map: for ``"exact"``, the input map whose tau_theta row is inverted.
-        warm_start: (..., 4) previous solution to start Newton from (both methods).
+        warm_start: (..., 4) previous solution to start Newton from (both methods); rows containing
+            NaN are solved from the cold start.
         curvature_limit: |q^d| beyond this is clipped and reported infeasible (``"exact"``).
         return_info: also return an :class:`AllocationInfo`.
 

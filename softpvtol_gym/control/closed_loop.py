@@ -183,10 +183,7 @@ class PassivityController:
 
         q_ref, qdot_ref, qddot_ref = (np.array(np.broadcast_to(r, q.shape), dtype=np.float64) for r in (q_ref, qdot_ref, qddot_ref))
         arm, arm_d, arm_dd = self._arm_reference(q)
-        warm = self._warm
-        if warm is not None and np.isnan(warm).any():
-            fresh = allocate(np.zeros(q.shape), q, p, self.allocation, input_map=self.input_map)
-            warm = np.where(np.isnan(warm), fresh, warm)
+        warm = self._warm  # rows set to NaN by reset(mask) are solved from the cold start
         for _ in range(self.algebraic_iterations):
             q_ref[..., 3:5], qdot_ref[..., 3:5], qddot_ref[..., 3:5] = arm, arm_d, arm_dd
             tau = passivity_control(q, qdot, q_ref, qdot_ref, qddot_ref, p, gains)
@@ -257,7 +254,7 @@ def simulate_closed_loop(
     )
     n = int(round(t_final / dt))
     t = np.arange(n + 1) * dt
-    q_ref_all, qd_ref_all, _ = reference(t)
+    q_ref_all, qd_ref_all = (np.array(np.broadcast_to(r, (n + 1, 5))) for r in reference(t)[:2])
     q = np.array(q0, dtype=np.float64)
     v = np.array(qdot0, dtype=np.float64)
     Q, V = np.empty((n + 1, 5)), np.empty((n + 1, 5))
