@@ -4,7 +4,14 @@ from __future__ import annotations
 
 from . import dynamics, integrators
 from .params import PARAM_FIELDS, SoftPVTOLParams
+from .envs import SoftPVTOLEnv, SoftPVTOLVectorEnv, register_envs
+from .policies import PassivityPolicy
+
+register_envs()
 
 __version__ = "0.1.0"
 
-__all__ = ["SoftPVTOLParams", "PARAM_FIELDS", "dynamics", "integrators", "__version__"]
+__all__ = [
+    "SoftPVTOLParams", "PARAM_FIELDS", "dynamics", "integrators", "__version__",
+    "SoftPVTOLEnv", "SoftPVTOLVectorEnv", "PassivityPolicy",
+]

@@ -33,6 +33,23 @@ def broadcast_batch(**arrays: tuple[object, int]) -> tuple[tuple[int, ...], list
     return lead, flat
 
 
+#: Largest |q_l|, |q_r| [rad] the public functions accept: the curvature power series are accurate to
+#: ~1e-13 up to 2 pi (the model itself is valid for |q| <= pi, the paper's Assumption 2).
+MAX_CURVATURE = 2.0 * np.pi
+
+
+def check_curvature(q: np.ndarray) -> None:
+    """Reject curvatures where the series evaluation is no longer accurate (never silently wrong)."""
+    arms = q[..., 3:5]
+    if arms.size and not np.all(np.abs(arms) <= MAX_CURVATURE):
+        bad = arms[~(np.abs(arms) <= MAX_CURVATURE)]
+        raise ValueError(
+            f"arm curvatures must satisfy |q_l|, |q_r| <= 2 pi (the model is valid for |q| <= pi and its "
+            f"power series are accurate to ~1e-13 up to 2 pi), got {bad.ravel()[:4]}; a state this bent "
+            "(or NaN) usually means the simulation diverged"
+        )
+
+
 def param_matrix(params: SoftPVTOLParams) -> np.ndarray:
     """(1, 10) parameter matrix for the batched kernels."""
     if not isinstance(params, SoftPVTOLParams):

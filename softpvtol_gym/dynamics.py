@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _kernels as K
-from ._batching import broadcast_batch, param_matrix
+from ._batching import broadcast_batch, check_curvature, param_matrix
 from .params import SoftPVTOLParams
 
 __all__ = [
@@ -44,6 +44,7 @@ def input_map_code(input_map: str) -> int:
 def mass_matrix(q, params: SoftPVTOLParams) -> np.ndarray:
     """Inertia matrix D(q): (..., 5) -> (..., 5, 5), symmetric positive definite."""
     lead, (qf,) = broadcast_batch(q=(q, 5))
+    check_curvature(qf)
     out = np.empty((qf.shape[0], 5, 5))
     K.batch_mass_matrix(qf, param_matrix(params), out)
     return out.reshape(lead + (5, 5))
@@ -52,6 +53,7 @@ def mass_matrix(q, params: SoftPVTOLParams) -> np.ndarray:
 def coriolis_matrix(q, qdot, params: SoftPVTOLParams) -> np.ndarray:
     """Coriolis/centrifugal matrix C(q, qdot) (Christoffel symbols of the first kind): (..., 5, 5)."""
     lead, (qf, vf) = broadcast_batch(q=(q, 5), qdot=(qdot, 5))
+    check_curvature(qf)
     out = np.empty((qf.shape[0], 5, 5))
     K.batch_coriolis_matrix(qf, vf, param_matrix(params), out)
     return out.reshape(lead + (5, 5))
@@ -60,6 +62,7 @@ def coriolis_matrix(q, qdot, params: SoftPVTOLParams) -> np.ndarray:
 def gravity_vector(q, params: SoftPVTOLParams) -> np.ndarray:
     """Gravity vector g(q) = dP/dq: (..., 5)."""
     lead, (qf,) = broadcast_batch(q=(q, 5))
+    check_curvature(qf)
     out = np.empty((qf.shape[0], 5))
     K.batch_gravity_vector(qf, param_matrix(params), out)
     return out.reshape(lead + (5,))
@@ -74,6 +77,7 @@ def generalized_forces(q, actuators, params: SoftPVTOLParams, input_map: str = "
     """
     code = input_map_code(input_map)
     lead, (qf, af) = broadcast_batch(q=(q, 5), actuators=(actuators, 4))
+    check_curvature(qf)
     out = np.empty((qf.shape[0], 5))
     K.batch_generalized_forces(qf, af, param_matrix(params), code, out)
     return out.reshape(lead + (5,))
@@ -82,6 +86,7 @@ def generalized_forces(q, actuators, params: SoftPVTOLParams, input_map: str = "
 def forward_dynamics(q, qdot, tau, params: SoftPVTOLParams) -> np.ndarray:
     """Accelerations qddot = D(q)^-1 (tau - C(q, qdot) qdot - g(q)): (..., 5)."""
     lead, (qf, vf, tf) = broadcast_batch(q=(q, 5), qdot=(qdot, 5), tau=(tau, 5))
+    check_curvature(qf)
     out = np.empty((qf.shape[0], 5))
     K.batch_forward_dynamics(qf, vf, tf, param_matrix(params), out)
     return out.reshape(lead + (5,))
@@ -89,6 +94,7 @@ def forward_dynamics(q, qdot, tau, params: SoftPVTOLParams) -> np.ndarray:
 
 def _energies(q, qdot, params) -> tuple[tuple[int, ...], np.ndarray]:
     lead, (qf, vf) = broadcast_batch(q=(q, 5), qdot=(qdot, 5))
+    check_curvature(qf)
     out = np.empty((qf.shape[0], 2))
     K.batch_energies(qf, vf, param_matrix(params), out)
     return lead, out
@@ -121,6 +127,7 @@ def arm_tip_positions(q, params: SoftPVTOLParams) -> np.ndarray:
     (The paper's eq. (coords) omits R(theta); see docs/model.md.)
     """
     lead, (qf,) = broadcast_batch(q=(q, 5))
+    check_curvature(qf)
     out = np.empty((qf.shape[0], 2, 2))
     K.batch_tip_positions(qf, param_matrix(params), out)
     return out.reshape(lead + (2, 2))

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from . import _kernels as K
-from ._batching import broadcast_batch, param_matrix
+from ._batching import broadcast_batch, check_curvature, param_matrix
 from .params import SoftPVTOLParams
 
 __all__ = ["rk4_step", "rollout"]
@@ -26,6 +26,7 @@ def rk4_step(q, qdot, tau, params: SoftPVTOLParams, dt: float = 0.01) -> tuple[n
     """
     dt = _check_dt(dt)
     lead, (qf, vf, tf) = broadcast_batch(q=(q, 5), qdot=(qdot, 5), tau=(tau, 5))
+    check_curvature(qf)
     q_out = np.empty_like(qf)
     v_out = np.empty_like(vf)
     K.batch_rk4_step(qf, vf, tf, param_matrix(params), dt, q_out, v_out)

@@ -12,7 +12,8 @@ The reference is built here from scratch, following Sec. 2 / Appendix A of the p
 
 Every reference value is evaluated with mpmath at ``_DPS`` significant digits from the *closed forms*
 (which lose up to ~50 digits to cancellation near q = 0, far less than ``_DPS``), and at exactly
-q = 0 from the symbolic limit (``sympy.limit``). The package is then required to agree to 1e-10
+q = 0 from the exact symbolic limit (series expansion, ``limit_at_zero``, checked against
+``sympy.limit``). The package is then required to agree to 1e-10
 relative to max(1, |reference entry|).
 """
 
@@ -22,6 +23,7 @@ import functools
 import zlib
 
 import mpmath
+import numba
 import numpy as np
 import pytest
 import sympy as sp
@@ -36,7 +38,41 @@ SPECIAL_Q = [0.0, 1e-9, 1e-6, 0.1 - 1e-9, 0.1, 0.1 + 1e-9, np.pi, -np.pi, 1.0]
 PARAM_NAMES = ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r", "g", "epsilon")
 
 
+@pytest.fixture(autouse=True)
+def _one_numba_thread():
+    """Run the kernels' prange loops on one thread: these tests make thousands of tiny calls, and on
+    a loaded 2-core machine each multi-threaded parallel region costs ~1 ms of spinning/waiting.
+    (Results are per element and do not depend on the thread count; the batching test restores
+    all threads for itself.)"""
+    old = numba.get_num_threads()
+    numba.set_num_threads(1)
+    yield
+    numba.set_num_threads(old)
+
+
 # ------------------------------------------------------------------------------ symbolic model
+_MAX_POLE = 6  # the closed forms have poles of order <= 5 in each curvature
+
+
+@functools.lru_cache(maxsize=None)
+def limit_at_zero(expr, var):
+    """Exact lim_{var -> 0} of an expression polynomial in (var, 1/var, sin var, cos var).
+
+    sin and cos are replaced by their Taylor polynomials (exact rationals, far beyond the pole
+    order), which makes var^_MAX_POLE * expr an exact polynomial in var up to terms of degree
+    > _MAX_POLE. Its coefficients below _MAX_POLE (the poles) must vanish identically, and the one of
+    var^_MAX_POLE is the limit. (Cross-checked against sympy.limit; ~20x faster.)
+    """
+    order = 2 * _MAX_POLE + 3
+    sin_p = sum((-1) ** k * var ** (2 * k + 1) / sp.factorial(2 * k + 1) for k in range(order // 2 + 1))
+    cos_p = sum((-1) ** k * var ** (2 * k) / sp.factorial(2 * k) for k in range(order // 2 + 1))
+    poly = sp.Poly(sp.expand(expr.subs({sp.sin(var): sin_p, sp.cos(var): cos_p}) * var**_MAX_POLE), var)
+    coeffs = dict(zip((m[0] for m in poly.monoms()), poly.coeffs()))
+    for k in range(_MAX_POLE):
+        assert sp.expand(coeffs.get(k, 0)) == 0, f"pole of order {_MAX_POLE - k} in {expr}"
+    return coeffs.get(_MAX_POLE, sp.Integer(0))
+
+
 @functools.lru_cache(maxsize=None)
 def _symbolic_model():
     """Derive everything symbolically once; return mpmath-lambdified evaluators per q = 0 pattern."""
@@ -121,9 +157,9 @@ def _symbolic_model():
         out = []
         for e in exprs:
             if at_l and e.has(ql):
-                e = sp.limit(e, ql, 0)
+                e = limit_at_zero(e, ql)
             if at_r and e.has(qr):
-                e = sp.limit(e, qr, 0)
+                e = limit_at_zero(e, qr)
             out.append(e)
         return out
 
@@ -259,3 +295,35 @@ def test_tips_at_theta_zero_are_the_papers_positions(seed):
         ]
     )
     np.testing.assert_allclose(tips, expected, rtol=1e-13, atol=1e-13)
+
+
+@pytest.mark.parametrize("q_arm", [3 * np.pi, 4 * np.pi, 6 * np.pi])
+def test_large_curvature_is_accurate_or_rejected(q_arm):
+    """The model has no singularity at any curvature (paper, Sec. 5). A curvature outside the series'
+    range must either be evaluated correctly or be rejected with ValueError, never silently wrong."""
+    rng = np.random.default_rng(99)
+    p = random_params(rng)
+    q, qd, a = random_state(rng)
+    q[3], q[4] = q_arm, -0.5 * q_arm
+    try:
+        got = package(q, qd, p, a)
+    except ValueError:
+        return
+    assert_matches(got, reference(q, qd, p, a), f"q_l={q_arm!r}, q_r={-0.5 * q_arm!r}")
+
+
+def test_series_limit_helper_agrees_with_sympy_limit():
+    """The reference's limit_at_zero (used at q = 0) against sympy.limit, and it detects poles."""
+    q, l, m = sp.symbols("q l m", positive=True)
+    exprs = [
+        sp.sin(q) / q,
+        # the paper's printed d44 and c44 (Sec. 2.2) with I_l = 0, q_l' = 1
+        l**2 * m * (1 / q**2 + 2 / q**4 - 2 * sp.cos(q) / q**4 - 2 * sp.sin(q) / q**3),
+        -(l**2) * m / q**3 - 4 * l**2 * m / q**5 + l**2 * m * (q * sp.sin(q) + 4 * sp.cos(q)) / q**5
+        - l**2 * m * (q * sp.cos(q) - 3 * sp.sin(q)) / q**4,
+        (sp.cos(q) + q * sp.sin(q) - 1) / q**2 * sp.cos(q) ** 2 + m,
+    ]
+    for e in exprs:
+        assert sp.simplify(limit_at_zero(e, q) - sp.limit(e, q, 0)) == 0, e
+    with pytest.raises(AssertionError, match="pole"):
+        limit_at_zero((1 - sp.cos(q)) / q**3, q)

@@ -11,6 +11,8 @@ control step and the arm rows the new ones (one-step delay, documented in docs/c
 
 Loops (``LOOPS``):
     ``"paper"``     paper allocation, arm references with zero velocity/acceleration (as printed).
+    ``"exact"``     exact allocation, arm references with zero velocity/acceleration: the robust
+                    choice under actuator saturation and zero-order hold (the env's base controller).
     ``"improved"``  exact allocation and arm references fed forward with their velocity and
                     acceleration (second-order backward differences of q^d): converges (see README).
     ``"ideal"``     tau applied directly as the generalized force (the setting of Theorem 1).
@@ -34,6 +36,7 @@ __all__ = ["LOOPS", "ControlOutput", "PassivityController", "simulate_closed_loo
 
 LOOPS: dict[str, dict] = {
     "paper": dict(allocation="paper", arm_feedforward=False),
+    "exact": dict(allocation="exact", arm_feedforward=False),
     "improved": dict(allocation="exact", arm_feedforward=True),
     "ideal": dict(allocation="ideal", arm_feedforward=False),
 }

@@ -1,0 +1,68 @@
+"""Passivity policy on every task x tier of SoftPVTOL-v0 (default env settings, actuators mode).
+
+    python baselines/passivity_metrics.py [--episodes 10] [--seed 100] [--json baselines/results/passivity_metrics.json]
+
+For each cell: mean over episodes of the RMS position error [m] over the episode (until it ends) and
+the crash rate (fraction of episodes that terminated before the time limit).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from softpvtol_gym import PassivityPolicy  # noqa: E402
+from softpvtol_gym.envs.core import TASKS, TIERS  # noqa: E402
+from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv  # noqa: E402
+
+
+def run_cell(task: str, tier: str, episodes: int, seed: int) -> dict:
+    env = SoftPVTOLVectorEnv(num_envs=episodes, task=task, tier=tier, action_mode="actuators")
+    pol = PassivityPolicy.from_env(env)
+    obs, _ = env.reset(seed=seed)
+    sq, cnt = np.zeros(episodes), np.zeros(episodes)
+    done, crashed = np.zeros(episodes, bool), np.zeros(episodes, bool)
+    start = np.ones(episodes, bool)
+    while not done.all():
+        a, _ = pol.predict(obs, episode_start=start)
+        start[:] = False
+        obs, _, term, trunc, _ = env.step(a)
+        q, _ = env.state
+        e2 = np.sum((q[:, :2] - env._sim.qr[:, :2]) ** 2, axis=1)
+        sq[~done] += e2[~done]
+        cnt[~done] += 1
+        crashed |= term & ~done
+        done |= term | trunc
+    rms = np.sqrt(sq / np.maximum(cnt, 1))
+    return {"rms_position_error_m": float(rms.mean()), "crash_rate": float(crashed.mean()), "episodes": episodes}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--episodes", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=100)
+    ap.add_argument("--json", type=Path, default=Path(__file__).resolve().parent / "results" / "passivity_metrics.json")
+    args = ap.parse_args(argv)
+    if args.episodes < 1:
+        ap.error("--episodes must be >= 1")
+    cells, t0 = {}, time.perf_counter()
+    for task in TASKS:
+        for tier in TIERS:
+            cells[f"{task}/{tier}"] = m = run_cell(task, tier, args.episodes, args.seed)
+            print(f"{task:13s} {tier:9s} rms {m['rms_position_error_m']:.3f} m  crash {m['crash_rate']:.2f}", flush=True)
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    report = {"command": "python baselines/passivity_metrics.py" + (f" --episodes {args.episodes}" if args.episodes != 10 else ""),
+              "seed": args.seed, "action_mode": "actuators", "cells": cells, "wall_time_s": round(time.perf_counter() - t0, 1)}
+    args.json.write_text(json.dumps(report, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

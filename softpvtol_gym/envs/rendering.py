@@ -1,0 +1,111 @@
+"""pygame drawing of the Soft-PVTOL (gymnasium classic_control style)."""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from .. import _kernels as MK
+from .core import GROUND_Z, EnvConfig
+
+WIDTH, HEIGHT = 600, 450
+_ARC_POINTS = 16
+# world window (x_min, x_max, z_min) per task; z_max follows from the aspect ratio
+_VIEW = {"hover": (-4.0, 4.0, -1.5), "setpoint": (-5.0, 5.0, -1.5),
+         "track_paper": (-7.5, 7.5, -1.5), "track_random": (-5.0, 5.0, -1.0)}
+
+
+class Renderer:
+    def __init__(self, cfg: EnvConfig, mode: str, fps: int):
+        try:
+            import pygame
+        except ImportError as e:  # pragma: no cover
+            raise ImportError('pygame is needed for rendering: pip install "pygame>=2.1"') from e
+        self.pg = pygame
+        self.cfg = cfg
+        self.mode = mode
+        self.fps = fps
+        x0, x1, z0 = _VIEW[cfg.task]
+        self.scale = WIDTH / (x1 - x0)
+        self.x0, self.z0 = x0, z0
+        self.trail: deque = deque(maxlen=300)
+        self.screen = None
+        self.clock = None
+
+    def clear_trail(self) -> None:
+        self.trail.clear()
+
+    def _px(self, x: float, z: float) -> tuple[int, int]:
+        return int(round((x - self.x0) * self.scale)), int(round(HEIGHT - (z - self.z0) * self.scale))
+
+    def draw(self, q, q_ref, p, applied, t):
+        pg = self.pg
+        if self.screen is None:
+            pg.init()
+            if self.mode == "human":
+                pg.display.init()
+                self.screen = pg.display.set_mode((WIDTH, HEIGHT))
+            else:
+                self.screen = pg.Surface((WIDTH, HEIGHT))
+            self.clock = pg.time.Clock()
+        surf = pg.Surface((WIDTH, HEIGHT))
+        surf.fill((255, 255, 255))
+        x, z, th, ql, qr = (float(v) for v in q)
+        ok = all(math.isfinite(v) for v in (x, z, th, ql, qr))
+        # ground
+        gy = self._px(0.0, GROUND_Z)[1]
+        pg.draw.rect(surf, (215, 225, 205), pg.Rect(0, gy, WIDTH, HEIGHT - gy))
+        pg.draw.line(surf, (90, 110, 80), (0, gy), (WIDTH, gy), 2)
+        # trail and reference
+        if ok:
+            self.trail.append(self._px(x, z))
+        if len(self.trail) > 1:
+            pg.draw.lines(surf, (150, 170, 230), False, list(self.trail), 2)
+        rx, rz = self._px(float(q_ref[0]), float(q_ref[1]))
+        pg.draw.circle(surf, (220, 40, 40), (rx, rz), 6, 2)
+        pg.draw.line(surf, (220, 40, 40), (rx - 9, rz), (rx + 9, rz), 1)
+        pg.draw.line(surf, (220, 40, 40), (rx, rz - 9), (rx, rz + 9), 1)
+        if ok:
+            ct, st = math.cos(th), math.sin(th)
+            eps = float(p[9])
+            tips = []
+            for side, qa, length in ((-1.0, ql, float(p[6])), (1.0, qr, float(p[7]))):
+                pts = []
+                for s in np.linspace(0.0, 1.0, _ARC_POINTS):
+                    bx, bz = MK.arm_offset(s * qa, s * length, eps, side)
+                    pts.append(self._px(x + ct * bx - st * bz, z + st * bx + ct * bz))
+                pg.draw.lines(surf, (40, 40, 40), False, pts, 4)
+                pg.draw.circle(surf, (60, 60, 160), pts[-1], 6)
+                tips.append(pts[-1])
+            # body
+            bw, bh = 0.18, 0.10
+            corners = [(-bw, -bh), (bw, -bh), (bw, bh), (-bw, bh)]
+            poly = [self._px(x + ct * cx - st * cz, z + st * cx + ct * cz) for cx, cz in corners]
+            pg.draw.polygon(surf, (70, 70, 70), poly)
+            # thrust vectors: left along R(theta) (sin q_l, cos q_l), right along R(theta) (-sin q_r, cos q_r)
+            tmax = self.cfg.thrust_max
+            for i, (tip, qa, sgn) in enumerate(((tips[0], ql, 1.0), (tips[1], qr, -1.0))):
+                T = float(applied[i])
+                if not math.isfinite(T):
+                    continue
+                L = 1.2 * T / tmax * self.scale
+                dx, dz = sgn * math.sin(qa), math.cos(qa)
+                wx, wz = ct * dx - st * dz, st * dx + ct * dz
+                end = (int(round(tip[0] + L * wx)), int(round(tip[1] - L * wz)))
+                pg.draw.line(surf, (230, 130, 20), tip, end, 3)
+        self.screen.blit(surf, (0, 0))
+        if self.mode == "human":
+            pg.event.pump()
+            self.clock.tick(self.fps)
+            pg.display.flip()
+            return None
+        return np.transpose(np.array(pg.surfarray.pixels3d(self.screen)), axes=(1, 0, 2)).copy()
+
+    def close(self) -> None:
+        if self.screen is not None:
+            if self.mode == "human":
+                self.pg.display.quit()
+            self.pg.quit()
+            self.screen = None

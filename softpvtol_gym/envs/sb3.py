@@ -1,0 +1,98 @@
+"""stable-baselines3 ``VecEnv`` adapter over :class:`SoftPVTOLVectorEnv` (no sub-processes, no copies of envs)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium.vector import AutoresetMode
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+from .vector import SoftPVTOLVectorEnv
+
+
+class SoftPVTOLSB3VecEnv(VecEnv):
+    """SB3 VecEnv over the native vector env, with SB3's semantics: same-step autoreset, the last
+    observation of a finished episode in ``infos[i]["terminal_observation"]``,
+    ``infos[i]["TimeLimit.truncated"]`` (truncated and not terminated), and ``dones = terminated |
+    truncated``. Each info dict carries the env's per-step info of that sub-env (scalars).
+
+    ``SoftPVTOLSB3VecEnv(num_envs=8, task="hover", ...)`` or ``SoftPVTOLSB3VecEnv(vector_env=...)``.
+    ``seed(s)`` takes effect at the next reset, seeding sub-env i with s + i.
+    """
+
+    def __init__(self, num_envs: int = 1, vector_env: SoftPVTOLVectorEnv | None = None, **env_kwargs: Any):
+        if vector_env is None:
+            vector_env = SoftPVTOLVectorEnv(num_envs=num_envs, autoreset_mode=AutoresetMode.SAME_STEP, **env_kwargs)
+        elif env_kwargs:
+            raise ValueError("pass either vector_env or env kwargs, not both")
+        if vector_env.autoreset_mode != AutoresetMode.SAME_STEP:
+            raise ValueError("the SB3 adapter needs a SoftPVTOLVectorEnv with autoreset_mode='SameStep'")
+        self.venv = vector_env
+        self.config = vector_env.config
+        super().__init__(vector_env.num_envs, vector_env.single_observation_space, vector_env.single_action_space)
+        self._actions: np.ndarray | None = None
+        self._seed: int | None = None
+
+    # ------------------------------------------------------------------------------ VecEnv API
+    def reset(self):
+        obs, _ = self.venv.reset(seed=self._seed, options=self._options[0] if self._options else None)
+        self._seed = None
+        self._reset_options()
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions, dtype=np.float64).reshape(self.num_envs, -1)
+
+    def step_wait(self):
+        obs, rew, term, trunc, info = self.venv.step(self._actions)
+        dones = term | trunc
+        infos = self._split(info)
+        if dones.any():
+            final = info["final_obs"]
+            for i in np.flatnonzero(dones).tolist():
+                infos[i]["terminal_observation"] = final[i]
+                infos[i]["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
+        return obs, rew.astype(np.float32), dones, infos
+
+    def _split(self, info: dict) -> list[dict]:
+        n = self.num_envs
+        keys = [k for k in info if not k.startswith("_") and k not in ("final_obs", "final_info")]
+        out: list[dict] = [{} for _ in range(n)]
+        for k in keys:
+            v = info[k]
+            if isinstance(v, dict):
+                cols = {kk: vv.tolist() for kk, vv in v.items()}
+                for i in range(n):
+                    out[i][k] = {kk: vv[i] for kk, vv in cols.items()}
+            else:
+                vals = v.tolist()
+                for i in range(n):
+                    out[i][k] = vals[i]
+        return out
+
+    def seed(self, seed: int | None = None):
+        self._seed = seed
+        return [None if seed is None else seed + i for i in range(self.num_envs)]
+
+    def close(self) -> None:
+        self.venv.close()
+
+    def render(self, mode: str | None = None):
+        return self.venv.render()
+
+    def get_images(self):
+        return [self.venv.render()]
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        return [getattr(self.venv, attr_name) for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        setattr(self.venv, attr_name, value)
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+        fn = getattr(self.venv, method_name)
+        return [fn(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]

@@ -1,0 +1,252 @@
+"""SoftPVTOL-v0: the single Gymnasium environment."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from ..params import SoftPVTOLParams
+from . import core
+from .core import EnvConfig
+
+
+def make_spaces(cfg: EnvConfig) -> tuple[spaces.Box, spaces.Box]:
+    """(observation_space, action_space) of one env."""
+    obs = spaces.Box(-core.OBS_CLIP, core.OBS_CLIP, shape=(core.OBS_DIM,), dtype=np.float32)
+    act = spaces.Box(-1.0, 1.0, shape=(cfg.action_dim,), dtype=np.float32)
+    return obs, act
+
+
+class SoftPVTOLEnv(gym.Env):
+    r"""
+    ## Description
+
+    The Soft-PVTOL: a planar vertical take-off and landing robot whose two rotors sit at the tips of
+    soft, actively bent arms (constant-curvature model). Generalized coordinates
+    q = (x, z, theta, q_l, q_r): body position [m], pitch [rad], arm curvatures (bending angles)
+    [rad]. Physics: the package's compiled Euler-Lagrange model, integrated with classical RK4 at the
+    paper's 0.01 s step; one env step = ``frame_skip`` (default 1) RK4 steps with the command held
+    (zero-order hold). The control period is therefore 0.01 s: the arm loop of the passivity
+    controller is only stable with zero-order hold at dt <= ~0.01 s.
+
+    ## Action Space
+
+    ``Box(-1, 1, float32)``; the meaning depends on ``action_mode``:
+
+    | mode | dim | entries | physical value |
+    |---|---|---|---|
+    | ``"actuators"`` (default) | 4 | T_l, T_r, tau_l, tau_r | T = T_max (u + 1) / 2 in [0, T_max]; tau_arm = tau_max u |
+    | ``"virtual"`` | 5 | tau_x, tau_z, tau_theta, tau_ql, tau_qr | tau = offset + scale * u, offset = (0, M g, 0, 0, 0), scale = (2 M g, 2 M g, 20 N m, tau_max, tau_max) |
+    | ``"residual"`` | 5 (or 4) | correction to the passivity controller | ``residual_scale`` (0.2) x the virtual scales added to its tau (or, ``residual_space="actuators"``, 0.2 x (T_max/2, T_max/2, tau_max, tau_max) added to its actuators) |
+
+    T_max = 3 x the hover thrust per rotor (102.9 N with the default params), tau_max = 4 x the arm
+    gravity load g m_i l_i / 2 (9.8 N m), M g = total weight (68.6 N). In ``"virtual"`` mode the body
+    rows of tau go through the control allocation (``allocation``: "exact" default, or "paper") to
+    thrusts; the arm rows are the generalized arm forces (with ``input_map="exact"`` the thrusts' own
+    work on the curvatures is compensated); thrusts are saturated to [0, T_max] and arm torques to
+    ±tau_max (``info["thrust_saturated"]``, ``info["arm_torque_saturated"]``). ``allocation="ideal"``
+    applies tau directly as the generalized force (the paper's idealised loop, no saturation). In
+    ``"residual"`` mode the base controller is :class:`~softpvtol_gym.control.PassivityController`
+    with the nominal ``params`` ("exact" loop — exact allocation, no arm feedforward — for allocation "exact", "paper" loop for "paper"),
+    fed with the measured state; action 0 reproduces it exactly. Finite out-of-range actions are
+    clipped (``info["action_clipped"]``); NaN/inf or wrong shapes raise ValueError.
+
+    ## Observation Space
+
+    ``Box(-1e6, 1e6, (18,), float32)`` (entries are clipped to ±1e6 so they stay finite):
+
+    | idx | observation | unit |
+    |---|---|---|
+    | 0 | x - x_ref | m |
+    | 1 | z - z_ref | m |
+    | 2 | theta - theta_ref, wrapped to [-pi, pi) | rad |
+    | 3 | sin theta | - |
+    | 4 | cos theta | - |
+    | 5 | q_l (left arm curvature) | rad |
+    | 6 | q_r (right arm curvature) | rad |
+    | 7 | xdot | m/s |
+    | 8 | zdot | m/s |
+    | 9 | thetadot | rad/s |
+    | 10 | q_l dot | rad/s |
+    | 11 | q_r dot | rad/s |
+    | 12 | xdot_ref | m/s |
+    | 13 | zdot_ref | m/s |
+    | 14 | thetadot_ref | rad/s |
+    | 15 | xddot_ref | m/s^2 |
+    | 16 | zddot_ref | m/s^2 |
+    | 17 | thetaddot_ref | rad/s^2 |
+
+    Entries 0-11 are computed from the measured state (noisy in the "noisy"/"hard" tiers), 12-17
+    from the reference. This is everything the passivity controller needs
+    (:class:`~softpvtol_gym.PassivityPolicy` acts from it alone).
+
+    ## Rewards
+
+    r = 1 + position + attitude + velocity + effort + curvature + crash, with (each in ``info["reward_terms"]``)
+    position = -0.5 min(|(e_x, e_z)| / 2 m, 1); attitude = -0.1 min(|e_theta| / pi, 1);
+    velocity = -0.1 min(|(xdot, zdot, thetadot) - ref| / 5, 1);
+    effort = -0.1 min(mean(a_n^2), 1), a_n = ((T_l - T_h)/T_max, (T_r - T_h)/T_max, tau_l/tau_max, tau_r/tau_max)
+    of the applied actuators (T_h the hover thrust; ideal mode: the normalised tau);
+    curvature = -0.2 clip((max|q_arm| - pi/2) / (pi/2), 0, 1)^2; crash = -10 at termination.
+    Non-terminal rewards lie in [0, 1]; the terms use the true (noise-free) state.
+
+    ## Starting State
+
+    * ``"hover"``: setpoint (0, 2 m, 0); x, z uniform within ±1 m of it, theta, q_l, q_r in ±0.3 rad,
+      xdot, zdot in ±0.5 m/s, thetadot, arm rates in ±0.2 rad/s. 10 s.
+    * ``"setpoint"``: setpoint x in ±3 m, z in [0, 4] m, theta in ±0.3 rad; start x in ±3 m,
+      z in [0, 4] m, angles and rates as hover. 10 s.
+    * ``"track_paper"``: the paper's reference (x = 4 sin(t/2), z = 3 cos(t/10) + 4, theta = 0) from
+      q0 = (5, 0, 0.2 pi, 0.01 pi, -0.15 pi), qdot0 = 0 (deterministic). 40 s.
+    * ``"track_random"``: x_ref = sum_k A_k (sin(w_k t + phi_k) - sin phi_k), 3 terms, A_k in [0, 1] m;
+      z_ref = 3 m + the same with A_k in [0, 0.5] m; w_k in [0.2, 0.8] rad/s, phi_k in [0, 2 pi);
+      theta_ref = 0. Start at the reference plus half the hover perturbation. 20 s.
+
+    ``reset(options={"q0": ..., "qdot0": ..., "setpoint": (x, z, theta)})`` overrides them.
+
+    ## Episode End
+
+    Termination (``info["termination_reason"]``): ``"curvature_limit"`` |q_l| or |q_r| > pi (model
+    validity); ``"ground"`` z < -1 m; ``"out_of_bounds"`` |x| > 20 m, z > 20 m, |xdot| or |zdot| >
+    50 m/s, or |thetadot|, |q_arm dot| > 100 rad/s; ``"non_finite"`` the state became NaN/inf (the
+    last finite state and observation are returned). Truncation (``"time_limit"``) at the task's
+    episode length (or ``max_episode_seconds``); the env truncates itself, so ``gym.make`` and
+    ``gym.make_vec`` agree.
+
+    ## Arguments
+
+    * ``action_mode``: "actuators" | "virtual" | "residual".
+    * ``task``: "hover" | "setpoint" | "track_paper" | "track_random".
+    * ``tier``: "nominal" | "mismatch" (plant m, m_l, m_r, I, I_l, I_r, l_l, l_r each x U(0.8, 1.2)
+      per episode; controller and policy keep the nominal params) | "wind" (Ornstein-Uhlenbeck force
+      on x and z, std 3 N, correlation time 1 s) | "noisy" (Gaussian measurement noise of std
+      (0.02 m, 0.02 m, 0.01 rad, 0.02 rad, 0.02 rad) on q and (0.05, 0.05, 0.02, 0.05, 0.05) on qdot,
+      plus a first-order lag of time constant 0.05 s on the applied command) | "hard" (all).
+    * ``tier_options``: dict overriding ``mismatch_scale``, ``wind_std`` [N],
+      ``wind_correlation_time`` [s], ``obs_noise_scale`` (x the stds above), ``actuator_time_constant``
+      [s]; a value given by hand switches its effect on.
+    * ``params``: :class:`SoftPVTOLParams`, the nominal model (plant in the nominal tier, controller).
+    * ``input_map``: "paper" | "exact" (the plant's input map). ``allocation``: "exact" (default) |
+      "paper" | "ideal" (virtual mode only). ``residual_space``: "virtual" | "actuators".
+      ``residual_scale``: 0.2.
+    * ``frame_skip``: RK4 steps of 0.01 s per env step (default 1). ``max_episode_seconds``: override.
+    * ``render_mode``: None | "rgb_array" | "human".
+
+    All randomness comes from ``self.np_random`` (one block of uniforms per reset; per-step noise
+    from a counter-based generator keyed per episode), so trajectories are reproducible from the
+    seed and identical to the matching sub-env of :class:`SoftPVTOLVectorEnv`.
+
+    ## Version History
+
+    * v0: initial version.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+
+    def __init__(
+        self,
+        action_mode: str = "actuators",
+        task: str = "hover",
+        tier: str = "nominal",
+        params: SoftPVTOLParams | None = None,
+        input_map: str = "paper",
+        allocation: str | None = None,
+        residual_space: str = "virtual",
+        residual_scale: float = 0.2,
+        render_mode: str | None = None,
+        frame_skip: int = 1,
+        max_episode_seconds: float | None = None,
+        tier_options: dict | None = None,
+        actuator_limits: tuple | None = None,
+    ) -> None:
+        if params is None:
+            params = SoftPVTOLParams()
+        self.config = EnvConfig(
+            action_mode=action_mode, task=task, tier=tier, params=params, input_map=input_map,
+            allocation=allocation, residual_space=residual_space, frame_skip=frame_skip,
+            max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
+            actuator_limits=actuator_limits,
+        )
+        core._choice("render_mode", render_mode, core.RENDER_MODES)
+        self.render_mode = render_mode
+        self.observation_space, self.action_space = make_spaces(self.config)
+        self._sim = core.BatchSim(self.config, 1)
+        self.dt = self.config.dt
+        self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.dt)))
+        self._renderer = None
+        self._has_reset = False
+
+    # ------------------------------------------------------------------------------------ api
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        u = self.np_random.random(core.N_UNIFORMS)[None, :]
+        self._sim.reset_entries(np.array([0]), u, options)
+        self._has_reset = True
+        if self._renderer is not None:
+            self._renderer.clear_trail()
+        if self.render_mode == "human":
+            self.render()
+        return self._sim.obs[0].copy(), self._info(reset=True)
+
+    def step(self, action):
+        sim = self._sim
+        sim.check_action(action, batched=False)
+        sim.step()
+        code = int(sim.reason[0])
+        terminated = code != core.R_NONE
+        truncated = bool(sim.steps[0] >= sim.max_steps) and not terminated
+        info = self._info(reason=core.REASONS[code] if terminated else ("time_limit" if truncated else None))
+        if self.render_mode == "human":
+            self.render()
+        return sim.obs[0].copy(), float(sim.rew[0]), terminated, truncated, info
+
+    def _info(self, reset: bool = False, reason: str | None = None) -> dict[str, Any]:
+        sim = self._sim
+        d = sim.diag[0].tolist()
+        return {
+            "reward_terms": dict(zip(core.REWARD_TERMS, sim.terms[0].tolist())),
+            "total_energy": d[core.D_ENERGY],
+            "storage_function": d[core.D_STORAGE],
+            "curvature_violation": d[core.D_CURV_VIOL],
+            "allocation_residual": d[core.D_ALLOC_RES],
+            "thrust_saturated": bool(d[core.D_THRUST_SAT]),
+            "arm_torque_saturated": bool(d[core.D_TORQUE_SAT]),
+            "action_clipped": bool(sim.clipped[0]),
+            "termination_reason": reason,
+            "time": float(sim.t[0]),
+        }
+
+    # --------------------------------------------------------------------------------- access
+    @property
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """True (q, qdot) of the plant (copies)."""
+        return self._sim.q[0].copy(), self._sim.qd[0].copy()
+
+    @property
+    def plant_params(self) -> SoftPVTOLParams:
+        """Parameters of the plant in this episode (differ from ``params`` in the mismatch tiers)."""
+        return SoftPVTOLParams.from_array(self._sim.P[0])
+
+    # ------------------------------------------------------------------------------ rendering
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn(
+                "You are calling render method without specifying any render mode. You can specify the "
+                f'render_mode at initialization, e.g. gym.make("SoftPVTOL-v0", render_mode="rgb_array")'
+            )
+            return None
+        if self._renderer is None:
+            from .rendering import Renderer
+
+            self._renderer = Renderer(self.config, self.render_mode, self.metadata["render_fps"])
+        s = self._sim
+        return self._renderer.draw(s.q[0], s.qr[0], s.P[0], s.applied[0], s.t[0])
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

@@ -1,0 +1,197 @@
+"""Native vector env: N Soft-PVTOLs stepped as arrays through the same kernels as the single env."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from ..params import SoftPVTOLParams
+from . import core
+from .core import EnvConfig
+from .soft_pvtol import make_spaces
+
+
+class SoftPVTOLVectorEnv(VectorEnv):
+    """``num_envs`` SoftPVTOL envs in one set of arrays (see :class:`SoftPVTOLEnv` for the env).
+
+    Same arguments as :class:`SoftPVTOLEnv` plus ``num_envs`` and ``autoreset_mode``
+    (``"NextStep"`` default, as gymnasium's SyncVectorEnv, or ``"SameStep"``/``"Disabled"``).
+    Sub-env i has its own ``numpy.random.Generator``; ``reset(seed=s)`` seeds it with s + i exactly as
+    SyncVectorEnv does, so with the same actions sub-env i reproduces bit for bit the trajectory of a
+    single env reset with seed s + i (resets use one block of uniforms per sub-env; per-step noise is
+    counter based). ``step`` has no Python loop over sub-envs except over those being reset.
+
+    Infos are a dict of arrays (gymnasium's vector convention, each with its ``_name`` mask):
+    ``reward_terms`` (a dict of arrays), ``total_energy``, ``storage_function``,
+    ``curvature_violation``, ``allocation_residual``, ``thrust_saturated``, ``arm_torque_saturated``,
+    ``action_clipped``, ``termination_reason`` (object array, None where not done), ``time``.
+    With SameStep autoreset, ``final_obs``/``final_info`` as in gymnasium.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP, "render_fps": 100}
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        action_mode: str = "actuators",
+        task: str = "hover",
+        tier: str = "nominal",
+        params: SoftPVTOLParams | None = None,
+        input_map: str = "paper",
+        allocation: str | None = None,
+        residual_space: str = "virtual",
+        residual_scale: float = 0.2,
+        render_mode: str | None = None,
+        frame_skip: int = 1,
+        max_episode_seconds: float | None = None,
+        tier_options: dict | None = None,
+        actuator_limits: tuple | None = None,
+        autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
+    ) -> None:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs must be an int >= 1, got {num_envs!r}")
+        if params is None:
+            params = SoftPVTOLParams()
+        self.config = EnvConfig(
+            action_mode=action_mode, task=task, tier=tier, params=params, input_map=input_map,
+            allocation=allocation, residual_space=residual_space, frame_skip=frame_skip,
+            max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
+            actuator_limits=actuator_limits,
+        )
+        core._choice("render_mode", render_mode, (None, "rgb_array"))
+        try:
+            self.autoreset_mode = AutoresetMode(autoreset_mode)
+        except ValueError:
+            raise ValueError(
+                f"autoreset_mode must be one of {[m.value for m in AutoresetMode]}, got {autoreset_mode!r}"
+            ) from None
+        self.metadata = dict(self.metadata, autoreset_mode=self.autoreset_mode,
+                             render_fps=int(round(1.0 / self.config.dt)))
+        self.render_mode = render_mode
+        self.num_envs = int(num_envs)
+        self.single_observation_space, self.single_action_space = make_spaces(self.config)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._sim = core.BatchSim(self.config, self.num_envs)
+        self._rngs: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(self.num_envs)]
+        self._autoreset = np.zeros(self.num_envs, dtype=bool)
+        self._all = np.arange(self.num_envs)
+        self._true = np.ones(self.num_envs, dtype=bool)
+        self._renderer = None
+
+    # ------------------------------------------------------------------------------ seeding
+    def _draw(self, idx: np.ndarray) -> np.ndarray:
+        u = np.empty((idx.size, core.N_UNIFORMS))
+        for j, i in enumerate(idx.tolist()):
+            u[j] = self._rngs[i].random(core.N_UNIFORMS)
+        return u
+
+    def reset(self, *, seed: int | list | None = None, options: dict | None = None):
+        if seed is not None:
+            if isinstance(seed, (int, np.integer)):
+                seeds = [int(seed) + i for i in range(self.num_envs)]
+            else:
+                seeds = list(seed)
+                if len(seeds) != self.num_envs:
+                    raise ValueError(f"seed list must have num_envs={self.num_envs} entries, got {len(seeds)}")
+            self._rngs = [seeding.np_random(s)[0] for s in seeds]
+            self._np_random, self._np_random_seed = seeding.np_random(seeds[0])
+        self._sim.reset_entries(self._all, self._draw(self._all), options)
+        self._autoreset[:] = False
+        if self._renderer is not None:
+            self._renderer.clear_trail()
+        return self._sim.obs.copy(), self._infos(None)
+
+    def step(self, actions):
+        sim = self._sim
+        sim.check_action(actions, batched=True)
+        sim.step()
+        reason = sim.reason
+        terminated = reason != core.R_NONE
+        truncated = (sim.steps >= sim.max_steps) & ~terminated
+        rewards = sim.rew.copy()
+        reasons = None
+        done = terminated | truncated
+        if done.any():
+            reasons = np.full(self.num_envs, None, dtype=object)
+            r_names = np.array(core.REASONS, dtype=object)
+            reasons[terminated] = r_names[reason[terminated]]
+            reasons[truncated] = "time_limit"
+        mode = self.autoreset_mode
+        if mode == AutoresetMode.NEXT_STEP:
+            idx = np.flatnonzero(self._autoreset)
+            if idx.size:
+                sim.reset_entries(idx, self._draw(idx))
+                rewards[idx] = 0.0
+                terminated[idx] = False
+                truncated[idx] = False
+                if reasons is not None:
+                    reasons[idx] = None
+            infos = self._infos(reasons)
+            obs = sim.obs.copy()
+            self._autoreset = terminated | truncated
+        elif mode == AutoresetMode.SAME_STEP:
+            infos = self._infos(reasons)
+            obs = sim.obs.copy()
+            idx = np.flatnonzero(done)
+            if idx.size:
+                final_obs = np.full(self.num_envs, None, dtype=object)
+                for i in idx.tolist():
+                    final_obs[i] = obs[i].copy()
+                infos["final_obs"] = final_obs
+                infos["_final_obs"] = done.copy()
+                infos["final_info"] = self._infos(reasons)
+                infos["_final_info"] = done.copy()
+                sim.reset_entries(idx, self._draw(idx))
+                obs[idx] = sim.obs[idx]
+        else:
+            infos = self._infos(reasons)
+            obs = sim.obs.copy()
+        return obs, rewards, terminated, truncated, infos
+
+    def _infos(self, reasons) -> dict[str, Any]:
+        sim = self._sim
+        d = sim.diag
+        m = self._true
+        terms = {name: sim.terms[:, i].copy() for i, name in enumerate(core.REWARD_TERMS)}
+        info = {
+            "reward_terms": terms,
+            "total_energy": d[:, core.D_ENERGY].copy(),
+            "storage_function": d[:, core.D_STORAGE].copy(),
+            "curvature_violation": d[:, core.D_CURV_VIOL].copy(),
+            "allocation_residual": d[:, core.D_ALLOC_RES].copy(),
+            "thrust_saturated": d[:, core.D_THRUST_SAT] > 0.5,
+            "arm_torque_saturated": d[:, core.D_TORQUE_SAT] > 0.5,
+            "action_clipped": sim.clipped.copy(),
+            "termination_reason": (np.full(self.num_envs, None, dtype=object) if reasons is None else reasons),
+            "time": sim.t.copy(),
+        }
+        for k in list(info):
+            info["_" + k] = m
+        info["_reward_terms"] = m
+        return info
+
+    # --------------------------------------------------------------------------------- access
+    @property
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._sim.q.copy(), self._sim.qd.copy()
+
+    def render(self):
+        """rgb_array of sub-env 0."""
+        if self.render_mode is None:
+            return None
+        if self._renderer is None:
+            from .rendering import Renderer
+
+            self._renderer = Renderer(self.config, "rgb_array", self.metadata["render_fps"])
+        s = self._sim
+        return self._renderer.draw(s.q[0], s.qr[0], s.P[0], s.applied[0], s.t[0])
+
+    def close_extras(self, **kwargs):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

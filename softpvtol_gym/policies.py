@@ -1,0 +1,120 @@
+"""Analytic policies with the stable-baselines3 ``predict`` interface."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .control import PassivityController
+from .control.passivity import PassivityGains
+from .envs.core import OBS_DIM, EnvConfig
+
+__all__ = ["PassivityPolicy"]
+
+
+class PassivityPolicy:
+    """The paper's passivity controller acting from SoftPVTOL observations only.
+
+    ``predict(observation, state=None, episode_start=None, deterministic=True) -> (action, state)``
+    like a stable-baselines3 policy, for single (18,) or batched (N, 18) observations, returning the
+    action in the env's normalised action space:
+
+    * ``"actuators"``: the allocated actuators (T_l, T_r, tau_l, tau_r) scaled to [-1, 1] and clipped;
+    * ``"virtual"``: the controller's generalized force tau scaled (ideal loop for allocation "ideal");
+    * ``"residual"``: zeros (the env's base controller is this controller).
+
+    From the observation it rebuilds q = (e_x, e_z, theta, q_l, q_r) with theta = atan2(sin, cos),
+    the reference (0, 0, theta - e_theta), qdot, and the reference velocity/acceleration; the
+    controller needs nothing else (D, C, g depend on the curvatures only, the allocation on theta).
+    The controller keeps memory (allocation warm start, arm-reference history) per batch entry; it is
+    reset where ``episode_start`` is True (and entirely when the batch size changes).
+
+    Args:
+        config: the env's :class:`EnvConfig` (use :meth:`from_env`).
+        loop: PassivityController loop ("exact", "improved", "paper", "ideal"); default from the env's
+            allocation ("exact" -> "exact", "paper" -> "paper", "ideal" -> "ideal").
+        gains: :class:`PassivityGains`.
+    """
+
+    def __init__(self, config: EnvConfig, loop: str | None = None, gains: PassivityGains | None = None):
+        if not isinstance(config, EnvConfig):
+            raise ValueError(f"config must be an EnvConfig, got {type(config).__name__}")
+        self.config = config
+        self.loop = config.controller_loop if loop is None else loop
+        if config.action_mode == "virtual" and config.resolved_allocation == "ideal" and self.loop != "ideal":
+            raise ValueError("with allocation='ideal' the policy must use loop='ideal'")
+        self.controller = PassivityController.from_loop(
+            self.loop, params=config.params, gains=gains, input_map=config.input_map, dt=config.dt
+        )
+        self._n: int | None = None
+        self._scale = config.virtual_scale
+        self._offset = config.virtual_offset
+        self._tmax = config.thrust_max
+        self._taumax = config.arm_torque_max
+
+    @classmethod
+    def from_env(cls, env, loop: str | None = None, gains: PassivityGains | None = None) -> "PassivityPolicy":
+        """Policy for a SoftPVTOLEnv / SoftPVTOLVectorEnv (wrapped or not) or the SB3 adapter."""
+        cfg = getattr(env, "config", None)
+        if cfg is None and hasattr(env, "unwrapped"):
+            cfg = getattr(env.unwrapped, "config", None)
+        if cfg is None and hasattr(env, "venv"):
+            cfg = getattr(env.venv, "config", None)
+        if cfg is None and hasattr(env, "get_wrapper_attr"):
+            cfg = env.get_wrapper_attr("config")
+        if not isinstance(cfg, EnvConfig):
+            raise ValueError(f"cannot find a SoftPVTOL EnvConfig on {env!r}")
+        return cls(cfg, loop=loop, gains=gains)
+
+    def reset(self) -> None:
+        self.controller.reset()
+        self._n = None
+
+    @staticmethod
+    def state_from_observation(obs: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(q, qdot, q_ref, qdot_ref, qddot_ref), each (N, 5), from observations (N, 18)."""
+        obs = np.asarray(obs, dtype=np.float64)
+        n = obs.shape[0]
+        theta = np.arctan2(obs[:, 3], obs[:, 4])
+        q = np.zeros((n, 5))
+        q[:, 0], q[:, 1], q[:, 2], q[:, 3], q[:, 4] = obs[:, 0], obs[:, 1], theta, obs[:, 5], obs[:, 6]
+        q_ref = np.zeros((n, 5))
+        q_ref[:, 2] = theta - obs[:, 2]
+        qd = obs[:, 7:12].copy()
+        qdr = np.zeros((n, 5))
+        qdr[:, :3] = obs[:, 12:15]
+        qddr = np.zeros((n, 5))
+        qddr[:, :3] = obs[:, 15:18]
+        return q, qd, q_ref, qdr, qddr
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        obs = np.asarray(observation, dtype=np.float64)
+        single = obs.ndim == 1
+        if obs.shape[-1] != OBS_DIM or obs.ndim not in (1, 2):
+            raise ValueError(f"observation must have shape ({OBS_DIM},) or (N, {OBS_DIM}), got {obs.shape}")
+        obs = obs.reshape(-1, OBS_DIM)
+        n = obs.shape[0]
+        if self._n != n:
+            self.controller.reset()
+            self._n = n
+        elif episode_start is not None:
+            mask = np.asarray(episode_start, dtype=bool).reshape(-1)
+            if mask.size == 1 and n > 1:
+                mask = np.repeat(mask, n)
+            if mask.all():
+                self.controller.reset(np.ones(n, dtype=bool))
+            elif mask.any():
+                self.controller.reset(mask)
+        cfg = self.config
+        if cfg.action_mode == "residual":
+            action = np.zeros((n, cfg.action_dim), dtype=np.float32)
+        else:
+            out = self.controller(*self.state_from_observation(obs))
+            if cfg.action_mode == "virtual":
+                u = (out.tau - self._offset) / self._scale
+            else:
+                a = out.actuators
+                u = np.empty((n, 4))
+                u[:, 0:2] = 2.0 * a[:, 0:2] / self._tmax - 1.0
+                u[:, 2:4] = a[:, 2:4] / self._taumax
+            action = np.clip(u, -1.0, 1.0).astype(np.float32)
+        return (action[0] if single else action), state

@@ -1,0 +1,132 @@
+"""Native vector env: bit-for-bit equality with single envs, autoreset, random-action robustness, SB3 adapter."""
+
+import numpy as np
+import pytest
+
+from softpvtol_gym import SoftPVTOLEnv, SoftPVTOLVectorEnv
+from softpvtol_gym.envs import core
+
+
+@pytest.mark.parametrize(
+    "mode, tier",
+    [("actuators", "hard"), ("virtual", "noisy"), ("residual", "wind"), ("actuators", "mismatch")],
+)
+def test_subenv_matches_single_env_bit_for_bit(mode, tier):
+    """Same actions: sub-env i == single env reset with seed s + i, across terminations/autoresets."""
+    n, s, steps = 3, 11, 120
+    kw = dict(action_mode=mode, tier=tier, task="track_random", max_episode_seconds=0.4)
+    venv = SoftPVTOLVectorEnv(num_envs=n, **kw)
+    singles = [SoftPVTOLEnv(**kw) for _ in range(n)]
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1.5, 1.5, (steps, n, venv.single_action_space.shape[0]))
+    vo, _ = venv.reset(seed=s)
+    so = [e.reset(seed=s + i)[0] for i, e in enumerate(singles)]
+    np.testing.assert_array_equal(vo, np.stack(so))
+    need_reset = [False] * n
+    n_done = 0
+    for k in range(steps):
+        vo, vr, vterm, vtrunc, _ = venv.step(actions[k])
+        for i, e in enumerate(singles):
+            if need_reset[i]:  # NEXT_STEP autoreset: this step only resets
+                o, _ = e.reset()
+                r, term, trunc = 0.0, False, False
+                need_reset[i] = False
+            else:
+                o, r, term, trunc, _ = e.step(actions[k, i])
+                need_reset[i] = term or trunc
+                n_done += term or trunc
+            np.testing.assert_array_equal(vo[i], o)
+            assert vr[i] == r and vterm[i] == term and vtrunc[i] == trunc
+    assert n_done >= n  # at least one episode end (and autoreset) per sub-env
+
+
+def test_terminated_episode_reports_reason():
+    v = SoftPVTOLVectorEnv(num_envs=16, action_mode="actuators", tier="nominal")
+    v.reset(seed=0)
+    seen = set()
+    for _ in range(400):
+        a = np.tile([[1.0, -1.0, 1.0, -1.0]], (16, 1))
+        _, _, term, trunc, info = v.step(a)
+        for i in np.flatnonzero(term):
+            seen.add(info["termination_reason"][i])
+    assert seen and seen <= set(core.REASONS[1:])
+
+
+MODES_TIERS = [(m, t) for m in ("actuators", "virtual", "residual") for t in core.TIERS]
+
+
+@pytest.mark.parametrize("mode, tier", MODES_TIERS)
+def test_random_actions_never_nan(mode, tier):
+    """15 configurations x 64 envs x ~105 steps ~ 100,000 random-action steps in total."""
+    n, steps = 64, 105
+    task = core.TASKS[hash((mode, tier)) % 4] if False else ("hover", "setpoint", "track_paper", "track_random")[
+        MODES_TIERS.index((mode, tier)) % 4]
+    v = SoftPVTOLVectorEnv(num_envs=n, action_mode=mode, tier=tier, task=task, max_episode_seconds=0.8)
+    obs, _ = v.reset(seed=1)
+    rng = np.random.default_rng(2)
+    ends = 0
+    for _ in range(steps):
+        a = rng.uniform(-1, 1, (n, v.single_action_space.shape[0]))
+        obs, r, term, trunc, info = v.step(a)
+        assert np.isfinite(obs).all() and np.isfinite(r).all()
+        assert np.isfinite(info["total_energy"]).all()
+        for i in np.flatnonzero(term):
+            assert info["termination_reason"][i] in core.REASONS[1:]
+        for i in np.flatnonzero(trunc):
+            assert info["termination_reason"][i] == "time_limit"
+        ends += int((term | trunc).sum())
+    assert ends > 0
+
+
+def test_non_finite_state_terminates_with_finite_observation():
+    e = SoftPVTOLEnv(action_mode="virtual", allocation="ideal", params=None)
+    e.reset(seed=0, options={"q0": [0, 2, 0, 1e200, 0], "qdot0": [0, 0, 0, 1e200, 0]})
+    obs, r, term, trunc, info = e.step(np.zeros(5))
+    assert term and info["termination_reason"] == "non_finite"
+    assert np.isfinite(obs).all() and np.isfinite(r)
+
+
+@pytest.mark.parametrize("q0, reason", [
+    ([0, 2, 0, 3.1, 0], "curvature_limit"), ([0, -0.99, 0, 0, 0], "ground"), ([19.99, 2, 0, 0, 0], "out_of_bounds")])
+def test_termination_reasons(q0, reason):
+    e = SoftPVTOLEnv(action_mode="virtual", allocation="ideal")
+    qd = {"curvature_limit": [0, 0, 0, 20, 0], "ground": [0, -5, 0, 0, 0], "out_of_bounds": [5, 0, 0, 0, 0]}[reason]
+    e.reset(seed=0, options={"q0": q0, "qdot0": qd})
+    _, r, term, _, info = e.step(np.zeros(5))
+    assert term and info["termination_reason"] == reason
+    assert info["reward_terms"]["crash"] == -core.CRASH_PENALTY
+
+
+def test_vector_seeds_differ_between_subenvs():
+    v = SoftPVTOLVectorEnv(num_envs=4)
+    o, _ = v.reset(seed=0)
+    assert len({tuple(x) for x in o}) == 4
+
+
+def test_same_step_autoreset_final_obs():
+    v = SoftPVTOLVectorEnv(num_envs=2, max_episode_seconds=0.03, autoreset_mode="SameStep")
+    v.reset(seed=0)
+    for k in range(3):
+        obs, _, _, trunc, info = v.step(np.zeros((2, 4)))
+    assert trunc.all() and info["final_obs"][0].shape == (18,)
+    assert not np.array_equal(info["final_obs"][0], obs[0])
+
+
+def test_sb3_adapter_ppo_and_terminal_observation():
+    from stable_baselines3 import PPO
+
+    from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
+
+    venv = SoftPVTOLSB3VecEnv(num_envs=8, task="hover", max_episode_seconds=1.0)
+    model = PPO("MlpPolicy", venv, n_steps=64, batch_size=128, n_epochs=1, seed=0, device="cpu")
+    model.learn(total_timesteps=2048)
+    venv.seed(0)
+    venv.reset()
+    found = False
+    for _ in range(110):
+        obs, rew, dones, infos = venv.step(np.zeros((8, 4), np.float32))
+        for i in np.flatnonzero(dones):
+            assert infos[i]["terminal_observation"].shape == (18,)
+            assert "TimeLimit.truncated" in infos[i]
+            found = True
+    assert found
