@@ -14,34 +14,19 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from softpvtol_gym import PassivityPolicy  # noqa: E402
 from softpvtol_gym.envs.core import TASKS, TIERS  # noqa: E402
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv  # noqa: E402
 
+from baselines.evaluation import evaluate  # noqa: E402
+
 
 def run_cell(task: str, tier: str, episodes: int, seed: int) -> dict:
-    env = SoftPVTOLVectorEnv(num_envs=episodes, task=task, tier=tier, action_mode="actuators")
-    pol = PassivityPolicy.from_env(env)
-    obs, _ = env.reset(seed=seed)
-    sq, cnt = np.zeros(episodes), np.zeros(episodes)
-    done, crashed = np.zeros(episodes, bool), np.zeros(episodes, bool)
-    start = np.ones(episodes, bool)
-    while not done.all():
-        a, _ = pol.predict(obs, episode_start=start)
-        start[:] = False
-        obs, _, term, trunc, _ = env.step(a)
-        q, _ = env.state
-        e2 = np.sum((q[:, :2] - env._sim.qr[:, :2]) ** 2, axis=1)
-        sq[~done] += e2[~done]
-        cnt[~done] += 1
-        crashed |= term & ~done
-        done |= term | trunc
-    rms = np.sqrt(sq / np.maximum(cnt, 1))
-    return {"rms_position_error_m": float(rms.mean()), "crash_rate": float(crashed.mean()), "episodes": episodes}
+    env = SoftPVTOLVectorEnv(num_envs=1, task=task, tier=tier, action_mode="actuators")
+    m = evaluate(PassivityPolicy.from_env(env), "actuators", task, tier, episodes, seed)
+    return {k: m[k] for k in ("rms_position_error_m", "crash_rate", "episodes")}
 
 
 def main(argv=None) -> int:

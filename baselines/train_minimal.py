@@ -15,38 +15,14 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 
 from softpvtol_gym import PassivityPolicy
 from softpvtol_gym.envs.core import ACTION_MODES, TASKS, TIERS
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
+from baselines.evaluation import evaluate
+
 EVAL_SEED_OFFSET = 1_000_000  # evaluation seeds never overlap training seeds (training uses seed + i)
-
-
-def evaluate(policy, action_mode: str, task: str, tier: str, episodes: int, seed: int) -> dict:
-    """Run ``policy.predict`` on ``episodes`` seeded episodes; mean return, RMS position error, crashes."""
-    env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode=action_mode, task=task, tier=tier)
-    obs, _ = env.reset(seed=EVAL_SEED_OFFSET + seed)
-    ret, sq, cnt = np.zeros(episodes), np.zeros(episodes), np.zeros(episodes)
-    done, crashed, start = np.zeros(episodes, bool), np.zeros(episodes, bool), np.ones(episodes, bool)
-    while not done.all():
-        action, _ = policy.predict(obs, episode_start=start, deterministic=True)
-        start[:] = False
-        obs, reward, term, trunc, _ = env.step(action)
-        live = ~done
-        ret[live] += reward[live]
-        q, _ = env.state
-        sq[live] += np.sum((q[live, :2] - env._sim.qr[live, :2]) ** 2, axis=1)
-        cnt[live] += 1
-        crashed |= term & live
-        done |= term | trunc
-    return {
-        "mean_return": float(ret.mean()),
-        "rms_position_error_m": float(np.sqrt(sq / np.maximum(cnt, 1)).mean()),
-        "crash_rate": float(crashed.mean()),
-        "episodes": episodes,
-    }
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -90,9 +66,9 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     model.save(model_path)
     cell = (args.action_mode, args.task, args.tier)
-    learned = evaluate(model, *cell, args.eval_episodes, args.seed)
+    learned = evaluate(model, *cell, args.eval_episodes, EVAL_SEED_OFFSET + args.seed)
     probe = SoftPVTOLVectorEnv(num_envs=1, action_mode=args.action_mode, task=args.task, tier=args.tier)
-    passivity = evaluate(PassivityPolicy.from_env(probe), *cell, args.eval_episodes, args.seed)
+    passivity = evaluate(PassivityPolicy.from_env(probe), *cell, args.eval_episodes, EVAL_SEED_OFFSET + args.seed)
     report = {"config": {k: str(v) for k, v in vars(args).items()}, "train_seconds": round(train_s, 1),
               "ppo": learned, "passivity": passivity}
     (args.out / "result.json").write_text(json.dumps(report, indent=2))
