@@ -1,9 +1,4 @@
-"""Residual mode vs PassivityController (bit for bit), PassivityPolicy error bounds, rendering."""
-
-import os
-
-os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
-os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+"""Residual mode vs PassivityController (bit for bit), PassivityPolicy error bounds."""
 
 import gymnasium as gym
 import numpy as np
@@ -103,26 +98,3 @@ def test_passivity_policy_bad_observation():
     pol = PassivityPolicy.from_env(SoftPVTOLEnv())
     with pytest.raises(ValueError, match="observation must have shape"):
         pol.predict(np.zeros(7))
-
-
-# ------------------------------------------------------------------------------------ rendering
-def test_rgb_frame_changes_when_arms_bend():
-    env = SoftPVTOLEnv(render_mode="rgb_array")
-    env.reset(seed=0, options={"q0": [0, 2, 0, 0, 0], "qdot0": [0] * 5})
-    f0 = env.render()
-    env.reset(seed=0, options={"q0": [0, 2, 0, 1.5, -1.5], "qdot0": [0] * 5})
-    f1 = env.render()
-    assert f0.shape == (450, 600, 3) and f0.dtype == np.uint8
-    assert (f0 != f1).any(axis=2).sum() > 50
-    env.close()
-
-
-def test_record_video_if_moviepy_installed(tmp_path):
-    pytest.importorskip("moviepy")
-    env = gym.wrappers.RecordVideo(gym.make("SoftPVTOL-v0", render_mode="rgb_array"), str(tmp_path),
-                                   episode_trigger=lambda e: True)
-    env.reset(seed=0)
-    for _ in range(20):
-        env.step(env.action_space.sample())
-    env.close()
-    assert list(tmp_path.glob("*.mp4"))

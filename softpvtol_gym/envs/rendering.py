@@ -43,13 +43,17 @@ class Renderer:
     def draw(self, q, q_ref, p, applied, t):
         pg = self.pg
         if self.screen is None:
-            pg.init()
             if self.mode == "human":
+                # classic_control: a display window, flipped and ticked at metadata["render_fps"]
+                pg.init()
                 pg.display.init()
+                pg.display.set_caption("SoftPVTOL-v0")
                 self.screen = pg.display.set_mode((WIDTH, HEIGHT))
+                self.clock = pg.time.Clock()
             else:
+                # off-screen surface: needs no pygame.init(), so closing it cannot tear down a
+                # window that another env in the same process has open
                 self.screen = pg.Surface((WIDTH, HEIGHT))
-            self.clock = pg.time.Clock()
         surf = pg.Surface((WIDTH, HEIGHT))
         surf.fill((255, 255, 255))
         x, z, th, ql, qr = (float(v) for v in q)
@@ -104,8 +108,10 @@ class Renderer:
         return np.transpose(np.array(pg.surfarray.pixels3d(self.screen)), axes=(1, 0, 2)).copy()
 
     def close(self) -> None:
+        """Close the window (human mode) or drop the surface; safe to call more than once."""
         if self.screen is not None:
             if self.mode == "human":
                 self.pg.display.quit()
-            self.pg.quit()
+                self.pg.quit()
             self.screen = None
+            self.clock = None
