@@ -1,8 +1,9 @@
 """Train an agent on SoftPVTOL-v0 and compare it with the passivity controller.
 
-    python train.py [--action-mode residual] [--task hover] [--tier nominal] [--timesteps N] [--seed S] [--out DIR]
+    python train.py            # PPO, residual mode, hover task, nominal tier (the default agent)
+    python train.py --help     # every option
 
-Thin CLI; the logic lives in ``baselines/``.
+Thin CLI; the logic lives in ``baselines/`` (``baselines/train_agent.py``, ``baselines/training.py``).
 """
 
 import sys
@@ -10,7 +11,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from baselines.train_minimal import main  # noqa: E402
+from baselines.train_agent import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

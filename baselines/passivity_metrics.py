@@ -25,8 +25,8 @@ from baselines.evaluation import evaluate  # noqa: E402
 
 def run_cell(task: str, tier: str, episodes: int, seed: int) -> dict:
     env = SoftPVTOLVectorEnv(num_envs=1, task=task, tier=tier, action_mode="actuators")
-    m = evaluate(PassivityPolicy.from_env(env), "actuators", task, tier, episodes, seed)
-    return {k: m[k] for k in ("rms_position_error_m", "crash_rate", "episodes")}
+    m = evaluate(PassivityPolicy.from_env(env), "actuators", task, tier, episodes, seed)["summary"]
+    return {"rms_position_error_m": m["mean_rms_position_error"], "crash_rate": m["crash_rate"], "episodes": m["episodes"]}
 
 
 def main(argv=None) -> int:

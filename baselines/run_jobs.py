@@ -1,0 +1,52 @@
+"""Run the leaderboard's job list (``baselines/leaderboard.yml``) in parallel local processes.
+
+    python baselines/run_jobs.py [--workers 2] [--spec baselines/leaderboard.yml] [--only ppo_residual] [--list]
+
+Jobs already done (their ``eval.json`` exists under ``baselines/results/leaderboard_runs/``) are
+skipped, so an interrupted run is continued by running the command again. Afterwards
+``python baselines/leaderboard.py`` builds LEADERBOARD.md from the results.
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from baselines.jobs import RUNS_DIR, SPEC_FILE, load_jobs, pending, run_jobs  # noqa: E402
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--spec", type=Path, default=SPEC_FILE)
+    ap.add_argument("--root", type=Path, default=RUNS_DIR)
+    ap.add_argument("--only", default=None, help="run only jobs whose name contains this string")
+    ap.add_argument("--list", action="store_true", help="print the pending jobs and exit")
+    args = ap.parse_args(argv)
+    if args.workers < 1:
+        ap.error(f"--workers must be >= 1, got {args.workers}")
+    if not args.spec.is_file():
+        ap.error(f"no leaderboard spec at {args.spec}")
+    jobs = pending(load_jobs(args.spec), args.root)
+    if args.only:
+        jobs = [j for j in jobs if args.only in j.name]
+    # analytic jobs first (fast), then learned ones, longest first
+    jobs.sort(key=lambda j: (j.learned, -j.timesteps))
+    if args.list or not jobs:
+        for j in jobs:
+            print(j.name)
+        print(f"{len(jobs)} pending jobs")
+        return 0
+    with ProcessPoolExecutor(max_workers=args.workers, mp_context=mp.get_context("spawn")) as ex:
+        run_jobs(jobs, ex, args.root)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
