@@ -54,8 +54,19 @@ def apply_overrides(hyperparams: dict, overrides: list[str]) -> dict:
         key = key.strip()
         if not key:
             raise ConfigError(f"a hyperparameter override must look like key=value, got {item!r}")
-        out[key] = yaml.safe_load(raw)
+        out[key] = _parse_value(raw)
     return out
+
+
+def _parse_value(raw: str) -> Any:
+    """A YAML value, with numbers like ``1e-4`` (a string for YAML 1.1) read as floats."""
+    value = yaml.safe_load(raw)
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
 
 
 def algo_kwargs(hyperparams: dict) -> dict:

@@ -36,8 +36,7 @@ def main(argv=None) -> int:
     jobs = pending(load_jobs(args.spec), args.root)
     if args.only:
         jobs = [j for j in jobs if args.only in j.name]
-    # analytic jobs first (fast), then learned ones, longest first
-    jobs.sort(key=lambda j: (j.learned, -j.timesteps))
+    jobs.sort(key=lambda j: j.learned)  # analytic jobs first (fast), then the spec's order
     if args.list or not jobs:
         for j in jobs:
             print(j.name)

@@ -1,0 +1,257 @@
+"""Build the leaderboard from the job results: statistics (rliable), JSON, LEADERBOARD.md and a chart.
+
+    python baselines/leaderboard.py              # results -> baselines/results/leaderboard.json -> LEADERBOARD.md + PNG
+    python baselines/leaderboard.py --from-json  # only re-render LEADERBOARD.md and the PNG from the committed JSON
+
+Inputs: the ``eval.json`` of every job of ``baselines/leaderboard.yml`` under
+``baselines/results/leaderboard_runs/`` (``python baselines/run_jobs.py`` makes them).
+
+Statistics (rliable, Agarwal et al. 2021): for each (task, evaluation tier) and each entry (a policy;
+for PPO an action mode and the tier it was trained on), the scores form a matrix (runs x episodes):
+runs are the PPO training seeds (one row for the deterministic passivity controllers), episodes the
+shared, seeded evaluation episodes. Point estimates are the IQM (interquartile mean) of the RMS
+position error and of the return, and the mean crash rate; 95 % CIs come from rliable's stratified
+bootstrap over runs *and* episodes (``task_bootstrap=True``), so they include both the seed-to-seed
+variation of training and the finite evaluation set. The probability of improvement P(X < Y) of an
+entry over the best passivity controller is rliable's (Mann-Whitney over runs, averaged over
+episodes), on the RMS position error, with its bootstrap CI. The bootstrap is seeded: the JSON, and
+therefore LEADERBOARD.md, are reproducible.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from baselines.jobs import EVAL_FILE, REPO_ROOT, RUNS_DIR, SPEC_FILE, load_jobs  # noqa: E402
+
+RESULTS_JSON = Path(__file__).resolve().parent / "results" / "leaderboard.json"
+LEADERBOARD_MD = REPO_ROOT / "LEADERBOARD.md"
+CHART_PNG = Path(__file__).resolve().parent / "results" / "leaderboard.png"
+REFERENCE = "passivity-exact"   # the passivity controller with the best allocation (docs/control.md)
+BOOTSTRAP_REPS = 2000
+BOOTSTRAP_SEED = 0
+COMMAND = "python baselines/run_jobs.py && python baselines/leaderboard.py"
+
+
+def entry_label(job: dict) -> str:
+    if job["policy"] == "ppo":
+        return f"PPO-{job['action_mode']} (trained on {job['train_tier']})"
+    return job["policy"]
+
+
+# ------------------------------------------------------------------------------------ collect
+def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> tuple[list[dict], list[str]]:
+    """Every (job, evaluation tier) as a cell with its per-episode metrics; and the missing job names."""
+    cells, missing = [], []
+    for job in load_jobs(spec):
+        path = Path(root) / job.name / EVAL_FILE
+        if not path.is_file():
+            missing.append(job.name)
+            continue
+        rec = json.loads(path.read_text())
+        j = rec["job"]
+        for tier, episodes in rec["eval"].items():
+            cells.append({
+                "entry": entry_label(j), "policy": j["policy"], "action_mode": j["action_mode"], "task": j["task"],
+                "train_tier": j["train_tier"], "tier": tier, "seed": j["seed"], "checkpoint": rec["checkpoint"],
+                "train_seconds": rec["train_seconds"], "eval_seed": j["eval_seed"], "episodes": episodes,
+                "summary": _summary(episodes),
+            })
+    return cells, missing
+
+
+def _summary(episodes: list[dict]) -> dict:
+    from baselines.evaluation import summarize
+
+    return summarize(episodes)
+
+
+# ----------------------------------------------------------------------------------- statistics
+def _matrix(cells: list[dict], key: str, sign: float = 1.0) -> np.ndarray:
+    """(runs x episodes) scores of one entry, runs sorted by seed."""
+    rows = [[sign * float(e[key]) for e in c["episodes"]] for c in sorted(cells, key=lambda c: c["seed"])]
+    return np.asarray(rows, dtype=float)
+
+
+def aggregate(cells: list[dict]) -> list[dict]:
+    """Per (task, tier, entry): IQM RMS position error, IQM return, mean crash rate, P(improvement)
+    over the reference passivity controller; each with a 95 % stratified-bootstrap CI."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    groups: dict[tuple, list[dict]] = {}
+    for c in cells:
+        groups.setdefault((c["task"], c["tier"], c["entry"]), []).append(c)
+    rows = []
+    for (task, tier, entry), group in sorted(groups.items()):
+        def est(matrix, func):
+            rs = np.random.RandomState(BOOTSTRAP_SEED)
+            point, ci = rly.get_interval_estimates({"x": matrix}, lambda m: np.array([func(m)]), task_bootstrap=True,
+                                                   reps=BOOTSTRAP_REPS, random_state=rs)
+            return float(point["x"][0]), [float(ci["x"][0, 0]), float(ci["x"][1, 0])]
+
+        row = {"task": task, "tier": tier, "entry": entry, "policy": group[0]["policy"],
+               "action_mode": group[0]["action_mode"], "train_tier": group[0]["train_tier"],
+               "runs": len(group), "episodes": len(group[0]["episodes"])}
+        row["rms_position_error_iqm"], row["rms_position_error_ci"] = est(_matrix(group, "rms_position_error"),
+                                                                          metrics.aggregate_iqm)
+        row["return_iqm"], row["return_ci"] = est(_matrix(group, "return"), metrics.aggregate_iqm)
+        row["crash_rate"], row["crash_rate_ci"] = est(_matrix(group, "crashed"), metrics.aggregate_mean)
+        ref = groups.get((task, tier, REFERENCE))
+        if ref is not None and entry != REFERENCE:
+            x = _matrix(group, "rms_position_error", -1.0)  # higher is better for rliable
+            y = _matrix(ref, "rms_position_error", -1.0)
+            rs = np.random.RandomState(BOOTSTRAP_SEED)
+            point, ci = rly.get_interval_estimates({"p": (x, y)}, metrics.probability_of_improvement,
+                                                   task_bootstrap=True, reps=BOOTSTRAP_REPS, random_state=rs)
+            row["prob_improvement"] = float(np.asarray(point["p"]).reshape(-1)[0])
+            row["prob_improvement_ci"] = [float(v) for v in np.asarray(ci["p"]).reshape(-1)[:2]]
+        rows.append(row)
+    return rows
+
+
+# ------------------------------------------------------------------------------------- render
+def _fmt(v: float, ci: list[float], digits: int) -> str:
+    return f"{v:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
+
+
+def render_markdown(data: dict) -> str:
+    meta = data["meta"]
+    lines = [
+        "# SoftPVTOL-v0 leaderboard",
+        "",
+        f"<!-- Generated by `{meta['command']}` (re-render only: `python baselines/leaderboard.py --from-json`) "
+        f"from `baselines/results/leaderboard.json`. Do not edit by hand. -->",
+        "",
+        f"Generated by `{meta['command']}` at commit `{meta['commit']}` on {meta['date']}; "
+        f"the job list is `baselines/leaderboard.yml`, the per-run results are in `baselines/results/leaderboard.json`.",
+        "",
+        f"Each entry is evaluated on the same {meta['episodes']} seeded episodes per task and tier (seeds "
+        f"{meta['eval_seed']} + i; training seeds are below 500,000). PPO entries have {meta['seeds']} training seeds "
+        "each. Point estimates: IQM (interquartile mean) over runs x episodes of the RMS position error [m] and of "
+        "the return, and the mean crash rate. Brackets: 95 % stratified-bootstrap CIs over runs and episodes "
+        f"(rliable, {meta['bootstrap_reps']} replications). P(better): rliable's probability that the entry has a "
+        f"lower RMS position error than `{REFERENCE}` on an episode, with its CI. Lower error, higher return, lower "
+        "crash rate are better.",
+        "",
+    ]
+    if meta.get("missing_jobs"):
+        lines += [f"Missing jobs (not yet run): {len(meta['missing_jobs'])}.", ""]
+    by_task: dict[str, list[dict]] = {}
+    for r in data["aggregates"]:
+        by_task.setdefault(r["task"], []).append(r)
+    tier_order = meta["tiers"]
+    for task in meta["tasks"]:
+        rows = by_task.get(task, [])
+        lines += [f"## {task}", "",
+                  "| tier | policy | runs | RMS position error [m] | crash rate | return | P(better than "
+                  f"{REFERENCE}) |", "|---|---|---|---|---|---|---|"]
+        for r in sorted(rows, key=lambda r: (tier_order.index(r["tier"]), _entry_order(r["entry"]))):
+            p = _fmt(r["prob_improvement"], r["prob_improvement_ci"], 2) if "prob_improvement" in r else "—"
+            lines.append(f"| {r['tier']} | {r['entry']} | {r['runs']} | {_fmt(r['rms_position_error_iqm'], r['rms_position_error_ci'], 3)} "
+                         f"| {_fmt(r['crash_rate'], r['crash_rate_ci'], 2)} | {_fmt(r['return_iqm'], r['return_ci'], 0)} | {p} |")
+        lines.append("")
+    lines += ["![IQM RMS position error per tier](baselines/results/leaderboard.png)", ""]
+    return "\n".join(lines)
+
+
+def _entry_order(entry: str) -> tuple:
+    order = ["passivity-paper", "passivity-exact", "PPO-actuators", "PPO-virtual", "PPO-residual"]
+    for i, prefix in enumerate(order):
+        if entry.startswith(prefix):
+            return (i, entry)
+    return (len(order), entry)
+
+
+def render_chart(data: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks, tiers = data["meta"]["tasks"], data["meta"]["tiers"]
+    fig, axes = plt.subplots(1, len(tasks), figsize=(7 * len(tasks), 4.5), squeeze=False)
+    for ax, task in zip(axes[0], tasks):
+        rows = [r for r in data["aggregates"] if r["task"] == task]
+        entries = sorted({r["entry"] for r in rows}, key=_entry_order)
+        width = 0.8 / max(len(entries), 1)
+        for k, entry in enumerate(entries):
+            xs, ys, lo, hi = [], [], [], []
+            for i, tier in enumerate(tiers):
+                r = next((r for r in rows if r["entry"] == entry and r["tier"] == tier), None)
+                if r is None:
+                    continue
+                xs.append(i + (k - (len(entries) - 1) / 2) * width)
+                ys.append(r["rms_position_error_iqm"])
+                lo.append(r["rms_position_error_iqm"] - r["rms_position_error_ci"][0])
+                hi.append(r["rms_position_error_ci"][1] - r["rms_position_error_iqm"])
+            ax.bar(xs, ys, width, yerr=[lo, hi], capsize=2, label=entry)
+        ax.set_xticks(range(len(tiers)), tiers)
+        ax.set_yscale("log")
+        ax.set_ylabel("IQM RMS position error [m] (95 % CI)")
+        ax.set_title(task)
+        ax.grid(True, axis="y", alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, metadata={"Software": None})
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------------------ main
+def _commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO_ROOT, capture_output=True, text=True,
+                              check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def build(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> dict:
+    import yaml
+
+    s = yaml.safe_load(Path(spec).read_text())
+    cells, missing = collect(root, spec)
+    if not cells:
+        raise SystemExit(f"no results under {root}; run python baselines/run_jobs.py first")
+    meta = {"command": COMMAND, "commit": _commit(), "date": _dt.date.today().isoformat(),
+            "tasks": list(s["tasks"]), "tiers": list(s["evaluation"]["tiers"]),
+            "episodes": int(s["evaluation"]["episodes"]), "eval_seed": int(s["evaluation"]["seed"]),
+            "seeds": len(s["seeds"]), "bootstrap_reps": BOOTSTRAP_REPS, "bootstrap_seed": BOOTSTRAP_SEED,
+            "reference": REFERENCE, "missing_jobs": missing}
+    return {"meta": meta, "aggregates": aggregate(cells), "cells": cells}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--from-json", action="store_true", help="only re-render from the committed JSON")
+    ap.add_argument("--json", type=Path, default=RESULTS_JSON)
+    ap.add_argument("--markdown", type=Path, default=LEADERBOARD_MD)
+    ap.add_argument("--chart", type=Path, default=CHART_PNG)
+    ap.add_argument("--root", type=Path, default=RUNS_DIR)
+    ap.add_argument("--spec", type=Path, default=SPEC_FILE)
+    args = ap.parse_args(argv)
+    if args.from_json:
+        if not args.json.is_file():
+            ap.error(f"no leaderboard JSON at {args.json}")
+        data = json.loads(args.json.read_text())
+    else:
+        data = build(args.root, args.spec)
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(data, indent=1))
+    args.markdown.write_text(render_markdown(data))
+    render_chart(data, args.chart)
+    print(f"wrote {args.markdown} and {args.chart}" + ("" if args.from_json else f" from {args.json}"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,159 @@
+"""train.py / baselines training: smoke run, kill + exact resume, evaluation CLI, bad input (exit 2)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from baselines.evaluate import main as evaluate_main
+from baselines.train_agent import main as train_main
+from baselines.config import ConfigError, RunConfig, _parse_dict_call, algo_kwargs, apply_overrides, load_hyperparams
+
+ROOT = Path(__file__).resolve().parents[1]
+# a short configuration: 4 envs x 64 steps per rollout, checkpoints every rollout
+SHORT = ["--n-envs", "4", "--hp", "n_steps=64", "--hp", "batch_size=64", "--hp", "n_epochs=2",
+         "--eval-episodes", "1", "--checkpoint-freq", "256", "--eval-freq", "1024", "--no-progress-bar"]
+
+
+def assert_exit_2(main, argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and message in err, err[-2000:]
+
+
+def run(script: str, *args, timeout=600):
+    return subprocess.run([sys.executable, str(ROOT / script), *map(str, args)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+# ------------------------------------------------------------------------------------ config
+@pytest.mark.parametrize("mode", ["residual", "virtual", "actuators"])
+def test_every_action_mode_has_ppo_hyperparameters(mode):
+    hp = load_hyperparams("ppo", mode)
+    kwargs = algo_kwargs(hp)
+    assert hp["n_envs"] >= 1 and hp["n_timesteps"] >= 1 and "n_envs" not in kwargs
+    assert isinstance(kwargs["policy_kwargs"], dict)
+
+
+def test_overrides_are_parsed_as_yaml_and_policy_kwargs_without_eval():
+    hp = apply_overrides({"n_epochs": 10}, ["n_epochs=5", "learning_rate=1e-4", "normalize=false"])
+    assert hp == {"n_epochs": 5, "learning_rate": 1e-4, "normalize": False}
+    assert _parse_dict_call("dict(log_std_init=-2.0, net_arch=dict(pi=[64, 64]))") == {
+        "log_std_init": -2.0, "net_arch": {"pi": [64, 64]}}
+    with pytest.raises(ConfigError, match="only hold"):
+        _parse_dict_call("dict(activation_fn=__import__('os').system('true'))")
+    with pytest.raises(ConfigError, match="key=value"):
+        apply_overrides({}, ["n_epochs"])
+
+
+@pytest.mark.parametrize("field, value", [("timesteps", 0), ("seed", -1), ("action_mode", "joystick"),
+                                          ("n_envs", 0), ("algo", "dqn")])
+def test_run_config_rejects_bad_values(field, value):
+    with pytest.raises(ConfigError, match=field if field != "algo" else "algo"):
+        RunConfig(**{field: value})
+
+
+def test_run_config_round_trips(tmp_path):
+    cfg = RunConfig(action_mode="virtual", seed=3, hyperparams={"n_steps": 64}, overrides=["n_steps=64"])
+    cfg.save(tmp_path / "c.yaml")
+    assert RunConfig.load(tmp_path / "c.yaml") == cfg
+
+
+# ------------------------------------------------------------------------------ train.py runs
+def test_smoke_training_saves_checkpoints_and_compares_with_passivity(tmp_path):
+    out = tmp_path / "run"
+    r = run("train.py", "--timesteps", "1024", *SHORT, "--out", out)
+    assert r.returncode == 0, r.stderr[-3000:]
+    for name in ("model.zip", "vecnormalize.pkl", "config.yaml", "result.json", "evaluations.json"):
+        assert (out / name).stat().st_size > 0, name
+    assert list((out / "tb").glob("PPO_*/events.out.tfevents.*"))
+    ckpts = sorted(p.name for p in (out / "checkpoints").glob("step_*"))
+    assert ckpts == ["step_0000000512", "step_0000000768"]  # every 256 steps, newest two kept
+    assert (out / "checkpoints" / "latest").read_text() == "step_0000000768"
+    res = json.loads((out / "result.json").read_text())
+    assert res["config"]["overrides"][:3] == ["n_steps=64", "batch_size=64", "n_epochs=2"]
+    assert res["config"]["hyperparams"]["n_steps"] == 64
+    assert res["passivity"]["summary"]["episodes"] == 1 and len(res["ppo"]["episodes"]) == 1
+    assert "passivity" in r.stdout and "ppo" in r.stdout
+
+
+def test_killed_run_resumes_bit_for_bit(tmp_path):
+    """SIGKILL a run after a checkpoint; --resume finishes it with the same weights as an uninterrupted run."""
+    from stable_baselines3 import PPO
+
+    args = ["--timesteps", "4096", *SHORT]
+    ref = run("train.py", *args, "--out", tmp_path / "ref")
+    assert ref.returncode == 0, ref.stderr[-3000:]
+    out = tmp_path / "killed"
+    proc = subprocess.Popen([sys.executable, str(ROOT / "train.py"), *args, "--out", str(out)], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    while not list((out / "checkpoints").glob("step_000000[1-3]*")) and proc.poll() is None:
+        assert time.time() < deadline
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not (out / "model.zip").exists(), "the run finished before it could be killed"
+    r = run("train.py", *args, "--out", out, "--resume")
+    assert r.returncode == 0, r.stderr[-3000:]
+    a, b = PPO.load(tmp_path / "ref" / "model.zip"), PPO.load(out / "model.zip")
+    assert a.num_timesteps == b.num_timesteps == 4096
+    for (ka, va), (kb, vb) in zip(a.policy.state_dict().items(), b.policy.state_dict().items()):
+        assert ka == kb and (va == vb).all(), ka
+    steps = [e["step"] for e in json.loads((out / "evaluations.json").read_text())]
+    assert steps == sorted(set(steps)) and steps[-1] == 4096
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--action-mode", "joystick"], "invalid choice"),
+        (["--timesteps", "-5"], "--timesteps must be >= 1"),
+        (["--task", "loop"], "invalid choice"),
+        (["--hp", "n_epochs"], "key=value"),
+        (["--seed", "-1"], "--seed must be in"),
+        (["--resume"], "does not exist"),
+    ],
+)
+def test_bad_train_input_exits_2_and_writes_nothing(args, message, tmp_path, capsys):
+    assert_exit_2(train_main, [*args, "--out", str(tmp_path / "x")], message, capsys)
+    assert not (tmp_path / "x").exists()
+
+
+def test_existing_run_is_not_overwritten(tmp_path, capsys):
+    (tmp_path / "model.zip").write_bytes(b"keep")
+    assert_exit_2(train_main, ["--timesteps", "256", *SHORT, "--out", str(tmp_path)], "nothing was overwritten", capsys)
+    assert (tmp_path / "model.zip").read_bytes() == b"keep"
+
+
+# ----------------------------------------------------------------------------- evaluate.py
+def test_evaluate_cli_writes_episode_json(tmp_path, capsys):
+    out = tmp_path / "e.json"
+    assert evaluate_main(["--policy", "passivity", "--task", "hover", "--tier", "wind", "--episodes", "2",
+                          "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["seed"] == 1_000_000 and len(data["episodes"]) == 2
+    assert set(data["episodes"][0]) == {"return", "rms_position_error", "rms_attitude_error", "control_effort",
+                                        "crashed", "length"}
+    assert data["summary"]["episodes"] == 2 and 0 <= data["summary"]["crash_rate"] <= 1
+    assert_exit_2(evaluate_main, ["--policy", "passivity", "--episodes", "2", "--json", str(out)], "exists", capsys)
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--policy", "no/such/checkpoint"], "does not exist"),
+        (["--policy", "passivity", "--action-mode", "joystick"], "invalid choice"),
+        (["--policy", "passivity", "--episodes", "0"], "--episodes must be >= 1"),
+    ],
+)
+def test_bad_evaluate_input_exits_2(args, message, tmp_path, capsys):
+    assert_exit_2(evaluate_main, [*args, "--json", str(tmp_path / "e.json")], message, capsys)
+    assert not (tmp_path / "e.json").exists()
