@@ -5,6 +5,7 @@ A checkpoint is a directory ``<run>/checkpoints/step_<NNNNNNNNNN>/`` holding
 * ``model.zip``          the SB3 model (policy, optimizer, counters, last observation);
 * ``vecnormalize.pkl``   the observation/reward normalisation statistics (``VecNormalize.save``);
 * ``config.yaml``        the run's :class:`~baselines.config.RunConfig`;
+* ``replay_buffer.pkl``   (off-policy algorithms only) the replay buffer;
 * ``resume_state.pkl``   what an exact resume needs besides: the vector env's state (every sub-env
   mid-episode), VecNormalize's running discounted returns, and the numpy / torch / python RNG states.
 
@@ -33,6 +34,7 @@ MODEL_FILE = "model.zip"
 VECNORM_FILE = "vecnormalize.pkl"
 CONFIG_FILE = "config.yaml"
 STATE_FILE = "resume_state.pkl"
+REPLAY_FILE = "replay_buffer.pkl"
 
 
 def step_dir_name(step: int) -> str:
@@ -54,6 +56,8 @@ def save_checkpoint(run_dir: Path, model, vecnorm, config, keep: int = 2) -> Pat
     if vecnorm is not None:
         vecnorm.save(str(tmp / VECNORM_FILE))
     config.save(tmp / CONFIG_FILE)
+    if getattr(model, "replay_buffer", None) is not None:  # off-policy algorithms (SAC)
+        model.save_replay_buffer(tmp / REPLAY_FILE)
     state = {
         "num_timesteps": int(model.num_timesteps),
         "vector_env": _innermost(vecnorm if vecnorm is not None else model.get_env()).venv,

@@ -14,7 +14,9 @@ position error and of the return, and the mean crash rate; 95 % CIs come from rl
 bootstrap over runs *and* episodes (``task_bootstrap=True``), so they include both the seed-to-seed
 variation of training and the finite evaluation set. The probability of improvement P(X < Y) of an
 entry over the best passivity controller is rliable's (Mann-Whitney over runs, averaged over
-episodes), on the RMS position error, with its bootstrap CI. The bootstrap is seeded: the JSON, and
+episodes), on the RMS position error; its CI resamples runs only (rliable's independent-samples
+bootstrap for pairs does not support resampling episodes), so for the passivity-vs-passivity row it
+is a point. The bootstrap is seeded: the JSON, and
 therefore LEADERBOARD.md, are reproducible.
 """
 
@@ -25,6 +27,7 @@ import datetime as _dt
 import json
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +41,7 @@ LEADERBOARD_MD = REPO_ROOT / "LEADERBOARD.md"
 CHART_PNG = Path(__file__).resolve().parent / "results" / "leaderboard.png"
 REFERENCE = "passivity-exact"   # the passivity controller with the best allocation (docs/control.md)
 BOOTSTRAP_REPS = 2000
+POI_BOOTSTRAP_REPS = 300  # rliable's probability of improvement runs scipy per episode: slow
 BOOTSTRAP_SEED = 0
 COMMAND = "python baselines/run_jobs.py && python baselines/leaderboard.py"
 
@@ -82,37 +86,44 @@ def _matrix(cells: list[dict], key: str, sign: float = 1.0) -> np.ndarray:
     return np.asarray(rows, dtype=float)
 
 
+def _three_metrics(scores: np.ndarray) -> np.ndarray:
+    """(IQM RMS position error, IQM return, mean crash rate) of a (runs x episodes x 3) score array."""
+    from rliable import metrics
+
+    return np.array([metrics.aggregate_iqm(scores[..., 0]), metrics.aggregate_iqm(scores[..., 1]),
+                     metrics.aggregate_mean(scores[..., 2])])
+
+
 def aggregate(cells: list[dict]) -> list[dict]:
     """Per (task, tier, entry): IQM RMS position error, IQM return, mean crash rate, P(improvement)
     over the reference passivity controller; each with a 95 % stratified-bootstrap CI."""
     from rliable import library as rly
     from rliable import metrics
 
+    warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
     groups: dict[tuple, list[dict]] = {}
     for c in cells:
         groups.setdefault((c["task"], c["tier"], c["entry"]), []).append(c)
     rows = []
     for (task, tier, entry), group in sorted(groups.items()):
-        def est(matrix, func):
-            rs = np.random.RandomState(BOOTSTRAP_SEED)
-            point, ci = rly.get_interval_estimates({"x": matrix}, lambda m: np.array([func(m)]), task_bootstrap=True,
-                                                   reps=BOOTSTRAP_REPS, random_state=rs)
-            return float(point["x"][0]), [float(ci["x"][0, 0]), float(ci["x"][1, 0])]
-
         row = {"task": task, "tier": tier, "entry": entry, "policy": group[0]["policy"],
                "action_mode": group[0]["action_mode"], "train_tier": group[0]["train_tier"],
                "runs": len(group), "episodes": len(group[0]["episodes"])}
-        row["rms_position_error_iqm"], row["rms_position_error_ci"] = est(_matrix(group, "rms_position_error"),
-                                                                          metrics.aggregate_iqm)
-        row["return_iqm"], row["return_ci"] = est(_matrix(group, "return"), metrics.aggregate_iqm)
-        row["crash_rate"], row["crash_rate_ci"] = est(_matrix(group, "crashed"), metrics.aggregate_mean)
+        # one bootstrap for the three metrics: scores (runs x episodes x 3)
+        scores = np.stack([_matrix(group, "rms_position_error"), _matrix(group, "return"),
+                           _matrix(group, "crashed")], axis=-1)
+        point, ci = rly.get_interval_estimates({"x": scores}, _three_metrics, task_bootstrap=True,
+                                               reps=BOOTSTRAP_REPS, random_state=np.random.RandomState(BOOTSTRAP_SEED))
+        for k, name in enumerate(("rms_position_error_iqm", "return_iqm", "crash_rate")):
+            row[name] = float(point["x"][k])
+            row[name.replace("_iqm", "") + "_ci"] = [float(ci["x"][0, k]), float(ci["x"][1, k])]
         ref = groups.get((task, tier, REFERENCE))
         if ref is not None and entry != REFERENCE:
             x = _matrix(group, "rms_position_error", -1.0)  # higher is better for rliable
             y = _matrix(ref, "rms_position_error", -1.0)
-            rs = np.random.RandomState(BOOTSTRAP_SEED)
             point, ci = rly.get_interval_estimates({"p": (x, y)}, metrics.probability_of_improvement,
-                                                   task_bootstrap=True, reps=BOOTSTRAP_REPS, random_state=rs)
+                                                   task_bootstrap=True, reps=POI_BOOTSTRAP_REPS,
+                                                   random_state=np.random.RandomState(BOOTSTRAP_SEED))
             row["prob_improvement"] = float(np.asarray(point["p"]).reshape(-1)[0])
             row["prob_improvement_ci"] = [float(v) for v in np.asarray(ci["p"]).reshape(-1)[:2]]
         rows.append(row)
@@ -139,8 +150,9 @@ def render_markdown(data: dict) -> str:
         f"{meta['eval_seed']} + i; training seeds are below 500,000). PPO entries have {meta['seeds']} training seeds "
         "each. Point estimates: IQM (interquartile mean) over runs x episodes of the RMS position error [m] and of "
         "the return, and the mean crash rate. Brackets: 95 % stratified-bootstrap CIs over runs and episodes "
-        f"(rliable, {meta['bootstrap_reps']} replications). P(better): rliable's probability that the entry has a "
-        f"lower RMS position error than `{REFERENCE}` on an episode, with its CI. Lower error, higher return, lower "
+        f"(rliable, {meta['bootstrap_reps']} replications; {meta['poi_bootstrap_reps']} for P(better)). P(better): rliable's probability that the entry has a "
+        f"lower RMS position error than `{REFERENCE}` on an episode, with a CI over training seeds only "
+        "(rliable's pair bootstrap does not resample episodes). Lower error, higher return, lower "
         "crash rate are better.",
         "",
     ]
@@ -225,7 +237,7 @@ def build(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> dict:
     meta = {"command": COMMAND, "commit": _commit(), "date": _dt.date.today().isoformat(),
             "tasks": list(s["tasks"]), "tiers": list(s["evaluation"]["tiers"]),
             "episodes": int(s["evaluation"]["episodes"]), "eval_seed": int(s["evaluation"]["seed"]),
-            "seeds": len(s["seeds"]), "bootstrap_reps": BOOTSTRAP_REPS, "bootstrap_seed": BOOTSTRAP_SEED,
+            "seeds": len(s["seeds"]), "bootstrap_reps": BOOTSTRAP_REPS, "poi_bootstrap_reps": POI_BOOTSTRAP_REPS, "bootstrap_seed": BOOTSTRAP_SEED,
             "reference": REFERENCE, "missing_jobs": missing}
     return {"meta": meta, "aggregates": aggregate(cells), "cells": cells}
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .checkpoints import (CONFIG_FILE, MODEL_FILE, VECNORM_FILE, latest_checkpoint, load_resume_state, restore_rng,
+from .checkpoints import (CONFIG_FILE, MODEL_FILE, REPLAY_FILE, VECNORM_FILE, latest_checkpoint, load_resume_state, restore_rng,
                           save_checkpoint)
 from .config import ConfigError, RunConfig, algo_kwargs
 from .evaluation import EVAL_SEED_OFFSET, run_episodes, summarize
@@ -180,6 +180,8 @@ def train(config: RunConfig, run_dir: Path, resume: bool = False, progress_bar: 
             vecnorm.returns = state["vecnormalize_returns"].copy()
         model = algo_cls.load(ckpt / MODEL_FILE, env=vecnorm or env, device="cpu", force_reset=False,
                               tensorboard_log=str(run_dir / "tb"), verbose=verbose)
+        if (ckpt / REPLAY_FILE).is_file():
+            model.load_replay_buffer(ckpt / REPLAY_FILE)
         restore_rng(state)
         start = int(state["num_timesteps"])
         config.save(run_dir / CONFIG_FILE)

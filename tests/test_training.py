@@ -157,3 +157,18 @@ def test_evaluate_cli_writes_episode_json(tmp_path, capsys):
 def test_bad_evaluate_input_exits_2(args, message, tmp_path, capsys):
     assert_exit_2(evaluate_main, [*args, "--json", str(tmp_path / "e.json")], message, capsys)
     assert not (tmp_path / "e.json").exists()
+
+
+def test_sac_option_trains_checkpoints_its_replay_buffer_and_resumes(tmp_path):
+    out = tmp_path / "sac"
+    args = ["--algo", "sac", "--action-mode", "actuators", "--n-envs", "2", "--hp", "learning_starts=64",
+            "--hp", "batch_size=32", "--eval-episodes", "1", "--checkpoint-freq", "128", "--no-progress-bar"]
+    r = run("train.py", "--timesteps", "256", *args, "--out", out)
+    assert r.returncode == 0, r.stderr[-3000:]
+    ck = sorted((out / "checkpoints").glob("step_*"))[-1]
+    assert (ck / "replay_buffer.pkl").stat().st_size > 0
+    r = run("train.py", "--timesteps", "384", *args, "--out", out, "--resume")
+    assert r.returncode == 0, r.stderr[-3000:]
+    from stable_baselines3 import SAC
+
+    assert SAC.load(out / "model.zip").num_timesteps == 384
