@@ -13,6 +13,14 @@ bit identical between the single env and every sub-env of the vector env.
 
 Conventions: q = (x, z, theta, q_l, q_r); p in ``PARAM_FIELDS`` order
 (m, m_l, m_r, I, I_l, I_r, l_l, l_r, g, epsilon); actuators a = (T_l, T_r, tau_l, tau_r).
+
+Speed (see ``benchmarks/``): the small, pure-arithmetic functions (series, D entries, qddot, the RK4
+step, energies) are inlined into their callers (``inline="always"``) and take arrays *or* tuples, so a
+loop over a block of ``LANES`` states stored structure-of-arrays (:func:`rk4_lanes`) compiles to SIMD
+code. Every lane performs exactly the scalar IEEE operations (no fastmath, no FMA contraction), so the
+SIMD path is bit-identical to the scalar one; the tests check it. The error model is numpy's (x/0 gives
+inf/nan instead of raising), which the vectoriser needs; no division here has a zero denominator for
+valid parameters.
 """
 
 from __future__ import annotations
@@ -20,7 +28,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ._series import COEFFICIENTS
 
@@ -34,10 +42,12 @@ _D2PQ = COEFFICIENTS["D2pq"]
 INPUT_MAP_PAPER = 0
 INPUT_MAP_EXACT = 1
 
-_jit = njit(cache=True, fastmath=False, nogil=True)
+_jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
+#: small pure functions: inlined into every caller (needed for the SIMD lane loops)
+_inline = njit(cache=True, fastmath=False, nogil=True, error_model="numpy", inline="always")
 
 
-@_jit
+@_inline
 def horner(c, s):
     acc = c[c.shape[0] - 1]
     for k in range(c.shape[0] - 2, -1, -1):
@@ -45,41 +55,62 @@ def horner(c, s):
     return acc
 
 
-@_jit
+@_inline
 def arm_basis(q):
     """(D1, D2, dD1/dq, dD2/dq) of one arm's curvature q: branch-free power series."""
     s = q * q
     return q * horner(_A, s), horner(_D2, s), horner(_D1P, s), q * horner(_D2PQ, s)
 
 
-@_jit
+@_inline
 def sinc(q):
     return horner(_S0, q * q)
 
 
-@_jit
+@_inline
 def one_minus_cos_over_q2(q):
     return horner(_C1, q * q)
 
 
 # --------------------------------------------------------------------------------------- model terms
+@_inline
+def mass_entries(ql, qr, p):
+    """The nonzero entries of D(q): (M, I, D03, D13, D04, D14, D33, D44), D symmetric.
+
+    Only the curvatures enter; D = [[M, 0, 0, D03, D04], [0, M, 0, D13, D14], [0, 0, I, 0, 0], ...].
+    """
+    ml, mr, ll, lr = p[1], p[2], p[6], p[7]
+    d1l, d2l, _, _ = arm_basis(ql)
+    d1r, d2r, _, _ = arm_basis(qr)
+    M = p[0] + p[1] + p[2]
+    return (
+        M,
+        p[3],
+        ml * ll * d1l,
+        ml * ll * d2l,
+        -mr * lr * d1r,
+        mr * lr * d2r,
+        ml * ll * ll * (d1l * d1l + d2l * d2l) + p[4],
+        mr * lr * lr * (d1r * d1r + d2r * d2r) + p[5],
+    )
+
+
 @_jit
 def mass_matrix_into(q, p, out):
     """D(q) (5x5) into ``out``. Only q_l, q_r enter: theta decouples (paper eq. (inertia))."""
-    ml, mr, ll, lr = p[1], p[2], p[6], p[7]
-    d1l, d2l, _, _ = arm_basis(q[3])
-    d1r, d2r, _, _ = arm_basis(q[4])
-    M = p[0] + p[1] + p[2]
-    out[:, :] = 0.0
+    M, inertia, d03, d13, d04, d14, d33, d44 = mass_entries(q[3], q[4], p)
+    for i in range(5):
+        for j in range(5):
+            out[i, j] = 0.0
     out[0, 0] = M
     out[1, 1] = M
-    out[2, 2] = p[3]
-    out[0, 3] = out[3, 0] = ml * ll * d1l
-    out[1, 3] = out[3, 1] = ml * ll * d2l
-    out[0, 4] = out[4, 0] = -mr * lr * d1r
-    out[1, 4] = out[4, 1] = mr * lr * d2r
-    out[3, 3] = ml * ll * ll * (d1l * d1l + d2l * d2l) + p[4]
-    out[4, 4] = mr * lr * lr * (d1r * d1r + d2r * d2r) + p[5]
+    out[2, 2] = inertia
+    out[0, 3] = out[3, 0] = d03
+    out[1, 3] = out[3, 1] = d13
+    out[0, 4] = out[4, 0] = d04
+    out[1, 4] = out[4, 1] = d14
+    out[3, 3] = d33
+    out[4, 4] = d44
 
 
 @_jit
@@ -88,7 +119,9 @@ def coriolis_matrix_into(q, qd, p, out):
     ml, mr, ll, lr = p[1], p[2], p[6], p[7]
     d1l, d2l, d1pl, d2pl = arm_basis(q[3])
     d1r, d2r, d1pr, d2pr = arm_basis(q[4])
-    out[:, :] = 0.0
+    for i in range(5):
+        for j in range(5):
+            out[i, j] = 0.0
     out[0, 3] = ml * ll * d1pl * qd[3]
     out[1, 3] = ml * ll * d2pl * qd[3]
     out[0, 4] = -mr * lr * d1pr * qd[4]
@@ -109,9 +142,9 @@ def gravity_vector_into(q, p, out):
     out[4] = p[8] * p[2] * p[7] * d2r
 
 
-@_jit
-def generalized_forces_into(q, a, p, input_map, out):
-    """tau = B(q) a for a = (T_l, T_r, tau_l, tau_r).
+@_inline
+def generalized_forces(q, a, p, input_map):
+    """tau = B(q) a for a = (T_l, T_r, tau_l, tau_r), as a 5-tuple (q, a: arrays or tuples).
 
     ``INPUT_MAP_PAPER``: the paper's map as printed (eq. 'control input in vector form').
     ``INPUT_MAP_EXACT``: virtual work of the thrusts applied at the (body-rotated) arm tips: adds
@@ -125,20 +158,32 @@ def generalized_forces_into(q, a, p, input_map, out):
     vx = Tl * sl - Tr * sr
     vz = Tl * cl + Tr * cr
     st, ct = math.sin(th), math.cos(th)
-    out[0] = ct * vx - st * vz
-    out[1] = st * vx + ct * vz
+    t0 = ct * vx - st * vz
+    t1 = st * vx + ct * vz
     ll, lr, eps = p[6], p[7], p[9]
     if input_map == INPUT_MAP_PAPER:
-        out[2] = lr * Tr * cr * sinc(qr) - ll * Tl * cl * sinc(ql)
-        out[3] = a[2]
-        out[4] = a[3]
-    else:
-        out[2] = Tr * (eps * cr + lr * sinc(qr)) - Tl * (eps * cl + ll * sinc(ql))
-        out[3] = a[2] + Tl * ll * one_minus_cos_over_q2(ql)
-        out[4] = a[3] + Tr * lr * one_minus_cos_over_q2(qr)
+        return (t0, t1, lr * Tr * cr * sinc(qr) - ll * Tl * cl * sinc(ql), a[2], a[3])
+    return (
+        t0,
+        t1,
+        Tr * (eps * cr + lr * sinc(qr)) - Tl * (eps * cl + ll * sinc(ql)),
+        a[2] + Tl * ll * one_minus_cos_over_q2(ql),
+        a[3] + Tr * lr * one_minus_cos_over_q2(qr),
+    )
 
 
 @_jit
+def generalized_forces_into(q, a, p, input_map, out):
+    """:func:`generalized_forces` into the array ``out`` (5)."""
+    t = generalized_forces(q, a, p, input_map)
+    out[0] = t[0]
+    out[1] = t[1]
+    out[2] = t[2]
+    out[3] = t[3]
+    out[4] = t[4]
+
+
+@_inline
 def qddot(ql, qr, vl, vr, tau, p):
     """qddot = D^-1 (tau - C qdot - g) as a 5-tuple.
 
@@ -190,7 +235,7 @@ def forward_dynamics_into(q, qd, tau, p, out):
         out[i] = a[i]
 
 
-@_jit
+@_inline
 def kinetic_energy(q, qd, p):
     ml, mr, ll, lr = p[1], p[2], p[6], p[7]
     M = p[0] + p[1] + p[2]
@@ -205,7 +250,7 @@ def kinetic_energy(q, qd, p):
     return 0.5 * e
 
 
-@_jit
+@_inline
 def potential_energy(q, p):
     """P = g (M z + m_l z_l^tip + m_r z_r^tip), tip heights l q (1 - cos q)/q^2 above the body."""
     zl = p[6] * q[3] * one_minus_cos_over_q2(q[3])
@@ -230,11 +275,20 @@ def tip_positions_into(q, p, out):
         out[i, 1] = q[1] + st * rx + ct * rz
 
 
-@_jit
-def rk4_step_into(q, qd, tau, p, dt, q_out, qd_out):
+@_inline
+def _rk4_combine(x, v, a1, a2, a3, a4, h, dt, c):
+    """RK4 update of one coordinate from its four stage accelerations."""
+    # position slopes of the four stages: v, v + h a1, v + h a2, v + dt a3
+    dq = v + 2.0 * (v + h * a1) + 2.0 * (v + h * a2) + (v + dt * a3)
+    dv = a1 + 2.0 * a2 + 2.0 * a3 + a4
+    return x + c * dq, v + c * dv
+
+
+@_inline
+def rk4_step(q, qd, tau, p, dt):
     """One classical RK4 step of (q, qdot) with the generalized force tau held over the step.
 
-    Allocation-free; ``q_out``/``qd_out`` may alias ``q``/``qd``.
+    q, qd, tau (5) and p (10) are arrays or tuples; returns (q_next, qdot_next) as two 5-tuples.
     """
     h = 0.5 * dt
     k1 = qddot(q[3], q[4], qd[3], qd[4], tau, p)
@@ -259,74 +313,145 @@ def rk4_step_into(q, qd, tau, p, dt, q_out, qd_out):
         p,
     )
     c = dt / 6.0
-    for i in range(5):
-        v = qd[i]
-        # position slopes of the four stages: v, v + h k1, v + h k2, v + dt k3
-        dq = v + 2.0 * (v + h * k1[i]) + 2.0 * (v + h * k2[i]) + (v + dt * k3[i])
-        dv = k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]
-        q_out[i] = q[i] + c * dq
-        qd_out[i] = v + c * dv
+    x0, v0 = _rk4_combine(q[0], qd[0], k1[0], k2[0], k3[0], k4[0], h, dt, c)
+    x1, v1 = _rk4_combine(q[1], qd[1], k1[1], k2[1], k3[1], k4[1], h, dt, c)
+    x2, v2 = _rk4_combine(q[2], qd[2], k1[2], k2[2], k3[2], k4[2], h, dt, c)
+    x3, v3 = _rk4_combine(q[3], qd[3], k1[3], k2[3], k3[3], k4[3], h, dt, c)
+    x4, v4 = _rk4_combine(q[4], qd[4], k1[4], k2[4], k3[4], k4[4], h, dt, c)
+    return (x0, x1, x2, x3, x4), (v0, v1, v2, v3, v4)
+
+
+@_jit
+def rk4_step_tuple(q, qd, tau, p, dt):
+    """:func:`rk4_step` as a compiled call (tuples in and out): the one non-inlined copy of the step,
+    shared by the array wrapper and partial lane blocks (inlining costs compile time)."""
+    return rk4_step(q, qd, tau, p, dt)
+
+
+@_jit
+def rk4_step_into(q, qd, tau, p, dt, q_out, qd_out):
+    """:func:`rk4_step` on arrays. Allocation-free; ``q_out``/``qd_out`` may alias ``q``/``qd``."""
+    qn, vn = rk4_step_tuple(
+        (q[0], q[1], q[2], q[3], q[4]),
+        (qd[0], qd[1], qd[2], qd[3], qd[4]),
+        (tau[0], tau[1], tau[2], tau[3], tau[4]),
+        (p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9]),
+        dt,
+    )
+    q_out[0], q_out[1], q_out[2], q_out[3], q_out[4] = qn
+    qd_out[0], qd_out[1], qd_out[2], qd_out[3], qd_out[4] = vn
+
+
+# ------------------------------------------------------------------------------------ SIMD lanes
+#: width of a lane block: W holds LANES states structure-of-arrays, W[row * LANES + lane]
+LANES = 64
+#: lane rows of :func:`rk4_lanes`: q (5), qdot (5), tau (5), p (10)
+LANE_Q, LANE_QD, LANE_TAU, LANE_P = 0, 5, 10, 15
+LANE_ROWS_RK4 = 25
+
+
+@_inline
+def _lane_load(W, j):
+    L = LANES
+    q = (W[j], W[L + j], W[2 * L + j], W[3 * L + j], W[4 * L + j])
+    o = LANE_QD * L + j
+    qd = (W[o], W[o + L], W[o + 2 * L], W[o + 3 * L], W[o + 4 * L])
+    o = LANE_TAU * L + j
+    tau = (W[o], W[o + L], W[o + 2 * L], W[o + 3 * L], W[o + 4 * L])
+    o = LANE_P * L + j
+    p = (W[o], W[o + L], W[o + 2 * L], W[o + 3 * L], W[o + 4 * L],
+         W[o + 5 * L], W[o + 6 * L], W[o + 7 * L], W[o + 8 * L], W[o + 9 * L])
+    return q, qd, tau, p
+
+
+@_inline
+def _lane_store(W, j, qn, vn):
+    L = LANES
+    W[j], W[L + j], W[2 * L + j], W[3 * L + j], W[4 * L + j] = qn
+    o = LANE_QD * L + j
+    W[o], W[o + L], W[o + 2 * L], W[o + 3 * L], W[o + 4 * L] = vn
+
+
+@_jit
+def rk4_lanes(W, dt, m):
+    """:func:`rk4_step` in place on the first m lanes of a lane block W (rows ``LANE_*``).
+
+    A full block (m == LANES) runs a loop of constant trip count over the inlined step, which LLVM
+    vectorises (the lanes are independent); a partial block calls the same step lane by lane.
+    """
+    if m == LANES:
+        for j in range(LANES):
+            q, qd, tau, p = _lane_load(W, j)
+            qn, vn = rk4_step(q, qd, tau, p, dt)
+            _lane_store(W, j, qn, vn)
+    else:
+        for j in range(m):
+            q, qd, tau, p = _lane_load(W, j)
+            qn, vn = rk4_step_tuple(q, qd, tau, p, dt)
+            _lane_store(W, j, qn, vn)
 
 
 # ------------------------------------------------------------------------------- batched wrappers
 # Each takes contiguous (N, ...) float64 arrays and a parameter matrix P of shape (N, 10) or (1, 10).
-# ``prange`` splits the batch over threads; results do not depend on the thread count.
+# They run in one thread and release the GIL: the public API splits large batches over threads
+# (softpvtol_gym._parallel.run_rows); results do not depend on the split.
+_batch = njit(cache=True, nogil=True)
 
 
-@njit(cache=True, parallel=True)
+@_batch
 def batch_mass_matrix(q, P, out):
     ps = np.int64(P.shape[0] > 1)
-    for n in prange(q.shape[0]):
+    for n in range(q.shape[0]):
         mass_matrix_into(q[n], P[n * ps], out[n])
 
 
-@njit(cache=True, parallel=True)
+@_batch
 def batch_coriolis_matrix(q, qd, P, out):
     ps = np.int64(P.shape[0] > 1)
-    for n in prange(q.shape[0]):
+    for n in range(q.shape[0]):
         coriolis_matrix_into(q[n], qd[n], P[n * ps], out[n])
 
 
-@njit(cache=True, parallel=True)
+@_batch
 def batch_gravity_vector(q, P, out):
     ps = np.int64(P.shape[0] > 1)
-    for n in prange(q.shape[0]):
+    for n in range(q.shape[0]):
         gravity_vector_into(q[n], P[n * ps], out[n])
 
 
-@njit(cache=True, parallel=True)
+@_batch
 def batch_generalized_forces(q, a, P, input_map, out):
     ps = np.int64(P.shape[0] > 1)
-    for n in prange(q.shape[0]):
+    for n in range(q.shape[0]):
         generalized_forces_into(q[n], a[n], P[n * ps], input_map, out[n])
 
 
-@njit(cache=True, parallel=True)
+@_batch
 def batch_forward_dynamics(q, qd, tau, P, out):
     ps = np.int64(P.shape[0] > 1)
-    for n in prange(q.shape[0]):
+    for n in range(q.shape[0]):
         forward_dynamics_into(q[n], qd[n], tau[n], P[n * ps], out[n])
 
 
-@njit(cache=True, parallel=True)
+@_batch
 def batch_energies(q, qd, P, out):
     """out[n] = (kinetic, potential)."""
     ps = np.int64(P.shape[0] > 1)
-    for n in prange(q.shape[0]):
+    for n in range(q.shape[0]):
         p = P[n * ps]
         out[n, 0] = kinetic_energy(q[n], qd[n], p)
         out[n, 1] = potential_energy(q[n], p)
 
 
-@njit(cache=True, parallel=True)
+@_batch
 def batch_tip_positions(q, P, out):
     ps = np.int64(P.shape[0] > 1)
-    for n in prange(q.shape[0]):
+    for n in range(q.shape[0]):
         tip_positions_into(q[n], P[n * ps], out[n])
 
 
-@njit(cache=True, parallel=True)
+@_batch
 def batch_rk4_step(q, qd, tau, P, dt, q_out, qd_out):
     ps = np.int64(P.shape[0] > 1)
-    for n in prange(q.shape[0]):
+    for n in range(q.shape[0]):
         rk4_step_into(q[n], qd[n], tau[n], P[n * ps], dt, q_out[n], qd_out[n])

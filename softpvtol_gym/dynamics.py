@@ -14,6 +14,7 @@ import numpy as np
 
 from . import _kernels as K
 from ._batching import broadcast_batch, check_curvature, param_matrix
+from ._parallel import run_rows
 from .params import SoftPVTOLParams
 
 __all__ = [
@@ -46,7 +47,7 @@ def mass_matrix(q, params: SoftPVTOLParams) -> np.ndarray:
     lead, (qf,) = broadcast_batch(q=(q, 5))
     check_curvature(qf)
     out = np.empty((qf.shape[0], 5, 5))
-    K.batch_mass_matrix(qf, param_matrix(params), out)
+    run_rows(K.batch_mass_matrix, qf.shape[0], qf, param_matrix(params), out)
     return out.reshape(lead + (5, 5))
 
 
@@ -55,7 +56,7 @@ def coriolis_matrix(q, qdot, params: SoftPVTOLParams) -> np.ndarray:
     lead, (qf, vf) = broadcast_batch(q=(q, 5), qdot=(qdot, 5))
     check_curvature(qf)
     out = np.empty((qf.shape[0], 5, 5))
-    K.batch_coriolis_matrix(qf, vf, param_matrix(params), out)
+    run_rows(K.batch_coriolis_matrix, qf.shape[0], qf, vf, param_matrix(params), out)
     return out.reshape(lead + (5, 5))
 
 
@@ -64,7 +65,7 @@ def gravity_vector(q, params: SoftPVTOLParams) -> np.ndarray:
     lead, (qf,) = broadcast_batch(q=(q, 5))
     check_curvature(qf)
     out = np.empty((qf.shape[0], 5))
-    K.batch_gravity_vector(qf, param_matrix(params), out)
+    run_rows(K.batch_gravity_vector, qf.shape[0], qf, param_matrix(params), out)
     return out.reshape(lead + (5,))
 
 
@@ -79,7 +80,7 @@ def generalized_forces(q, actuators, params: SoftPVTOLParams, input_map: str = "
     lead, (qf, af) = broadcast_batch(q=(q, 5), actuators=(actuators, 4))
     check_curvature(qf)
     out = np.empty((qf.shape[0], 5))
-    K.batch_generalized_forces(qf, af, param_matrix(params), code, out)
+    run_rows(K.batch_generalized_forces, qf.shape[0], qf, af, param_matrix(params), code, out)
     return out.reshape(lead + (5,))
 
 
@@ -88,7 +89,7 @@ def forward_dynamics(q, qdot, tau, params: SoftPVTOLParams) -> np.ndarray:
     lead, (qf, vf, tf) = broadcast_batch(q=(q, 5), qdot=(qdot, 5), tau=(tau, 5))
     check_curvature(qf)
     out = np.empty((qf.shape[0], 5))
-    K.batch_forward_dynamics(qf, vf, tf, param_matrix(params), out)
+    run_rows(K.batch_forward_dynamics, qf.shape[0], qf, vf, tf, param_matrix(params), out)
     return out.reshape(lead + (5,))
 
 
@@ -96,7 +97,7 @@ def _energies(q, qdot, params) -> tuple[tuple[int, ...], np.ndarray]:
     lead, (qf, vf) = broadcast_batch(q=(q, 5), qdot=(qdot, 5))
     check_curvature(qf)
     out = np.empty((qf.shape[0], 2))
-    K.batch_energies(qf, vf, param_matrix(params), out)
+    run_rows(K.batch_energies, qf.shape[0], qf, vf, param_matrix(params), out)
     return lead, out
 
 
@@ -129,5 +130,5 @@ def arm_tip_positions(q, params: SoftPVTOLParams) -> np.ndarray:
     lead, (qf,) = broadcast_batch(q=(q, 5))
     check_curvature(qf)
     out = np.empty((qf.shape[0], 2, 2))
-    K.batch_tip_positions(qf, param_matrix(params), out)
+    run_rows(K.batch_tip_positions, qf.shape[0], qf, param_matrix(params), out)
     return out.reshape(lead + (2, 2))

@@ -8,6 +8,7 @@ import numpy as np
 
 from . import _kernels as K
 from ._batching import broadcast_batch, check_curvature, param_matrix
+from ._parallel import run_rows
 from .params import SoftPVTOLParams
 
 __all__ = ["rk4_step", "rollout"]
@@ -29,7 +30,7 @@ def rk4_step(q, qdot, tau, params: SoftPVTOLParams, dt: float = 0.01) -> tuple[n
     check_curvature(qf)
     q_out = np.empty_like(qf)
     v_out = np.empty_like(vf)
-    K.batch_rk4_step(qf, vf, tf, param_matrix(params), dt, q_out, v_out)
+    run_rows(K.batch_rk4_step, qf.shape[0], qf, vf, tf, param_matrix(params), dt, q_out, v_out)
     return q_out.reshape(lead + (5,)), v_out.reshape(lead + (5,))
 
 

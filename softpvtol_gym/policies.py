@@ -3,12 +3,72 @@
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from .control import PassivityController
+from .control import _kernels as CK
 from .control.passivity import PassivityGains
+from ._parallel import row_ranges, run_split
 from .envs.core import OBS_DIM, EnvConfig
 
 __all__ = ["PassivityPolicy"]
+
+_jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
+
+#: kernel codes of the action the policy returns
+ACTION_ACTUATORS, ACTION_VIRTUAL = 0, 1
+
+
+@_jit
+def _clip1(x):
+    if x < -1.0:
+        return -1.0
+    if x > 1.0:
+        return 1.0
+    return x
+
+
+@_jit
+def policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, out, err):
+    """Rows lo .. hi - 1 of :meth:`PassivityPolicy.predict` for the actuated loops: the state of
+    :meth:`PassivityPolicy.state_from_observation` (theta given), one controller step
+    (``control._kernels.controller_row``, new memory into S_new) and the scaled, clipped action."""
+    work = np.empty(CK.CONTROLLER_WORK + 40)
+    cw = work[:CK.CONTROLLER_WORK]
+    w = work[CK.CONTROLLER_WORK:]
+    q, qd, qr, qdr, qddr = w[0:5], w[5:10], w[10:15], w[15:20], w[20:25]
+    tau, act, arm, info = w[25:30], w[30:34], w[34:36], w[36:39]
+    for n in range(lo, hi):
+        th = theta[n]
+        q[0], q[1], q[2], q[3], q[4] = obs[n, 0], obs[n, 1], th, obs[n, 5], obs[n, 6]
+        qr[0], qr[1], qr[2], qr[3], qr[4] = 0.0, 0.0, th - obs[n, 2], 0.0, 0.0
+        for i in range(5):
+            qd[i] = obs[n, 7 + i]
+        for i in range(3):
+            qdr[i] = obs[n, 12 + i]
+            qddr[i] = obs[n, 15 + i]
+        qdr[3], qdr[4], qddr[3], qddr[4] = 0.0, 0.0, 0.0, 0.0
+        err[n] = CK.controller_row(q, qd, qr, qdr, qddr, tau, False, True, cc, S[n], S_new[n], tau, act, arm, info,
+                                   cw)
+        if kind == ACTION_VIRTUAL:
+            for i in range(5):
+                out[n, i] = _clip1((tau[i] - offset[i]) / scale[i])
+        else:
+            out[n, 0] = _clip1(2.0 * act[0] / tmax - 1.0)
+            out[n, 1] = _clip1(2.0 * act[1] / tmax - 1.0)
+            out[n, 2] = _clip1(act[2] / taumax)
+            out[n, 3] = _clip1(act[3] / taumax)
+
+
+@njit(cache=True, nogil=True)
+def policy_step(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, out, err):
+    policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, out, err)
+
+
+@njit(cache=True, nogil=True)
+def commit_rows(S, S_new, err):
+    """Copy the new controller memory if no row failed; returns whether it did."""
+    return CK._commit_rows(S, S_new, err)
 
 
 class PassivityPolicy:
@@ -50,6 +110,7 @@ class PassivityPolicy:
         self._offset = config.virtual_offset
         self._tmax = config.thrust_max
         self._taumax = config.arm_torque_max
+        self._kind = ACTION_VIRTUAL if config.action_mode == "virtual" else ACTION_ACTUATORS
 
     @classmethod
     def from_env(cls, env, loop: str | None = None, gains: PassivityGains | None = None) -> "PassivityPolicy":
@@ -86,6 +147,23 @@ class PassivityPolicy:
         qddr[:, :3] = obs[:, 15:18]
         return q, qd, q_ref, qdr, qddr
 
+    def _predict_compiled(self, obs: np.ndarray, n: int) -> np.ndarray:
+        """The actuated loops: one compiled pass from observations to actions (same values as the
+        controller called on :meth:`state_from_observation`, then scaled and clipped)."""
+        obs = np.ascontiguousarray(obs)
+        theta = np.arctan2(obs[:, 3], obs[:, 4])  # numpy's arctan2, as state_from_observation
+        ctrl = self.controller
+        S = ctrl.state_rows(n)
+        S_new = S.copy()
+        out = np.empty((n, self.config.action_dim), dtype=np.float32)
+        err = np.zeros(n, dtype=np.int64)
+        args = (obs, theta, self._kind, self._scale, self._offset, self._tmax, self._taumax, ctrl.kernel_constants,
+                S, S_new, out, err)
+        run_split(lambda lo, hi: policy_step(lo, hi, *args), row_ranges(n))
+        if not commit_rows(S, S_new, err):
+            ctrl.raise_for(err, self.state_from_observation(obs)[0])
+        return out
+
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         obs = np.asarray(observation, dtype=np.float64)
         single = obs.ndim == 1
@@ -107,6 +185,8 @@ class PassivityPolicy:
         cfg = self.config
         if cfg.action_mode == "residual":
             action = np.zeros((n, cfg.action_dim), dtype=np.float32)
+        elif self.controller.allocation != "ideal":
+            action = self._predict_compiled(obs, n)
         else:
             out = self.controller(*self.state_from_observation(obs))
             if cfg.action_mode == "virtual":

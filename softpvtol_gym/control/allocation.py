@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._batching import as_batch, broadcast_batch, param_matrix
+from .._parallel import run_rows
 from ..dynamics import input_map_code
 from ..params import SoftPVTOLParams
 from . import _kernels as CK
@@ -89,7 +90,7 @@ def allocate(
     out = np.empty((n, 4))
     info = np.empty((n, CK.N_INFO))
     theta = np.ascontiguousarray(qf[:, 2])
-    CK.batch_allocate(bf, theta, param_matrix(params), code, imap, warm, use_warm, float(curvature_limit), out, info)
+    run_rows(CK.batch_allocate, n, bf, theta, param_matrix(params), code, imap, warm, use_warm, float(curvature_limit), out, info)
     out = out.reshape(lead + (4,))
     if not return_info:
         return out

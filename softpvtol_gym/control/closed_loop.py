@@ -21,14 +21,18 @@ Loops (``LOOPS``):
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Callable
 
 import numpy as np
 
+from .._batching import broadcast_batch, check_curvature
+from .._parallel import run_rows
 from ..dynamics import forward_dynamics, generalized_forces, input_map_code
 from ..integrators import rk4_step
 from ..params import SoftPVTOLParams
-from .allocation import ALLOCATION_METHODS, AllocationInfo, allocate
+from . import _kernels as CK
+from .allocation import ALLOCATION_METHODS, AllocationInfo
 from .passivity import PassivityGains, passivity_control, storage_function
 from .references import paper_reference
 
@@ -73,6 +77,13 @@ class PassivityController:
             arm references per call (1: the body rows use the previous step's arm references).
         feedforward_limits: bounds (rad/s, rad/s^2) on the fed-forward arm reference velocity and
             acceleration.
+
+    A call of the actuated loops is one compiled kernel per batch (``control._kernels.controller_row``
+    per row, built from the same passivity and allocation kernels as :func:`passivity_control` and
+    :func:`allocate`); the env's residual mode and :class:`~softpvtol_gym.PassivityPolicy` run the same
+    row function. The memory (allocation warm start, arm-reference history) is one row of
+    ``ST_LEN`` floats per batch entry, created at the first call; the batch size is then fixed until
+    :meth:`reset` (a call with another batch size raises ValueError).
     """
 
     def __init__(
@@ -90,7 +101,7 @@ class PassivityController:
             raise ValueError(
                 f"allocation must be one of {sorted([*ALLOCATION_METHODS, 'ideal'])}, got {allocation!r}"
             )
-        input_map_code(input_map)
+        imap = input_map_code(input_map)
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be a finite number > 0 [s], got {dt!r}")
         self.params = SoftPVTOLParams() if params is None else params
@@ -103,6 +114,20 @@ class PassivityController:
             raise ValueError(f"algebraic_iterations must be >= 1, got {algebraic_iterations!r}")
         self.algebraic_iterations = int(algebraic_iterations)
         self.feedforward_limits = (float(feedforward_limits[0]), float(feedforward_limits[1]))
+        cc = np.zeros(CK.CC_LEN)
+        cc[CK.CC_METHOD] = ALLOCATION_METHODS.get(allocation, 0)
+        cc[CK.CC_IMAP] = imap
+        cc[CK.CC_ITERS] = self.algebraic_iterations
+        cc[CK.CC_FF] = 1.0 if self.arm_feedforward else 0.0
+        cc[CK.CC_DT] = self.dt
+        cc[CK.CC_VMAX], cc[CK.CC_AMAX] = self.feedforward_limits
+        cc[CK.CC_QMAX] = math.pi
+        cc[CK.CC_P:CK.CC_P + 10] = self.params.array
+        cc[CK.CC_LAM:CK.CC_LAM + 5] = self.gains.lam_array
+        cc[CK.CC_KG:CK.CC_KG + 5] = self.gains.k_array
+        #: kernel constants (``control._kernels.CC_*``)
+        self.kernel_constants = cc
+        self._no_residual = np.zeros((1, 5))
         self.reset()
 
     @classmethod
@@ -114,60 +139,39 @@ class PassivityController:
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         """Forget the warm start and arm-reference history (all, or the batch entries where mask)."""
-        if mask is None or self._history is None:
-            self._history: list[np.ndarray] | None = None
-            self._warm: np.ndarray | None = None
+        if mask is None or self._state is None:
+            self._state: np.ndarray | None = None
             return
-        mask = np.asarray(mask, dtype=bool)
-        # entries being reset restart from "no history": re-seeded from the state on the next call
-        self._reseed = mask if self._reseed is None else (self._reseed | mask)
-        if self._warm is not None:
-            self._warm[mask] = np.nan  # solved again from the default start
+        # entries being reset restart from "no history" (re-seeded from the state on the next call)
+        # and solve the allocation from the cold start (NaN warm start)
+        rows = np.asarray(mask, dtype=bool).reshape(-1)
+        self._state[rows, CK.ST_FRESH] = 1.0
+        self._state[rows, CK.ST_WARM:CK.ST_WARM + 4] = np.nan
 
-    _history = None
-    _reseed = None
+    _state = None
 
-    # ------------------------------------------------------------------ arm reference bookkeeping
-    def _arm_reference(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Arm references for the body rows: the last allocated curvatures (or, before the first
-        allocation / right after a reset, the measured ones) with their feedforward derivatives."""
-        if self._history is None:
-            zero = np.zeros_like(q[..., 3:5])
-            return q[..., 3:5].copy(), zero, zero
-        ref = self._history[-1].copy()
-        vel, acc = self._derivatives()
-        if self._reseed is not None:
-            ref[self._reseed] = q[..., 3:5][self._reseed]
-            vel[self._reseed] = 0.0
-            acc[self._reseed] = 0.0
-        return ref, vel, acc
+    def state_rows(self, n: int) -> np.ndarray:
+        """The memory (n, ``ST_LEN``) of a batch of n entries, created fresh at the first call."""
+        if self._state is None:
+            st = np.zeros((n, CK.ST_LEN))
+            st[:, CK.ST_WARM:CK.ST_WARM + 4] = np.nan
+            st[:, CK.ST_FRESH] = 1.0
+            self._state = st
+        elif self._state.shape[0] != n:
+            raise ValueError(
+                f"the controller's memory is for a batch of {self._state.shape[0]} entries, got {n}; "
+                "call reset() before changing the batch size"
+            )
+        return self._state
 
-    def _derivatives(self) -> tuple[np.ndarray, np.ndarray]:
-        h = self._history
-        zero = np.zeros_like(h[-1])
-        if not self.arm_feedforward:
-            return zero, zero
-        dt = self.dt
-        vmax, amax = self.feedforward_limits
-        # second-order backward differences, bounded so that the large, fast changes of q^d in the
-        # initial transient cannot close a high-gain loop through the arm torques
-        vel = np.clip((3.0 * h[-1] - 4.0 * h[-2] + h[-3]) / (2.0 * dt), -vmax, vmax)
-        acc = np.clip((2.0 * h[-1] - 5.0 * h[-2] + 4.0 * h[-3] - h[-4]) / (dt * dt), -amax, amax)
-        return vel, acc
-
-    def _push(self, arm_ref: np.ndarray) -> None:
-        """Record the allocated curvatures; a fresh (or freshly reset) entry gets a flat history so
-        the differentiator never sees the jump from the measured to the first allocated curvature."""
-        if self._history is None:
-            self._history = [arm_ref.copy() for _ in range(4)]
-            self._reseed = None
-            return
-        self._history.append(arm_ref.copy())
-        self._history.pop(0)
-        if self._reseed is not None:
-            for h in self._history[:-1]:
-                h[self._reseed] = arm_ref[self._reseed]
-            self._reseed = None
+    @staticmethod
+    def raise_for(err: np.ndarray, q: np.ndarray) -> None:
+        """Raise the error a failed kernel call reports (nothing is changed by such a call)."""
+        if (err == CK.ERR_TAU).any():
+            raise ValueError("tau contains NaN or inf; allocation needs a finite body force")
+        if (err == CK.ERR_CURVATURE).any():
+            check_curvature(q)
+        raise ValueError(f"controller kernel failed with codes {np.unique(err)}")  # pragma: no cover
 
     # --------------------------------------------------------------------------------- the step
     def __call__(self, q, qdot, q_ref, qdot_ref, qddot_ref, tau_residual=None, commit: bool = True) -> ControlOutput:
@@ -175,44 +179,40 @@ class PassivityController:
         in the actuated loops, used as given in the ideal loop). ``tau_residual`` (..., 5) is added
         to the controller's tau before allocation (body rows) and to the arm torques (arm rows).
         ``commit=False`` evaluates without advancing the controller's memory (RK4 stages)."""
-        q = np.asarray(q, dtype=np.float64)
-        qdot = np.asarray(qdot, dtype=np.float64)
         p, gains = self.params, self.gains
         if self.allocation == "ideal":
+            q = np.asarray(q, dtype=np.float64)
+            qdot = np.asarray(qdot, dtype=np.float64)
             tau = passivity_control(q, qdot, q_ref, qdot_ref, qddot_ref, p, gains)
             if tau_residual is not None:
                 tau = tau + tau_residual
             return ControlOutput(tau=tau, actuators=None, arm_reference=np.asarray(q_ref)[..., 3:5], allocation=None)
 
-        q_ref, qdot_ref, qddot_ref = (np.array(np.broadcast_to(r, q.shape), dtype=np.float64) for r in (q_ref, qdot_ref, qddot_ref))
-        arm, arm_d, arm_dd = self._arm_reference(q)
-        warm = self._warm  # rows set to NaN by reset(mask) are solved from the cold start
-        for _ in range(self.algebraic_iterations):
-            q_ref[..., 3:5], qdot_ref[..., 3:5], qddot_ref[..., 3:5] = arm, arm_d, arm_dd
-            tau = passivity_control(q, qdot, q_ref, qdot_ref, qddot_ref, p, gains)
-            if tau_residual is not None:
-                tau = tau + tau_residual
-            alloc, info = allocate(
-                tau, q, p, self.allocation, input_map=self.input_map, warm_start=warm, return_info=True
-            )
-            warm = alloc
-            arm = alloc[..., 2:4]
-        if commit:
-            self._warm = alloc.copy()
-            self._push(arm)
-            arm_d, arm_dd = self._derivatives()
-        q_ref[..., 3:5], qdot_ref[..., 3:5], qddot_ref[..., 3:5] = arm, arm_d, arm_dd
-        tau_arm = passivity_control(q, qdot, q_ref, qdot_ref, qddot_ref, p, gains)[..., 3:5]
+        arrays = dict(q=(q, 5), qdot=(qdot, 5), q_ref=(q_ref, 5), qdot_ref=(qdot_ref, 5), qddot_ref=(qddot_ref, 5))
         if tau_residual is not None:
-            tau_arm = tau_arm + np.asarray(tau_residual)[..., 3:5]
-        actuators = np.concatenate([alloc[..., :2], tau_arm], axis=-1)
-        if self.input_map == "exact":  # cancel the thrusts' own work on the curvatures
-            thrust_only = actuators.copy()
-            thrust_only[..., 2:4] = 0.0
-            actuators[..., 2:4] -= generalized_forces(q, thrust_only, p, "exact")[..., 3:5]
-        tau_cmd = tau.copy()
-        tau_cmd[..., 3:5] = tau_arm
-        return ControlOutput(tau=tau_cmd, actuators=actuators, arm_reference=np.array(arm), allocation=info)
+            arrays["tau_residual"] = (tau_residual, 5)
+        lead, flat = broadcast_batch(**arrays)
+        n = flat[0].shape[0]
+        res = flat[5] if tau_residual is not None else self._no_residual
+        tau = np.empty((n, 5))
+        act = np.empty((n, 4))
+        arm = np.empty((n, 2))
+        info = np.empty((n, CK.N_INFO))
+        err = np.zeros(n, dtype=np.int64)
+        S = self.state_rows(n)
+        S_new = S.copy()
+        run_rows(CK.batch_controller, n, *flat[:5], res, tau_residual is not None, bool(commit),
+                 self.kernel_constants, S, S_new, tau, act, arm, info, err)
+        failed = (not CK.commit_rows(S, S_new, err)) if commit else bool(err.any())
+        if failed:
+            self.raise_for(err, flat[0])
+        allocation = AllocationInfo(
+            residual=info[:, CK.INFO_RESIDUAL].reshape(lead),
+            iterations=info[:, CK.INFO_ITERATIONS].astype(np.int64).reshape(lead),
+            feasible=(info[:, CK.INFO_FEASIBLE] > 0.5).reshape(lead),
+        )
+        return ControlOutput(tau=tau.reshape(lead + (5,)), actuators=act.reshape(lead + (4,)),
+                             arm_reference=arm.reshape(lead + (2,)), allocation=allocation)
 
 
 HOLDS = ("stage", "step")

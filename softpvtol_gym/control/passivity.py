@@ -9,6 +9,7 @@ from typing import ClassVar
 import numpy as np
 
 from .._batching import broadcast_batch, param_matrix
+from .._parallel import run_rows
 from ..params import SoftPVTOLParams
 from . import _kernels as CK
 
@@ -80,7 +81,7 @@ def passivity_control(
         q=(q, 5), qdot=(qdot, 5), q_ref=(q_ref, 5), qdot_ref=(qdot_ref, 5), qddot_ref=(qddot_ref, 5)
     )
     out = np.empty_like(qf)
-    CK.batch_passivity(qf, vf, rf, rdf, rddf, param_matrix(params), gains.lam_array, gains.k_array, out)
+    run_rows(CK.batch_passivity, qf.shape[0], qf, vf, rf, rdf, rddf, param_matrix(params), gains.lam_array, gains.k_array, out)
     return out.reshape(lead + (5,))
 
 
@@ -91,5 +92,5 @@ def storage_function(
     gains = PassivityGains() if gains is None else gains
     lead, (qf, vf, rf, rdf) = broadcast_batch(q=(q, 5), qdot=(qdot, 5), q_ref=(q_ref, 5), qdot_ref=(qdot_ref, 5))
     out = np.empty(qf.shape[0])
-    CK.batch_storage(qf, vf, rf, rdf, param_matrix(params), gains.lam_array, gains.k_array, out)
+    run_rows(CK.batch_storage, qf.shape[0], qf, vf, rf, rdf, param_matrix(params), gains.lam_array, gains.k_array, out)
     return out.reshape(lead)

@@ -25,10 +25,12 @@ import math
 from typing import Any
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .. import _kernels as MK
 from ..control import _kernels as CK
+from .._batching import check_curvature
+from .._parallel import MIN_ROWS, row_ranges, run_split
 from ..control.passivity import PassivityGains
 from ..control.references import paper_reference
 from ..params import PARAM_FIELDS, SoftPVTOLParams
@@ -412,6 +414,47 @@ def counter_normal(key, counter, stream):
     return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
 
 
+# ------------------------------------------------------------------------------ packed env state
+# The state of N envs is a few arrays (few arguments: the call overhead of a compiled function grows
+# with their number): F (N, F_LEN) float64 with the column blocks F_*, I (N, I_LEN) int64 (I_*),
+# key (N,) uint64 and obs (N, 18) float32; constants C (C_*: the config vector cf, nominal params,
+# gains, residual scales, control period) and K (K_* codes). BatchSim exposes the column blocks as
+# views (sim.q, sim.qd, sim.qr, ...). In residual mode the controller's memory S (N, ST_LEN) and
+# constants cc are those of the PassivityController object (control._kernels.controller_row).
+# The kernels index F[n, column] directly: slicing rows into views would cost two atomic reference
+# count updates per view, which dominated the step.
+F_Q, F_QD, F_QM, F_QDM = 0, 5, 10, 15
+F_QR, F_QDR, F_QDDR = 20, 25, 30  # reference now
+F_QRN = 35  # the reference at the end of the step (q, qdot, qddot: 15), set before the step
+F_LAG, F_APPLIED, F_WIND, F_CMD, F_U = 50, 55, 60, 62, 66
+F_REW, F_TERMS, F_DIAG, F_P, F_T = 71, 72, 79, 87, 97
+F_LEN = 98
+I_COUNTER, I_STEPS, I_REASON, I_LAG_INIT, I_CLIPPED, I_LEN = range(6)
+C_PNOM = CF_LEN
+C_LAM = C_PNOM + 10
+C_KG = C_LAM + 5
+C_RES_TAU = C_KG + 5
+C_DT = C_RES_TAU + 5
+C_LEN = C_DT + 1
+K_MODE, K_ALLOC, K_IMAP, K_RES_VIRTUAL, K_CONST_REF, K_ADIM, K_LEN = range(7)
+
+
+@_jit
+def _row5(A, n, c):
+    return (A[n, c], A[n, c + 1], A[n, c + 2], A[n, c + 3], A[n, c + 4])
+
+
+@_jit
+def _row10(A, n, c):
+    return (A[n, c], A[n, c + 1], A[n, c + 2], A[n, c + 3], A[n, c + 4],
+            A[n, c + 5], A[n, c + 6], A[n, c + 7], A[n, c + 8], A[n, c + 9])
+
+
+@_jit
+def _vec5(v, c):
+    return (v[c], v[c + 1], v[c + 2], v[c + 3], v[c + 4])
+
+
 # ----------------------------------------------------------------------------------- observation
 @_jit
 def _wrap(a):
@@ -420,222 +463,488 @@ def _wrap(a):
 
 
 @_jit
-def _observe_one(q, qd, qr, qdr, qddr, cf, key, counter, obs, qm, qdm):
-    """Measured state (noisy tiers: + Gaussian noise) into qm/qdm and the observation into obs."""
-    if cf[CF_FLAGS + 2] > 0.0:
-        for i in range(5):
-            qm[i] = q[i] + cf[CF_NQ + i] * counter_normal(key, counter, i)
-            qdm[i] = qd[i] + cf[CF_NQD + i] * counter_normal(key, counter, 5 + i)
-    else:
-        for i in range(5):
-            qm[i] = q[i]
-            qdm[i] = qd[i]
-    vals = (
-        qm[0] - qr[0], qm[1] - qr[1], _wrap(qm[2] - qr[2]), math.sin(qm[2]), math.cos(qm[2]), qm[3], qm[4],
-        qdm[0], qdm[1], qdm[2], qdm[3], qdm[4], qdr[0], qdr[1], qdr[2], qddr[0], qddr[1], qddr[2],
-    )
-    for i in range(OBS_DIM):
-        v = vals[i]
-        obs[i] = min(max(v, -OBS_CLIP), OBS_CLIP)
+def _clip_obs(v):
+    return min(max(v, -OBS_CLIP), OBS_CLIP)
 
 
 @_jit
-def _diag_state(q, qd, qr, qdr, P, Pnom, lam, kg, diag):
-    diag[D_ENERGY] = MK.kinetic_energy(q, qd, P) + MK.potential_energy(q, P)
-    qr2 = np.zeros(5)
-    qdr2 = np.zeros(5)
-    for i in range(3):
-        qr2[i] = qr[i]
-        qdr2[i] = qdr[i]
-    diag[D_STORAGE] = CK.storage_into(q, qd, qr2, qdr2, Pnom, lam, kg)
-    diag[D_CURV_VIOL] = max(abs(q[3]) - math.pi, abs(q[4]) - math.pi, 0.0)
+def _observe_range(lo, hi, F, key, I, C, obs):
+    """Measured state (noisy tiers: + Gaussian noise) into F's qm/qdm and the observation obs[n] of
+    envs lo .. hi - 1."""
+    noise = C[CF_FLAGS + 2] > 0.0
+    for n in range(lo, hi):
+        counter = I[n, I_COUNTER]
+        for i in range(5):
+            a = F[n, F_Q + i]
+            b = F[n, F_QD + i]
+            if noise:
+                a = a + C[CF_NQ + i] * counter_normal(key[n], counter, i)
+                b = b + C[CF_NQD + i] * counter_normal(key[n], counter, 5 + i)
+            F[n, F_QM + i] = a
+            F[n, F_QDM + i] = b
+        obs[n, 0] = _clip_obs(F[n, F_QM] - F[n, F_QR])
+        obs[n, 1] = _clip_obs(F[n, F_QM + 1] - F[n, F_QR + 1])
+        obs[n, 2] = _clip_obs(_wrap(F[n, F_QM + 2] - F[n, F_QR + 2]))
+        obs[n, 3] = _clip_obs(math.sin(F[n, F_QM + 2]))
+        obs[n, 4] = _clip_obs(math.cos(F[n, F_QM + 2]))
+        obs[n, 5] = _clip_obs(F[n, F_QM + 3])
+        obs[n, 6] = _clip_obs(F[n, F_QM + 4])
+        for i in range(5):
+            obs[n, 7 + i] = _clip_obs(F[n, F_QDM + i])
+        for i in range(3):
+            obs[n, 12 + i] = _clip_obs(F[n, F_QDR + i])
+            obs[n, 15 + i] = _clip_obs(F[n, F_QDDR + i])
+
+
+@MK._inline
+def _energy_storage(q, qd, qr, qdr, P, Pnom, lam, kg):
+    """(total energy of the plant, controller storage w.r.t. the body reference with arm references 0)."""
+    energy = MK.kinetic_energy(q, qd, P) + MK.potential_energy(q, P)
+    storage = CK.storage(q, qd, (qr[0], qr[1], qr[2], 0.0, 0.0), (qdr[0], qdr[1], qdr[2], 0.0, 0.0), Pnom, lam, kg)
+    return energy, storage
+
+
+@_jit
+def _diag_row(F, n, C):
+    e, v = _energy_storage(_row5(F, n, F_Q), _row5(F, n, F_QD), _row5(F, n, F_QR), _row5(F, n, F_QDR),
+                           _row10(F, n, F_P), _vec5(C, C_PNOM) + _vec5(C, C_PNOM + 5), _vec5(C, C_LAM),
+                           _vec5(C, C_KG))
+    F[n, F_DIAG + D_ENERGY] = e
+    F[n, F_DIAG + D_STORAGE] = v
+    F[n, F_DIAG + D_CURV_VIOL] = max(abs(F[n, F_Q + 3]) - math.pi, abs(F[n, F_Q + 4]) - math.pi, 0.0)
 
 
 @njit(cache=True)
-def observe(q, qd, qr, qdr, qddr, cf, key, counter, P, Pnom, lam, kg, obs, qm, qdm, diag):
-    """Observation (and measured state, diagnostics) of entries right after a reset (batched)."""
-    for n in range(q.shape[0]):
-        _observe_one(q[n], qd[n], qr[n], qdr[n], qddr[n], cf, key[n], counter[n], obs[n], qm[n], qdm[n])
-        _diag_state(q[n], qd[n], qr[n], qdr[n], P[n], Pnom, lam, kg, diag[n])
+def observe_rows(F, obs, key, I, C, rows):
+    """Observation, measured state and diagnostics of the given rows right after a reset."""
+    for n in rows:
+        _observe_range(n, n + 1, F, key, I, C, obs)
+        _diag_row(F, n, C)
 
 
 # ------------------------------------------------------------------------------------ step kernel
+#: step kernel return codes
+STEP_OK, STEP_BAD_ACTION, STEP_CONTROLLER_TAU, STEP_CONTROLLER_CURVATURE = range(4)
+# lane rows of the physics block (after the RK4 rows of the model kernels): body reference (3),
+# reference rates (3), energy, storage
+L_QR = MK.LANE_ROWS_RK4
+L_QDR = L_QR + 3
+L_ENERGY = L_QDR + 3
+L_STORAGE = L_ENERGY + 1
+LANE_ROWS = L_STORAGE + 1
+# per-row controller outputs in residual mode: actuators (4), allocation residual, arm references (2)
+CTL_LEN = 7
+# scratch of _command: applied command (5), virtual tau (5), allocation out (4) and info (3)
+CMD_WORK = 20
+
+
 @_jit
-def _step_one(mode, alloc, imap, u, cmd, q, qd, P, cf, lag, lag_init, wind, key, counter,
-              qr, qdr, qddr, Pnom, lam, kg, obs, qm, qdm, rew, terms, diag, applied):
-    tmax = cf[CF_TMAX]
-    taumax = cf[CF_TAUMAX]
-    a = np.zeros(5)  # applied command: actuators (4) or, in ideal mode, tau (5)
+def _virtual_allocation(F, n, C, alloc, imap, ws):
+    """Virtual mode: thrusts from the body rows of tau (ws[5:10]) by the allocation, arm rows as
+    generalized forces; the command into ws[0:4], diagnostics into F. Returns the thrust flag."""
+    tau = ws[5:10]
+    out = ws[10:14]
+    info = ws[14:14 + CK.N_INFO]
+    Pnom = C[C_PNOM:C_PNOM + 10]
     thrust_sat = 0.0
-    torque_sat = 0.0
-    diag[D_ALLOC_RES] = 0.0
-    diag[D_ARM_L] = 0.0
-    diag[D_ARM_R] = 0.0
-    if mode == MODE_ACT:
-        a[0] = tmax * 0.5 * (u[0] + 1.0)
-        a[1] = tmax * 0.5 * (u[1] + 1.0)
-        a[2] = taumax * u[2]
-        a[3] = taumax * u[3]
-    elif mode == MODE_RES_ACT:
-        for i in range(4):
-            a[i] = cmd[i] + cf[CF_RES_ACT + i] * u[i]
+    if alloc == CK.ALLOC_PAPER:
+        CK.allocate_paper_into(tau, F[n, F_Q + 2], Pnom, out, False, out, info)
     else:
-        tau = np.empty(5)
-        for i in range(5):
-            tau[i] = cf[CF_OFFSET + i] + cf[CF_SCALE + i] * u[i]
-        if mode == MODE_IDEAL:
-            for i in range(5):
-                a[i] = tau[i]
+        CK.allocate_exact_into(tau, F[n, F_Q + 2], Pnom, imap, out, False, math.pi, out, info)
+    Tl, Tr = out[0], out[1]
+    if not (math.isfinite(Tl) and math.isfinite(Tr)):
+        Tl, Tr = 0.0, 0.0
+        thrust_sat = 1.0
+    ws[0], ws[1] = Tl, Tr
+    F[n, F_DIAG + D_ALLOC_RES] = info[CK.INFO_RESIDUAL] if math.isfinite(info[CK.INFO_RESIDUAL]) else 1.0e300
+    F[n, F_DIAG + D_ARM_L] = out[2]
+    F[n, F_DIAG + D_ARM_R] = out[3]
+    ws[2], ws[3] = tau[3], tau[4]
+    if imap == MK.INPUT_MAP_EXACT:  # the arm rows get the requested generalized force
+        gf = MK.generalized_forces(_row5(F, n, F_Q), (Tl, Tr, 0.0, 0.0), Pnom, imap)
+        ws[2] -= gf[3]
+        ws[3] -= gf[4]
+    return thrust_sat
+
+
+@_jit
+def _begin_range(lo, hi, F, I, C, K, ctl, W, ws):
+    """Reference, clock and applied command (action scaling, allocation, saturation, actuator lag)
+    of envs lo .. hi - 1, their state into the lanes of W."""
+    mode, alloc, imap = K[K_MODE], K[K_ALLOC], K[K_IMAP]
+    const_ref = K[K_CONST_REF] != 0
+    dt_ctrl = C[C_DT]
+    tmax = C[CF_TMAX]
+    taumax = C[CF_TAUMAX]
+    lag_on = C[CF_FLAGS] > 0.0
+    L = MK.LANES
+    for n in range(lo, hi):
+        if not const_ref:
+            for i in range(15):
+                F[n, F_QR + i] = F[n, F_QRN + i]
+        I[n, I_STEPS] += 1
+        F[n, F_T] = I[n, I_STEPS] * dt_ctrl
+        for i in range(5):  # ws[0:5]: the command: actuators (4) or, in ideal mode, tau (5)
+            ws[i] = 0.0
+        thrust_sat = 0.0
+        torque_sat = 0.0
+        F[n, F_DIAG + D_ALLOC_RES] = 0.0
+        F[n, F_DIAG + D_ARM_L] = 0.0
+        F[n, F_DIAG + D_ARM_R] = 0.0
+        if mode == MODE_ACT:
+            ws[0] = tmax * 0.5 * (F[n, F_U] + 1.0)
+            ws[1] = tmax * 0.5 * (F[n, F_U + 1] + 1.0)
+            ws[2] = taumax * F[n, F_U + 2]
+            ws[3] = taumax * F[n, F_U + 3]
+        elif mode == MODE_RES_ACT:
+            for i in range(4):
+                ws[i] = ctl[n, i] + C[CF_RES_ACT + i] * F[n, F_U + i]
         else:
-            out = np.empty(4)
-            info = np.empty(CK.N_INFO)
-            warm = np.zeros(4)
-            if alloc == CK.ALLOC_PAPER:
-                CK.allocate_paper_into(tau, q[2], Pnom, warm, False, out, info)
+            for i in range(5):
+                ws[5 + i] = C[CF_OFFSET + i] + C[CF_SCALE + i] * F[n, F_U + i]
+            if mode == MODE_IDEAL:
+                for i in range(5):
+                    ws[i] = ws[5 + i]
             else:
-                CK.allocate_exact_into(tau, q[2], Pnom, imap, warm, False, math.pi, out, info)
-            Tl, Tr = out[0], out[1]
-            if not (math.isfinite(Tl) and math.isfinite(Tr)):
-                Tl, Tr = 0.0, 0.0
-                thrust_sat = 1.0
-            a[0], a[1] = Tl, Tr
-            diag[D_ALLOC_RES] = info[CK.INFO_RESIDUAL] if math.isfinite(info[CK.INFO_RESIDUAL]) else 1.0e300
-            diag[D_ARM_L] = out[2]
-            diag[D_ARM_R] = out[3]
-            a[2], a[3] = tau[3], tau[4]
-            if imap == MK.INPUT_MAP_EXACT:  # the arm rows get the requested generalized force
-                thr = np.zeros(4)
-                thr[0], thr[1] = Tl, Tr
-                gf = np.empty(5)
-                MK.generalized_forces_into(q, thr, Pnom, imap, gf)
-                a[2] -= gf[3]
-                a[3] -= gf[4]
-    na = 5 if mode == MODE_IDEAL else 4
-    if mode != MODE_IDEAL:
-        for i in range(2):
-            if a[i] < 0.0:
-                a[i] = 0.0
-                thrust_sat = 1.0
-            elif a[i] > tmax:
-                a[i] = tmax
-                thrust_sat = 1.0
-        for i in range(2, 4):
-            if a[i] < -taumax:
-                a[i] = -taumax
-                torque_sat = 1.0
-            elif a[i] > taumax:
-                a[i] = taumax
-                torque_sat = 1.0
-    diag[D_THRUST_SAT] = thrust_sat
-    diag[D_TORQUE_SAT] = torque_sat
-    # first-order actuator lag (starts at the first command of the episode)
-    if cf[CF_FLAGS] > 0.0:
-        if lag_init[0]:
+                thrust_sat = _virtual_allocation(F, n, C, alloc, imap, ws)
+        na = 5 if mode == MODE_IDEAL else 4
+        if mode != MODE_IDEAL:
+            for i in range(2):
+                if ws[i] < 0.0:
+                    ws[i] = 0.0
+                    thrust_sat = 1.0
+                elif ws[i] > tmax:
+                    ws[i] = tmax
+                    thrust_sat = 1.0
+            for i in range(2, 4):
+                if ws[i] < -taumax:
+                    ws[i] = -taumax
+                    torque_sat = 1.0
+                elif ws[i] > taumax:
+                    ws[i] = taumax
+                    torque_sat = 1.0
+        F[n, F_DIAG + D_THRUST_SAT] = thrust_sat
+        F[n, F_DIAG + D_TORQUE_SAT] = torque_sat
+        # first-order actuator lag (starts at the first command of the episode)
+        if lag_on:
+            if I[n, I_LAG_INIT] != 0:
+                for i in range(na):
+                    F[n, F_LAG + i] = ws[i]
+                I[n, I_LAG_INIT] = 0
+            else:
+                al = C[CF_LAG_A]
+                for i in range(na):
+                    F[n, F_LAG + i] = F[n, F_LAG + i] + al * (ws[i] - F[n, F_LAG + i])
             for i in range(na):
-                lag[i] = a[i]
-            lag_init[0] = False
-        else:
-            al = cf[CF_LAG_A]
-            for i in range(na):
-                lag[i] = lag[i] + al * (a[i] - lag[i])
-        for i in range(na):
-            a[i] = lag[i]
-    for i in range(5):
-        applied[i] = a[i] if i < na else math.nan
-    # physics: frame_skip RK4 steps with the command held (B(q) re-evaluated at each step)
-    q0 = q.copy()
-    qd0 = qd.copy()
-    tau = np.empty(5)
-    dt = cf[CF_DT]
-    wind_on = cf[CF_FLAGS + 1] > 0.0
-    for _ in range(int(cf[CF_FS])):
-        if mode == MODE_IDEAL:
-            for i in range(5):
-                tau[i] = a[i]
-        else:
-            MK.generalized_forces_into(q, a, P, imap, tau)
-        if wind_on:
-            tau[0] += wind[0]
-            tau[1] += wind[1]
-        MK.rk4_step_into(q, qd, tau, P, dt, q, qd)
-    counter[0] += 1
-    if wind_on:
-        wa, wb = cf[CF_WIND_A], cf[CF_WIND_B]
-        wind[0] = wa * wind[0] + wb * counter_normal(key, counter[0], 10)
-        wind[1] = wa * wind[1] + wb * counter_normal(key, counter[0], 11)
-    # termination
-    finite = True
-    for i in range(5):
-        if not (math.isfinite(q[i]) and math.isfinite(qd[i])):
-            finite = False
-    reason = R_NONE
-    if not finite:
-        reason = R_NONFINITE
-        for i in range(5):  # keep the last finite state: observation and info stay finite
-            q[i] = q0[i]
-            qd[i] = qd0[i]
-    elif abs(q[3]) > math.pi or abs(q[4]) > math.pi:
-        reason = R_CURV
-    elif q[1] < GROUND_Z:
-        reason = R_GROUND
-    elif (abs(q[0]) > BOX_X or q[1] > BOX_Z or abs(qd[0]) > MAX_LIN_SPEED or abs(qd[1]) > MAX_LIN_SPEED
-          or abs(qd[2]) > MAX_ANG_SPEED or abs(qd[3]) > MAX_ANG_SPEED or abs(qd[4]) > MAX_ANG_SPEED):
-        reason = R_OOB
-    _observe_one(q, qd, qr, qdr, qddr, cf, key, counter[0], obs, qm, qdm)
-    _diag_state(q, qd, qr, qdr, P, Pnom, lam, kg, diag)
-    # reward terms (true state, not the noisy measurement)
-    ex, ez = q[0] - qr[0], q[1] - qr[1]
-    eth = _wrap(q[2] - qr[2])
-    ev = math.sqrt((qd[0] - qdr[0]) ** 2 + (qd[1] - qdr[1]) ** 2 + (qd[2] - qdr[2]) ** 2)
-    if mode == MODE_IDEAL:
-        eff = 0.0
+                ws[i] = F[n, F_LAG + i]
         for i in range(5):
-            eff += ((a[i] - cf[CF_OFFSET + i]) / cf[CF_SCALE + i]) ** 2
-        eff /= 5.0
+            F[n, F_APPLIED + i] = ws[i] if i < na else math.nan
+        if mode == MODE_RES_ACT:
+            F[n, F_DIAG + D_ALLOC_RES] = ctl[n, 4]
+            F[n, F_DIAG + D_ARM_L] = ctl[n, 5]
+            F[n, F_DIAG + D_ARM_R] = ctl[n, 6]
+        j = n - lo
+        for i in range(5):
+            W[(MK.LANE_Q + i) * L + j] = F[n, F_Q + i]
+            W[(MK.LANE_QD + i) * L + j] = F[n, F_QD + i]
+        for i in range(10):
+            W[(MK.LANE_P + i) * L + j] = F[n, F_P + i]
+
+
+@_jit
+def _lane_put5(W, row, j, v):
+    L = MK.LANES
+    W[row * L + j] = v[0]
+    W[(row + 1) * L + j] = v[1]
+    W[(row + 2) * L + j] = v[2]
+    W[(row + 3) * L + j] = v[3]
+    W[(row + 4) * L + j] = v[4]
+
+
+@_jit
+def _lane5(W, row, j):
+    L = MK.LANES
+    o = row * L + j
+    return (W[o], W[o + L], W[o + 2 * L], W[o + 3 * L], W[o + 4 * L])
+
+
+@MK._inline
+def _diag_lane(W, j, pnom, lam, kg):
+    q, qd, _tau, p = MK._lane_load(W, j)
+    L = MK.LANES
+    qr = (W[L_QR * L + j], W[(L_QR + 1) * L + j], W[(L_QR + 2) * L + j])
+    qdr = (W[L_QDR * L + j], W[(L_QDR + 1) * L + j], W[(L_QDR + 2) * L + j])
+    e, v = _energy_storage(q, qd, qr, qdr, p, pnom, lam, kg)
+    W[L_ENERGY * L + j] = e
+    W[L_STORAGE * L + j] = v
+
+
+@_jit
+def _diag_lanes(W, m, pnom, lam, kg):
+    """Energy and storage of the first m lanes (the functions of _diag_row; SIMD for full blocks)."""
+    if m == MK.LANES:
+        for j in range(MK.LANES):
+            _diag_lane(W, j, pnom, lam, kg)
     else:
-        th = cf[CF_THOVER]
-        eff = 0.25 * (((a[0] - th) / tmax) ** 2 + ((a[1] - th) / tmax) ** 2
-                      + (a[2] / taumax) ** 2 + (a[3] / taumax) ** 2)
-    cm = max(abs(q[3]), abs(q[4]))
-    cp = min(max((cm - 0.5 * math.pi) / (0.5 * math.pi), 0.0), 1.0)
-    terms[0] = 1.0
-    terms[1] = -W_POS * min(math.sqrt(ex * ex + ez * ez) / POS_SCALE, 1.0)
-    terms[2] = -W_ATT * min(abs(eth) / math.pi, 1.0)
-    terms[3] = -W_VEL * min(ev / VEL_SCALE, 1.0)
-    terms[4] = -W_EFFORT * min(eff, 1.0)
-    terms[5] = -W_CURV * cp * cp
-    terms[6] = -CRASH_PENALTY if reason != R_NONE else 0.0
-    r = 0.0
-    for i in range(7):
-        r += terms[i]
-    rew[0] = r
-    return reason
+        for j in range(m):
+            _diag_lane(W, j, pnom, lam, kg)
 
 
-@njit(cache=True)
-def step_serial(mode, alloc, imap, u, cmd, q, qd, P, cf, lag, lag_init, wind, key, counter,
-                qr, qdr, qddr, Pnom, lam, kg, obs, qm, qdm, rew, terms, diag, applied, reason):
-    for n in range(q.shape[0]):
-        reason[n] = _step_one(mode, alloc, imap, u[n], cmd[n], q[n], qd[n], P[n], cf, lag[n], lag_init[n:n + 1],
-                              wind[n], key[n], counter[n:n + 1], qr[n], qdr[n], qddr[n], Pnom, lam, kg,
-                              obs[n], qm[n], qdm[n], rew[n:n + 1], terms[n], diag[n], applied[n])
+@_jit
+def _physics_range(lo, hi, F, C, K, W):
+    """frame_skip RK4 steps of envs lo .. hi - 1 in the lanes of W, the command held (B(q)
+    re-evaluated at each step)."""
+    mode, imap = K[K_MODE], K[K_IMAP]
+    dt = C[CF_DT]
+    wind_on = C[CF_FLAGS + 1] > 0.0
+    for _ in range(int(C[CF_FS])):
+        for n in range(lo, hi):
+            j = n - lo
+            if mode == MODE_IDEAL:
+                t0, t1, t2, t3, t4 = _row5(F, n, F_APPLIED)
+            else:
+                t0, t1, t2, t3, t4 = MK.generalized_forces(
+                    _lane5(W, MK.LANE_Q, j),
+                    (F[n, F_APPLIED], F[n, F_APPLIED + 1], F[n, F_APPLIED + 2], F[n, F_APPLIED + 3]),
+                    _row10(F, n, F_P), imap,
+                )
+            if wind_on:
+                t0 += F[n, F_WIND]
+                t1 += F[n, F_WIND + 1]
+            _lane_put5(W, MK.LANE_TAU, j, (t0, t1, t2, t3, t4))
+        MK.rk4_lanes(W, dt, hi - lo)
 
 
-@njit(cache=True, parallel=True)
-def step_parallel(mode, alloc, imap, u, cmd, q, qd, P, cf, lag, lag_init, wind, key, counter,
-                  qr, qdr, qddr, Pnom, lam, kg, obs, qm, qdm, rew, terms, diag, applied, reason):
-    for n in prange(q.shape[0]):
-        reason[n] = _step_one(mode, alloc, imap, u[n], cmd[n], q[n], qd[n], P[n], cf, lag[n], lag_init[n:n + 1],
-                              wind[n], key[n], counter[n:n + 1], qr[n], qdr[n], qddr[n], Pnom, lam, kg,
-                              obs[n], qm[n], qdm[n], rew[n:n + 1], terms[n], diag[n], applied[n])
+@_jit
+def _end_range(lo, hi, F, key, I, C, W):
+    """Clock, wind and termination of envs lo .. hi - 1; the final state from W back into F (the last
+    finite one if it diverged, also into W); the body reference into W for the diagnostics."""
+    L = MK.LANES
+    wind_on = C[CF_FLAGS + 1] > 0.0
+    for n in range(lo, hi):
+        j = n - lo
+        I[n, I_COUNTER] += 1
+        counter = I[n, I_COUNTER]
+        if wind_on:
+            wa, wb = C[CF_WIND_A], C[CF_WIND_B]
+            F[n, F_WIND] = wa * F[n, F_WIND] + wb * counter_normal(key[n], counter, 10)
+            F[n, F_WIND + 1] = wa * F[n, F_WIND + 1] + wb * counter_normal(key[n], counter, 11)
+        q = _lane5(W, MK.LANE_Q, j)
+        qd = _lane5(W, MK.LANE_QD, j)
+        finite = True
+        for i in range(5):
+            if not (math.isfinite(q[i]) and math.isfinite(qd[i])):
+                finite = False
+        reason = R_NONE
+        if not finite:
+            reason = R_NONFINITE  # keep the last finite state: observation and info stay finite
+            for i in range(5):
+                W[(MK.LANE_Q + i) * L + j] = F[n, F_Q + i]
+                W[(MK.LANE_QD + i) * L + j] = F[n, F_QD + i]
+        else:
+            F[n, F_Q], F[n, F_Q + 1], F[n, F_Q + 2], F[n, F_Q + 3], F[n, F_Q + 4] = q
+            F[n, F_QD], F[n, F_QD + 1], F[n, F_QD + 2], F[n, F_QD + 3], F[n, F_QD + 4] = qd
+            if abs(q[3]) > math.pi or abs(q[4]) > math.pi:
+                reason = R_CURV
+            elif q[1] < GROUND_Z:
+                reason = R_GROUND
+            elif (abs(q[0]) > BOX_X or q[1] > BOX_Z or abs(qd[0]) > MAX_LIN_SPEED or abs(qd[1]) > MAX_LIN_SPEED
+                  or abs(qd[2]) > MAX_ANG_SPEED or abs(qd[3]) > MAX_ANG_SPEED or abs(qd[4]) > MAX_ANG_SPEED):
+                reason = R_OOB
+        I[n, I_REASON] = reason
+        for i in range(3):
+            W[(L_QR + i) * L + j] = F[n, F_QR + i]
+            W[(L_QDR + i) * L + j] = F[n, F_QDR + i]
 
 
-PARALLEL_THRESHOLD = 512
+@_jit
+def _reward_range(lo, hi, F, I, C, K, W):
+    """Diagnostics (energy and storage from the lanes of W) and reward terms of envs lo .. hi - 1
+    (true state, not the noisy measurement)."""
+    L = MK.LANES
+    ideal = K[K_MODE] == MODE_IDEAL
+    tmax = C[CF_TMAX]
+    taumax = C[CF_TAUMAX]
+    for n in range(lo, hi):
+        j = n - lo
+        q3, q4 = F[n, F_Q + 3], F[n, F_Q + 4]
+        F[n, F_DIAG + D_ENERGY] = W[L_ENERGY * L + j]
+        F[n, F_DIAG + D_STORAGE] = W[L_STORAGE * L + j]
+        F[n, F_DIAG + D_CURV_VIOL] = max(abs(q3) - math.pi, abs(q4) - math.pi, 0.0)
+        ex, ez = F[n, F_Q] - F[n, F_QR], F[n, F_Q + 1] - F[n, F_QR + 1]
+        eth = _wrap(F[n, F_Q + 2] - F[n, F_QR + 2])
+        ev = math.sqrt((F[n, F_QD] - F[n, F_QDR]) ** 2 + (F[n, F_QD + 1] - F[n, F_QDR + 1]) ** 2
+                       + (F[n, F_QD + 2] - F[n, F_QDR + 2]) ** 2)
+        if ideal:
+            eff = 0.0
+            for i in range(5):
+                eff += ((F[n, F_APPLIED + i] - C[CF_OFFSET + i]) / C[CF_SCALE + i]) ** 2
+            eff /= 5.0
+        else:
+            th = C[CF_THOVER]
+            eff = 0.25 * (((F[n, F_APPLIED] - th) / tmax) ** 2 + ((F[n, F_APPLIED + 1] - th) / tmax) ** 2
+                          + (F[n, F_APPLIED + 2] / taumax) ** 2 + (F[n, F_APPLIED + 3] / taumax) ** 2)
+        cm = max(abs(q3), abs(q4))
+        cp = min(max((cm - 0.5 * math.pi) / (0.5 * math.pi), 0.0), 1.0)
+        t0 = 1.0
+        t1 = -W_POS * min(math.sqrt(ex * ex + ez * ez) / POS_SCALE, 1.0)
+        t2 = -W_ATT * min(abs(eth) / math.pi, 1.0)
+        t3 = -W_VEL * min(ev / VEL_SCALE, 1.0)
+        t4 = -W_EFFORT * min(eff, 1.0)
+        t5 = -W_CURV * cp * cp
+        t6 = -CRASH_PENALTY if I[n, I_REASON] != R_NONE else 0.0
+        F[n, F_TERMS], F[n, F_TERMS + 1], F[n, F_TERMS + 2], F[n, F_TERMS + 3] = t0, t1, t2, t3
+        F[n, F_TERMS + 4], F[n, F_TERMS + 5], F[n, F_TERMS + 6] = t4, t5, t6
+        r = 0.0
+        r += t0
+        r += t1
+        r += t2
+        r += t3
+        r += t4
+        r += t5
+        r += t6
+        F[n, F_REW] = r
+
+
+@_jit
+def _step_block(n0, m, F, obs, key, I, C, K, ctl, W, ws):
+    """Advance envs n0 .. n0 + m - 1 (m <= LANES) by one control step; the physics of the block runs
+    in the lane buffer W (structure-of-arrays, rows MK.LANE_* and L_*)."""
+    hi = n0 + m
+    _begin_range(n0, hi, F, I, C, K, ctl, W, ws)
+    _physics_range(n0, hi, F, C, K, W)
+    _end_range(n0, hi, F, key, I, C, W)
+    _diag_lanes(W, m, _vec5(C, C_PNOM) + _vec5(C, C_PNOM + 5), _vec5(C, C_LAM), _vec5(C, C_KG))
+    _observe_range(n0, hi, F, key, I, C, obs)
+    _reward_range(n0, hi, F, I, C, K, W)
+
+
+@_jit
+def _take_actions(act, F, I, adim):
+    """Validate (finite) and clip the actions into F's action block; returns (ok, any nonzero)."""
+    n = act.shape[0]
+    for i in range(n):
+        for k in range(adim):
+            if not math.isfinite(act[i, k]):
+                return False, False
+    anyu = False
+    for i in range(n):
+        clipped = 0
+        for k in range(adim):
+            x = act[i, k]
+            c = -1.0 if x < -1.0 else (1.0 if x > 1.0 else x)
+            F[i, F_U + k] = c
+            if c != x:
+                clipped = 1
+            if c != 0.0:
+                anyu = True
+        I[i, I_CLIPPED] = clipped
+    return True, anyu
+
+
+@_jit
+def _controller_rows(lo, hi, F, C, has_res, cc, S, S_new, ctl, err):
+    """The residual-mode base controller (PassivityController's row kernel) for envs lo .. hi - 1:
+    actuators, allocation residual and arm references into ctl, the new memory into S_new."""
+    work = np.empty(CK.CONTROLLER_WORK + 16)
+    cw = work[:CK.CONTROLLER_WORK]
+    w = work[CK.CONTROLLER_WORK:]
+    res, out5, arm, info = w[0:5], w[5:10], w[10:12], w[12:15]
+    for n in range(lo, hi):
+        if has_res:
+            for i in range(5):
+                res[i] = F[n, F_U + i] * C[C_RES_TAU + i]
+        err[n] = CK.controller_row(F[n, F_QM:F_QM + 5], F[n, F_QDM:F_QDM + 5], F[n, F_QR:F_QR + 5],
+                                   F[n, F_QDR:F_QDR + 5], F[n, F_QDDR:F_QDDR + 5], res, has_res, True, cc, S[n],
+                                   S_new[n], out5, ctl[n, 0:4], arm, info, cw)
+        ctl[n, 4] = info[CK.INFO_RESIDUAL]
+        ctl[n, 5] = arm[0]
+        ctl[n, 6] = arm[1]
+
+
+@_jit
+def _controller_error(err, S, S_new):
+    """Commit the controller memory if every row succeeded; else the step kernel's error code."""
+    for n in range(err.shape[0]):
+        if err[n] == CK.ERR_TAU:
+            return STEP_CONTROLLER_TAU
+        if err[n] == CK.ERR_CURVATURE:
+            return STEP_CONTROLLER_CURVATURE
+    for n in range(S.shape[0]):
+        for k in range(CK.ST_LEN):
+            S[n, k] = S_new[n, k]
+    return STEP_OK
+
+
+@_jit
+def _physics_rows(lo, hi, F, obs, key, I, C, K, ctl):
+    """Advance envs lo .. hi - 1 by one control step, in blocks of LANES (the controller done)."""
+    W = np.empty(LANE_ROWS * MK.LANES)
+    ws = np.empty(CMD_WORK)
+    for n0 in range(lo, hi, MK.LANES):
+        _step_block(n0, min(MK.LANES, hi - n0), F, obs, key, I, C, K, ctl, W, ws)
+
+
+# Entry points. Small batches: step_serial (one call). Large batches: BatchSim splits the rows over
+# threads (Python threads calling these nogil kernels on disjoint row ranges, waiting passively;
+# numba's OpenMP pool spin-waits, which collapses when the machine is busy):
+# step_take_actions, then (residual mode) step_controller_rows + step_commit_controller, then
+# step_physics_rows. An error code changes nothing.
+
+
+@njit(cache=True, nogil=True)
+def step_take_actions(act, F, I, K):
+    """Validate (finite) and clip the actions; returns (ok, residual added) (see _take_actions)."""
+    ok, anyu = _take_actions(act, F, I, K[K_ADIM])
+    return ok, anyu and K[K_RES_VIRTUAL] != 0
+
+
+@njit(cache=True, nogil=True)
+def step_controller_rows(lo, hi, F, C, has_res, cc, S, S_new, ctl, err):
+    _controller_rows(lo, hi, F, C, has_res, cc, S, S_new, ctl, err)
+
+
+@njit(cache=True, nogil=True)
+def step_commit_controller(err, S, S_new):
+    return _controller_error(err, S, S_new)
+
+
+@njit(cache=True, nogil=True)
+def step_physics_rows(lo, hi, F, obs, key, I, C, K, ctl):
+    _physics_rows(lo, hi, F, obs, key, I, C, K, ctl)
+
+
+@njit(cache=True, nogil=True)
+def step_serial(act, F, obs, key, I, C, K, cc, S):
+    """One control step of every env (actions act (N, A)); returns a ``STEP_*`` code."""
+    n = F.shape[0]
+    ok, anyu = _take_actions(act, F, I, K[K_ADIM])
+    if not ok:
+        return STEP_BAD_ACTION
+    ctl = np.empty((n, CTL_LEN))
+    if K[K_MODE] == MODE_RES_ACT:
+        S_new = S.copy()
+        err = np.zeros(n, dtype=np.int64)
+        _controller_rows(0, n, F, C, anyu and K[K_RES_VIRTUAL] != 0, cc, S, S_new, ctl, err)
+        code = _controller_error(err, S, S_new)
+        if code != STEP_OK:
+            return code
+    _physics_rows(0, n, F, obs, key, I, C, K, ctl)
+    return STEP_OK
+
+
+#: batches of at least this many envs are split over threads (softpvtol_gym._parallel)
+PARALLEL_THRESHOLD = MIN_ROWS
 
 
 # ----------------------------------------------------------------------------------- batch state
 class BatchSim:
-    """State of N envs as arrays and their step/reset, shared by the single and the vector env."""
+    """State of N envs as arrays and their step/reset, shared by the single and the vector env.
+
+    The state lives in a few packed arrays (see the step kernel); the attributes q, qd, qm, qdm, qr,
+    qdr, qddr, lag, applied, wind, cmd, u, rew, terms, diag, P, t (float) and counter, steps, reason,
+    lag_init, clipped (int) are views into them.
+    """
 
     def __init__(self, cfg: EnvConfig, n: int):
         from ..control import PassivityController
@@ -652,34 +961,63 @@ class BatchSim:
         self.action_dim = cfg.action_dim
         self.max_steps = cfg.max_steps
         self.dt = cfg.dt
-        z5 = lambda: np.zeros((n, 5))  # noqa: E731
-        self.q, self.qd, self.qm, self.qdm = z5(), z5(), z5(), z5()
-        self.qr, self.qdr, self.qddr = z5(), z5(), z5()
-        self.lag = z5()
-        self.applied = z5()
-        self.lag_init = np.ones(n, dtype=np.bool_)
-        self.wind = np.zeros((n, 2))
-        self.key = np.zeros(n, dtype=np.uint64)
-        self.counter = np.zeros(n, dtype=np.int64)
-        self.P = np.repeat(self.Pnom[None, :], n, axis=0)
-        self.refp = np.zeros((n, N_REF_PARAMS))
-        self.obs = np.zeros((n, OBS_DIM), dtype=np.float32)
-        self.rew = np.zeros(n)
-        self.terms = np.zeros((n, len(REWARD_TERMS)))
-        self.diag = np.zeros((n, N_DIAG))
-        self.reason = np.zeros(n, dtype=np.int64)
-        self.cmd = np.zeros((n, 4))
-        self.u = np.zeros((n, self.action_dim))
-        self.clipped = np.zeros(n, dtype=bool)
-        self.t = np.zeros(n)
-        self.steps = np.zeros(n, dtype=np.int64)
-        self._kernel = step_parallel if n >= PARALLEL_THRESHOLD else step_serial
         self._const_ref = cfg.task in ("hover", "setpoint")
+        # packed state and its views
+        self.F = np.zeros((n, F_LEN))
+        self.I = np.zeros((n, I_LEN), dtype=np.int64)
+        self.key = np.zeros(n, dtype=np.uint64)
+        self.obs = np.zeros((n, OBS_DIM), dtype=np.float32)
+        self._make_views()
+        self.P[:] = self.Pnom
+        self.lag_init[:] = 1
+        self.refp = np.zeros((n, N_REF_PARAMS))
+        C = np.zeros(C_LEN)
+        C[:CF_LEN] = self.cf
+        C[C_PNOM:C_PNOM + 10] = self.Pnom
+        C[C_LAM:C_LAM + 5] = self.lam
+        C[C_KG:C_KG + 5] = self.kg
+        C[C_RES_TAU:C_RES_TAU + 5] = cfg.residual_tau_scale
+        C[C_DT] = self.dt
+        self.C = C
+        K = np.zeros(K_LEN, dtype=np.int64)
+        K[K_MODE], K[K_ALLOC], K[K_IMAP] = self.mode, self.alloc_code, self.imap
+        K[K_RES_VIRTUAL] = 1 if cfg.residual_space == "virtual" else 0
+        K[K_CONST_REF] = 1 if self._const_ref else 0
+        K[K_ADIM] = self.action_dim
+        self.K = K
+        self._ranges = row_ranges(n, align=MK.LANES)  # one per thread, whole lane blocks
+        self._ctl = np.empty((n, CTL_LEN)) if len(self._ranges) > 1 else None
+        self._shape = {True: (n, self.action_dim), False: (self.action_dim,)}
         self.controller = None
         if cfg.action_mode == "residual":
             self.controller = PassivityController.from_loop(
                 cfg.controller_loop, params=cfg.params, input_map=cfg.input_map, dt=cfg.dt
             )
+            self.controller.state_rows(n)
+
+    _VIEWS = ("q", "qd", "qm", "qdm", "qr", "qdr", "qddr", "qr_next", "lag", "applied", "wind", "cmd", "u", "rew",
+              "terms", "diag", "P", "t", "counter", "steps", "reason", "lag_init", "clipped")
+
+    def _make_views(self) -> None:
+        F, I = self.F, self.I
+        self.q, self.qd, self.qm, self.qdm = F[:, F_Q:F_Q + 5], F[:, F_QD:F_QD + 5], F[:, F_QM:F_QM + 5], F[:, F_QDM:F_QDM + 5]
+        self.qr, self.qdr, self.qddr = F[:, F_QR:F_QR + 5], F[:, F_QDR:F_QDR + 5], F[:, F_QDDR:F_QDDR + 5]
+        self.qr_next = F[:, F_QRN:F_QRN + 15]
+        self.lag, self.applied = F[:, F_LAG:F_LAG + 5], F[:, F_APPLIED:F_APPLIED + 5]
+        self.wind, self.cmd = F[:, F_WIND:F_WIND + 2], F[:, F_CMD:F_CMD + 4]
+        self.u = F[:, F_U:F_U + self.action_dim]
+        self.rew, self.terms = F[:, F_REW], F[:, F_TERMS:F_TERMS + len(REWARD_TERMS)]
+        self.diag, self.P, self.t = F[:, F_DIAG:F_DIAG + N_DIAG], F[:, F_P:F_P + 10], F[:, F_T]
+        self.counter, self.steps, self.reason = I[:, I_COUNTER], I[:, I_STEPS], I[:, I_REASON]
+        self.lag_init, self.clipped = I[:, I_LAG_INIT], I[:, I_CLIPPED]
+
+    def __getstate__(self) -> dict:
+        # the views are rebuilt on unpickling (pickle would turn them into independent copies)
+        return {k: v for k, v in self.__dict__.items() if k not in self._VIEWS}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._make_views()
 
     # -------------------------------------------------------------------------------- reset
     def reset_entries(self, idx: np.ndarray, u: np.ndarray, options: dict | None = None) -> None:
@@ -696,9 +1034,9 @@ class BatchSim:
         self.t[idx] = 0.0
         self.steps[idx] = 0
         self.lag[idx] = 0.0
-        self.lag_init[idx] = True
+        self.lag_init[idx] = 1
         self.applied[idx] = np.nan
-        self.clipped[idx] = False
+        self.clipped[idx] = 0
         self.reason[idx] = R_NONE
         self.rew[idx] = 0.0
         self.terms[idx] = 0.0
@@ -713,22 +1051,17 @@ class BatchSim:
         else:
             self.wind[idx] = 0.0
         ii = np.atleast_1d(np.arange(self.n)[idx])
-        obs = np.empty((ii.size, OBS_DIM), dtype=np.float32)
-        qm = np.empty((ii.size, 5))
-        qdm = np.empty((ii.size, 5))
-        diag = np.zeros((ii.size, N_DIAG))
-        observe(self.q[ii], self.qd[ii], self.qr[ii], self.qdr[ii], self.qddr[ii], self.cf, self.key[ii],
-                self.counter[ii], self.P[ii], self.Pnom, self.lam, self.kg, obs, qm, qdm, diag)
-        self.obs[ii], self.qm[ii], self.qdm[ii], self.diag[ii] = obs, qm, qdm, diag
+        self.diag[ii] = 0.0
+        observe_rows(self.F, self.obs, self.key, self.I, self.C, ii)
         if self.controller is not None:
             mask = np.zeros(self.n, dtype=bool)
             mask[ii] = True
             self.controller.reset(mask)
 
     # --------------------------------------------------------------------------------- step
-    def check_action(self, action, batched: bool) -> np.ndarray:
-        """Validate (shape, finite) and clip; returns the clipped float64 (N, A) action."""
-        expected = (self.n, self.action_dim) if batched else (self.action_dim,)
+    def step(self, action, batched: bool) -> None:
+        """Validate the action (shape, finite), clip it and advance every entry by one control step."""
+        expected = self._shape[batched]
         try:
             a = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError):
@@ -739,37 +1072,46 @@ class BatchSim:
             raise ValueError(
                 f"action must have shape {expected} (action_mode={self.cfg.action_mode!r}), got shape {a.shape}"
             )
-        if not np.isfinite(a).all():
-            raise ValueError(f"action must be finite (in [-1, 1]), got {action!r}")
-        a = a.reshape(self.n, self.action_dim)
-        np.clip(a, -1.0, 1.0, out=self.u)
-        np.not_equal(a, self.u).any(axis=1, out=self.clipped)
-        return self.u
-
-    def step(self) -> None:
-        """Advance every entry by one control step with the (checked) action in ``self.u``."""
-        cfg = self.cfg
-        if self.controller is not None:
-            if cfg.residual_space == "virtual":
-                # an all-zero residual is not added at all, so that action 0 is the controller exactly
-                res = self.u * cfg.residual_tau_scale if self.u.any() else None
-                out = self.controller(self.qm, self.qdm, self.qr, self.qdr, self.qddr, tau_residual=res)
-            else:
-                out = self.controller(self.qm, self.qdm, self.qr, self.qdr, self.qddr)
-            self.cmd[:] = out.actuators
-            alloc_res = out.allocation.residual
-            arm_ref = out.arm_reference
-        self.steps += 1
-        np.multiply(self.steps, self.dt, out=self.t)
+        if not batched:
+            a = a.reshape(1, self.action_dim)
         if not self._const_ref:
-            self.qr, self.qdr, self.qddr = (np.ascontiguousarray(x) for x in reference(cfg.task, self.t, self.refp))
-        self._kernel(self.mode, self.alloc_code, self.imap, self.u, self.cmd, self.q, self.qd, self.P, self.cf,
-                     self.lag, self.lag_init, self.wind, self.key, self.counter, self.qr, self.qdr, self.qddr,
-                     self.Pnom, self.lam, self.kg, self.obs, self.qm, self.qdm, self.rew, self.terms, self.diag,
-                     self.applied, self.reason)
+            t_next = (self.steps + 1) * self.dt
+            qr, qdr, qddr = reference(self.cfg.task, t_next, self.refp)
+            nx = self.qr_next
+            nx[:, 0:5], nx[:, 5:10], nx[:, 10:15] = qr, qdr, qddr
+        ctrl = self.controller
+        if ctrl is not None:
+            cc, S = ctrl.kernel_constants, ctrl.state_rows(self.n)
+        else:
+            cc, S = self.C, self.F
+        if len(self._ranges) == 1:
+            code = step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, cc, S)
+        else:
+            code = self._step_split(a, cc, S)
+        if code != STEP_OK:
+            if code == STEP_BAD_ACTION:
+                raise ValueError(f"action must be finite (in [-1, 1]), got {action!r}")
+            if code == STEP_CONTROLLER_TAU:
+                raise ValueError("tau contains NaN or inf; allocation needs a finite body force")
+            check_curvature(self.qm)
+            raise RuntimeError(f"step kernel failed with code {code}")  # pragma: no cover
+
+    def _step_split(self, a, cc, S) -> int:
+        """The step of a large batch with its rows split over threads (same result as step_serial)."""
+        F, obs, key, I, C, K, ctl = self.F, self.obs, self.key, self.I, self.C, self.K, self._ctl
+        ok, has_res = step_take_actions(a, F, I, K)
+        if not ok:
+            return STEP_BAD_ACTION
         if self.controller is not None:
-            self.diag[:, D_ALLOC_RES] = alloc_res
-            self.diag[:, D_ARM_L:D_ARM_R + 1] = arm_ref
+            S_new = S.copy()
+            err = np.zeros(self.n, dtype=np.int64)
+            run_split(lambda lo, hi: step_controller_rows(lo, hi, F, C, has_res, cc, S, S_new, ctl, err),
+                       self._ranges)
+            code = step_commit_controller(err, S, S_new)
+            if code != STEP_OK:
+                return code
+        run_split(lambda lo, hi: step_physics_rows(lo, hi, F, obs, key, I, C, K, ctl), self._ranges)
+        return STEP_OK
 
 
 def _apply_options(cfg: EnvConfig, ep: dict, options: dict) -> dict:

@@ -194,8 +194,7 @@ class SoftPVTOLEnv(gym.Env):
 
     def step(self, action):
         sim = self._sim
-        sim.check_action(action, batched=False)
-        sim.step()
+        sim.step(action, batched=False)
         code = int(sim.reason[0])
         terminated = code != core.R_NONE
         truncated = bool(sim.steps[0] >= sim.max_steps) and not terminated

@@ -108,8 +108,7 @@ class SoftPVTOLVectorEnv(VectorEnv):
 
     def step(self, actions):
         sim = self._sim
-        sim.check_action(actions, batched=True)
-        sim.step()
+        sim.step(actions, batched=True)
         reason = sim.reason
         terminated = reason != core.R_NONE
         truncated = (sim.steps >= sim.max_steps) & ~terminated
@@ -166,7 +165,7 @@ class SoftPVTOLVectorEnv(VectorEnv):
             "allocation_residual": d[:, core.D_ALLOC_RES].copy(),
             "thrust_saturated": d[:, core.D_THRUST_SAT] > 0.5,
             "arm_torque_saturated": d[:, core.D_TORQUE_SAT] > 0.5,
-            "action_clipped": sim.clipped.copy(),
+            "action_clipped": sim.clipped != 0,
             "termination_reason": (np.full(self.num_envs, None, dtype=object) if reasons is None else reasons),
             "time": sim.t.copy(),
         }
