@@ -192,6 +192,8 @@ def render_chart(data: dict, path: Path) -> None:
 
     tasks, tiers = data["meta"]["tasks"], data["meta"]["tiers"]
     fig, axes = plt.subplots(1, len(tasks), figsize=(7 * len(tasks), 4.5), squeeze=False)
+    every = sorted({r["entry"] for r in data["aggregates"]}, key=_entry_order)
+    colors = {e: plt.get_cmap("tab10")(i % 10) for i, e in enumerate(every)}  # one colour per entry everywhere
     for ax, task in zip(axes[0], tasks):
         rows = [r for r in data["aggregates"] if r["task"] == task]
         entries = sorted({r["entry"] for r in rows}, key=_entry_order)
@@ -206,13 +208,13 @@ def render_chart(data: dict, path: Path) -> None:
                 ys.append(r["rms_position_error_iqm"])
                 lo.append(r["rms_position_error_iqm"] - r["rms_position_error_ci"][0])
                 hi.append(r["rms_position_error_ci"][1] - r["rms_position_error_iqm"])
-            ax.bar(xs, ys, width, yerr=[lo, hi], capsize=2, label=entry)
+            ax.bar(xs, ys, width, yerr=[lo, hi], capsize=2, label=entry, color=colors[entry])
         ax.set_xticks(range(len(tiers)), tiers)
         ax.set_yscale("log")
         ax.set_ylabel("IQM RMS position error [m] (95 % CI)")
         ax.set_title(task)
         ax.grid(True, axis="y", alpha=0.3)
-    axes[0][0].legend(fontsize=7)
+        ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110, metadata={"Software": None})
     plt.close(fig)
