@@ -76,20 +76,29 @@ def load_jobs(spec_path: Path = SPEC_FILE) -> list[Job]:
     return jobs
 
 
-def run_job(job: Job, root: Path = RUNS_DIR) -> dict:
-    """Train (learned policies) and evaluate one job; writes ``<root>/<job.name>/eval.json``."""
+def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
+    """Train (learned policies) and evaluate one job; writes ``<root>/<job.name>/eval.json``.
+
+    A learned job whose ``model.zip`` exists is not trained again, only evaluated; ``reevaluate=True``
+    re-runs the evaluation of a finished job (after a change of the env or controller code)."""
     from softpvtol_gym import PassivityPolicy
     from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
     from .evaluation import run_episodes
 
     out = Path(root) / job.name
-    if (out / EVAL_FILE).is_file():
-        return json.loads((out / EVAL_FILE).read_text())
+    previous = json.loads((out / EVAL_FILE).read_text()) if (out / EVAL_FILE).is_file() else None
+    if previous is not None and not reevaluate:
+        return previous
     t0 = time.perf_counter()
     env_kwargs = {}
     train_seconds = None
-    if job.learned:
+    if job.learned and (out / "model.zip").is_file():
+        from .training import LearnedPolicy
+
+        policy, _ = LearnedPolicy.load(out / "model.zip")
+        train_seconds = None if previous is None else previous["train_seconds"]
+    elif job.learned:
         from .config import RunConfig, load_hyperparams
         from .training import LearnedPolicy, train
 
@@ -130,6 +139,11 @@ def run_job(job: Job, root: Path = RUNS_DIR) -> dict:
     return record
 
 
+def reevaluate_job(job: Job, root: Path = RUNS_DIR) -> dict:
+    """:func:`run_job` with ``reevaluate=True`` (picklable entry point for executors)."""
+    return run_job(job, root, reevaluate=True)
+
+
 def _inside_repo(path: Path) -> bool:
     try:
         Path(path).resolve().relative_to(REPO_ROOT)
@@ -138,20 +152,20 @@ def _inside_repo(path: Path) -> bool:
         return False
 
 
-def _run_job_entry(job: Job, root: str) -> tuple[str, float]:
-    """Process-pool entry point: one thread for torch/numba per worker process."""
+def _run_job_entry(job: Job, root: str, reevaluate: bool = False) -> tuple[str, float]:
+    """Process-pool entry point: one thread for torch per worker process."""
     import torch
 
     torch.set_num_threads(1)
     t0 = time.perf_counter()
-    run_job(job, Path(root))
+    run_job(job, Path(root), reevaluate=reevaluate)
     return job.name, time.perf_counter() - t0
 
 
-def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR) -> list[str]:
+def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevaluate: bool = False) -> list[str]:
     """Submit every job to ``executor`` (anything with ``submit`` returning futures); returns the
     names of the jobs that finished, in completion order, printing progress."""
-    futures = {executor.submit(_run_job_entry, job, str(root)): job for job in jobs}
+    futures = {executor.submit(_run_job_entry, job, str(root), reevaluate): job for job in jobs}
     done = []
     for fut in as_completed(futures):
         name, seconds = fut.result()

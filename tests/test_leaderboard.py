@@ -80,3 +80,24 @@ def test_committed_checkpoint_reproduces_its_leaderboard_episodes(checkpoint, tr
         assert got["crashed"] == want["crashed"] and got["length"] == want["length"]
         for key in ("return", "rms_position_error", "rms_attitude_error", "control_effort"):
             assert got[key] == pytest.approx(want[key], rel=1e-6, abs=1e-12), key
+
+
+def test_jobs_run_with_any_executor_and_reevaluate_identically(tmp_path):
+    """The job list is independent jobs: a thread pool stands in for a cluster engine here."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from baselines.jobs import EVAL_FILE, reevaluate_job, run_jobs
+
+    spec = tmp_path / "spec.yml"
+    spec.write_text("evaluation: {episodes: 2, seed: 1000000, tiers: [nominal, wind]}\n"
+                    "passivity: [{name: passivity-exact, allocation: exact}, {name: passivity-paper, allocation: paper}]\n"
+                    "tasks: [hover]\ntrained: []\nseeds: [0]\n")
+    jobs = load_jobs(spec)
+    assert [j.name for j in jobs] == ["passivity-exact_hover", "passivity-paper_hover"]
+    with ThreadPoolExecutor(max_workers=2) as ex:
+        done = run_jobs(jobs, ex, tmp_path / "runs")
+    assert sorted(done) == sorted(j.name for j in jobs)
+    first = (tmp_path / "runs" / jobs[0].name / EVAL_FILE).read_text()
+    assert set(json.loads(first)["eval"]) == {"nominal", "wind"}
+    reevaluate_job(jobs[0], tmp_path / "runs")
+    assert (tmp_path / "runs" / jobs[0].name / EVAL_FILE).read_text() == first
