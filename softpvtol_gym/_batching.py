@@ -21,6 +21,9 @@ def as_batch(name: str, value, size: int) -> np.ndarray:
 def broadcast_batch(**arrays: tuple[object, int]) -> tuple[tuple[int, ...], list[np.ndarray]]:
     """Broadcast the leading axes of several (..., k) inputs; returns (lead_shape, flat (N, k) arrays)."""
     checked = {name: as_batch(name, v, k) for name, (v, k) in arrays.items()}
+    leads = [a.shape[:-1] for a in checked.values()]
+    if all(lead == leads[0] for lead in leads):  # nothing to broadcast (the common case: fast path)
+        return leads[0], [np.ascontiguousarray(a.reshape(-1, a.shape[-1])) for a in checked.values()]
     try:
         lead = np.broadcast_shapes(*(a.shape[:-1] for a in checked.values()))
     except ValueError as exc:

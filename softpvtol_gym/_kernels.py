@@ -113,33 +113,55 @@ def mass_matrix_into(q, p, out):
     out[4, 4] = d44
 
 
+@_inline
+def coriolis_entries(ql, qr, vl, vr, p):
+    """The nonzero entries of C(q, qdot): (C03, C13, C04, C14, C33, C44) (Christoffel symbols of the
+    first kind, so that Ddot - 2C is skew); only the curvatures and their rates enter."""
+    ml, mr, ll, lr = p[1], p[2], p[6], p[7]
+    d1l, d2l, d1pl, d2pl = arm_basis(ql)
+    d1r, d2r, d1pr, d2pr = arm_basis(qr)
+    return (
+        ml * ll * d1pl * vl,
+        ml * ll * d2pl * vl,
+        -mr * lr * d1pr * vr,
+        mr * lr * d2pr * vr,
+        ml * ll * ll * (d1l * d1pl + d2l * d2pl) * vl,
+        mr * lr * lr * (d1r * d1pr + d2r * d2pr) * vr,
+    )
+
+
 @_jit
 def coriolis_matrix_into(q, qd, p, out):
-    """C(q, qdot) from Christoffel symbols of the first kind, so that Ddot - 2C is skew."""
-    ml, mr, ll, lr = p[1], p[2], p[6], p[7]
-    d1l, d2l, d1pl, d2pl = arm_basis(q[3])
-    d1r, d2r, d1pr, d2pr = arm_basis(q[4])
+    """C(q, qdot) (5x5) into ``out``: :func:`coriolis_entries`, zeros elsewhere."""
+    c03, c13, c04, c14, c33, c44 = coriolis_entries(q[3], q[4], qd[3], qd[4], p)
     for i in range(5):
         for j in range(5):
             out[i, j] = 0.0
-    out[0, 3] = ml * ll * d1pl * qd[3]
-    out[1, 3] = ml * ll * d2pl * qd[3]
-    out[0, 4] = -mr * lr * d1pr * qd[4]
-    out[1, 4] = mr * lr * d2pr * qd[4]
-    out[3, 3] = ml * ll * ll * (d1l * d1pl + d2l * d2pl) * qd[3]
-    out[4, 4] = mr * lr * lr * (d1r * d1pr + d2r * d2pr) * qd[4]
+    out[0, 3] = c03
+    out[1, 3] = c13
+    out[0, 4] = c04
+    out[1, 4] = c14
+    out[3, 3] = c33
+    out[4, 4] = c44
+
+
+@_inline
+def gravity_entries(ql, qr, p):
+    """The nonzero entries of g(q) = dP/dq: (g1, g3, g4) (g0 = g2 = 0)."""
+    _, d2l, _, _ = arm_basis(ql)
+    _, d2r, _, _ = arm_basis(qr)
+    return p[8] * (p[0] + p[1] + p[2]), p[8] * p[1] * p[6] * d2l, p[8] * p[2] * p[7] * d2r
 
 
 @_jit
 def gravity_vector_into(q, p, out):
     """g(q) = dP/dq."""
-    _, d2l, _, _ = arm_basis(q[3])
-    _, d2r, _, _ = arm_basis(q[4])
+    g1, g3, g4 = gravity_entries(q[3], q[4], p)
     out[0] = 0.0
-    out[1] = p[8] * (p[0] + p[1] + p[2])
+    out[1] = g1
     out[2] = 0.0
-    out[3] = p[8] * p[1] * p[6] * d2l
-    out[4] = p[8] * p[2] * p[7] * d2r
+    out[3] = g3
+    out[4] = g4
 
 
 @_inline

@@ -32,27 +32,26 @@ def _clip1(x):
 def policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, out, err):
     """Rows lo .. hi - 1 of :meth:`PassivityPolicy.predict` for the actuated loops: the state of
     :meth:`PassivityPolicy.state_from_observation` (theta given), one controller step
-    (``control._kernels.controller_row``, new memory into S_new) and the scaled, clipped action."""
-    work = np.empty(CK.CONTROLLER_WORK + 40)
-    cw = work[:CK.CONTROLLER_WORK]
-    w = work[CK.CONTROLLER_WORK:]
-    q, qd, qr, qdr, qddr = w[0:5], w[5:10], w[10:15], w[15:20], w[20:25]
-    tau, act, arm, info = w[25:30], w[30:34], w[34:36], w[36:39]
+    (``control._kernels.controller_step``, new memory into S_new) and the scaled, clipped action."""
+    cfg, p, lam, kg = CK.config_tuples(cc)
+    zero = (0.0, 0.0, 0.0, 0.0, 0.0)
     for n in range(lo, hi):
         th = theta[n]
-        q[0], q[1], q[2], q[3], q[4] = obs[n, 0], obs[n, 1], th, obs[n, 5], obs[n, 6]
-        qr[0], qr[1], qr[2], qr[3], qr[4] = 0.0, 0.0, th - obs[n, 2], 0.0, 0.0
-        for i in range(5):
-            qd[i] = obs[n, 7 + i]
-        for i in range(3):
-            qdr[i] = obs[n, 12 + i]
-            qddr[i] = obs[n, 15 + i]
-        qdr[3], qdr[4], qddr[3], qddr[4] = 0.0, 0.0, 0.0, 0.0
-        err[n] = CK.controller_row(q, qd, qr, qdr, qddr, tau, False, True, cc, S[n], S_new[n], tau, act, arm, info,
-                                   cw)
+        q = (obs[n, 0], obs[n, 1], th, obs[n, 5], obs[n, 6])
+        qr = (0.0, 0.0, th - obs[n, 2], 0.0, 0.0)
+        qd = (obs[n, 7], obs[n, 8], obs[n, 9], obs[n, 10], obs[n, 11])
+        qdr = (obs[n, 12], obs[n, 13], obs[n, 14], 0.0, 0.0)
+        qddr = (obs[n, 15], obs[n, 16], obs[n, 17], 0.0, 0.0)
+        e, tau, act, _r, _i, st = CK.controller_step(q, qd, qr, qdr, qddr, zero, False, True, cfg, p, lam, kg,
+                                                     CK.state_row(S, n))
+        err[n] = e
+        CK.put_state_row(S_new, n, st)
         if kind == ACTION_VIRTUAL:
-            for i in range(5):
-                out[n, i] = _clip1((tau[i] - offset[i]) / scale[i])
+            out[n, 0] = _clip1((tau[0] - offset[0]) / scale[0])
+            out[n, 1] = _clip1((tau[1] - offset[1]) / scale[1])
+            out[n, 2] = _clip1((tau[2] - offset[2]) / scale[2])
+            out[n, 3] = _clip1((tau[3] - offset[3]) / scale[3])
+            out[n, 4] = _clip1((tau[4] - offset[4]) / scale[4])
         else:
             out[n, 0] = _clip1(2.0 * act[0] / tmax - 1.0)
             out[n, 1] = _clip1(2.0 * act[1] / tmax - 1.0)
@@ -63,6 +62,15 @@ def policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_
 @njit(cache=True, nogil=True)
 def policy_step(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, out, err):
     policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, out, err)
+
+
+@njit(cache=True, nogil=True)
+def policy_all(obs, theta, kind, scale, offset, tmax, taumax, cc, S, out, err):
+    """:func:`policy_rows` over all rows and the commit of the memory in one call; returns whether
+    every row succeeded."""
+    S_new = S.copy()
+    policy_rows(0, obs.shape[0], obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, out, err)
+    return CK._commit_rows(S, S_new, err)
 
 
 @njit(cache=True, nogil=True)
@@ -154,13 +162,19 @@ class PassivityPolicy:
         theta = np.arctan2(obs[:, 3], obs[:, 4])  # numpy's arctan2, as state_from_observation
         ctrl = self.controller
         S = ctrl.state_rows(n)
-        S_new = S.copy()
         out = np.empty((n, self.config.action_dim), dtype=np.float32)
         err = np.zeros(n, dtype=np.int64)
-        args = (obs, theta, self._kind, self._scale, self._offset, self._tmax, self._taumax, ctrl.kernel_constants,
-                S, S_new, out, err)
-        run_split(lambda lo, hi: policy_step(lo, hi, *args), row_ranges(n))
-        if not commit_rows(S, S_new, err):
+        ranges = row_ranges(n)
+        if len(ranges) == 1:
+            ok = policy_all(obs, theta, self._kind, self._scale, self._offset, self._tmax, self._taumax,
+                            ctrl.kernel_constants, S, out, err)
+        else:
+            S_new = S.copy()
+            args = (obs, theta, self._kind, self._scale, self._offset, self._tmax, self._taumax,
+                    ctrl.kernel_constants, S, S_new, out, err)
+            run_split(lambda lo, hi: policy_step(lo, hi, *args), ranges)
+            ok = commit_rows(S, S_new, err)
+        if not ok:
             ctrl.raise_for(err, self.state_from_observation(obs)[0])
         return out
 

@@ -24,41 +24,51 @@ INFO_FEASIBLE = 2
 N_INFO = 3
 
 
-@_jit
-def model_terms_into(q, qd, p, D, C, g):
-    """D(q), C(q, qdot), g(q) of the model kernels into D (5x5), C (5x5), g (5)."""
-    MK.mass_matrix_into(q, p, D)
-    MK.coriolis_matrix_into(q, qd, p, C)
-    MK.gravity_vector_into(q, p, g)
+@MK._inline
+def model_entries(q, qd, p):
+    """The nonzero entries of D(q), C(q, qdot), g(q) (model kernels: mass_entries, coriolis_entries,
+    gravity_entries)."""
+    return (MK.mass_entries(q[3], q[4], p), MK.coriolis_entries(q[3], q[4], qd[3], qd[4], p),
+            MK.gravity_entries(q[3], q[4], p))
+
+
+@MK._inline
+def _row(acc, d0, d1, d2, d3, d4, c0, c1, c2, c3, c4, a, v):
+    """acc + sum_j (D_ij a_j + C_ij v_j), term by term in j order (the dense loop's rounding; zero
+    entries are multiplied, so inf/NaN propagate as in the dense product)."""
+    acc += d0 * a[0] + c0 * v[0]
+    acc += d1 * a[1] + c1 * v[1]
+    acc += d2 * a[2] + c2 * v[2]
+    acc += d3 * a[3] + c3 * v[3]
+    acc += d4 * a[4] + c4 * v[4]
+    return acc
+
+
+@MK._inline
+def passivity_rows(ents, q, qd, qr, qdr, qddr, lam, kg):
+    """tau = D(q) a + C(q, qd) v + g(q) - K r as a 5-tuple, D, C, g given by their entries
+    (:func:`model_entries`); v = qdot_ref - Lambda q~, a = qddot_ref - Lambda (qdot - qdot_ref)."""
+    (M, inertia, d03, d13, d04, d14, d33, d44), (c03, c13, c04, c14, c33, c44), (g1, g3, g4) = ents
+    v = (qdr[0] - lam[0] * (q[0] - qr[0]), qdr[1] - lam[1] * (q[1] - qr[1]), qdr[2] - lam[2] * (q[2] - qr[2]),
+         qdr[3] - lam[3] * (q[3] - qr[3]), qdr[4] - lam[4] * (q[4] - qr[4]))
+    a = (qddr[0] - lam[0] * (qd[0] - qdr[0]), qddr[1] - lam[1] * (qd[1] - qdr[1]),
+         qddr[2] - lam[2] * (qd[2] - qdr[2]), qddr[3] - lam[3] * (qd[3] - qdr[3]),
+         qddr[4] - lam[4] * (qd[4] - qdr[4]))
+    z = 0.0
+    return (
+        _row(z - kg[0] * (qd[0] - v[0]), M, z, z, d03, d04, z, z, z, c03, c04, a, v),
+        _row(g1 - kg[1] * (qd[1] - v[1]), z, M, z, d13, d14, z, z, z, c13, c14, a, v),
+        _row(z - kg[2] * (qd[2] - v[2]), z, z, inertia, z, z, z, z, z, z, z, a, v),
+        _row(g3 - kg[3] * (qd[3] - v[3]), d03, d13, z, d33, z, z, z, z, c33, z, a, v),
+        _row(g4 - kg[4] * (qd[4] - v[4]), d04, d14, z, z, d44, z, z, z, z, c44, a, v),
+    )
 
 
 @_jit
-def passivity_apply(D, C, g, q, qd, qr, qdr, qddr, lam, kg, row0, out, v, a):
-    """Rows row0..4 of tau = D a + C v + g - K r for given D, C, g (v, a: 5-vector scratch)."""
-    for i in range(5):
-        v[i] = qdr[i] - lam[i] * (q[i] - qr[i])
-        a[i] = qddr[i] - lam[i] * (qd[i] - qdr[i])
-    for i in range(row0, 5):
-        acc = g[i] - kg[i] * (qd[i] - v[i])
-        for j in range(5):
-            acc += D[i, j] * a[j] + C[i, j] * v[j]
-        out[i] = acc
-
-
-@_jit
-def passivity_into(q, qd, qr, qdr, qddr, p, lam, kg, out, work):
-    """tau = D(q) a + C(q, qd) v + g(q) - K r  (Slotine–Li / Spong form, paper eq. (passControl)).
-
-    ``work``: scratch of at least ``PASSIVITY_WORK`` floats (no allocation here).
-    """
-    D = work[0:25].reshape((5, 5))
-    C = work[25:50].reshape((5, 5))
-    g = work[50:55]
-    model_terms_into(q, qd, p, D, C, g)
-    passivity_apply(D, C, g, q, qd, qr, qdr, qddr, lam, kg, 0, out, work[55:60], work[60:65])
-
-
-PASSIVITY_WORK = 65
+def passivity_into(q, qd, qr, qdr, qddr, p, lam, kg, out):
+    """tau = D(q) a + C(q, qd) v + g(q) - K r  (Slotine–Li / Spong form, paper eq. (passControl))."""
+    t = passivity_rows(model_entries(q, qd, p), q, qd, qr, qdr, qddr, lam, kg)
+    out[0], out[1], out[2], out[3], out[4] = t
 
 
 @MK._inline
@@ -171,7 +181,7 @@ def _widen_hi(hi, uz, h, tt, ll, lr, eps, input_map):
 
 
 @_jit
-def allocate_exact_into(tau, theta, p, input_map, warm, use_warm, qmax, out, info):
+def allocate_exact(t0, t1, t2, theta, p, input_map, w0, w2, use_warm, qmax):
     """(T_l, T_r, q_l^d, q_r^d) realising the body force (tau_x, tau_z, tau_theta) exactly.
 
     The horizontal body force is split equally (the paper's minimum-norm choice); the vertical split
@@ -179,6 +189,8 @@ def allocate_exact_into(tau, theta, p, input_map, warm, use_warm, qmax, out, inf
     bracket, so it converges for any finite input. Curvatures come from atan2, so thrusts are never
     negative and downward vertical components are allowed. If a curvature beyond +/- qmax would be
     needed, it is clipped and the result is flagged infeasible (the residual tells by how much).
+    Returns ((T_l, T_r, q_l^d, q_r^d), (residual, iterations, feasible)); (t0, t1, t2) the body rows
+    of tau, (w0, w2) = (T_l, q_l^d) of the warm start.
 
     The bracket [lo, hi] starts at -/+ scale (1 + 1/min(l_l, l_r)) and each end is doubled until
     F changes sign there. The doubling is done lazily, the first time the end's value matters: it only
@@ -188,9 +200,9 @@ def allocate_exact_into(tau, theta, p, input_map, warm, use_warm, qmax, out, inf
     """
     ll, lr, eps = p[6], p[7], p[9]
     ct, st = math.cos(theta), math.sin(theta)
-    ux = ct * tau[0] + st * tau[1]
-    uz = -st * tau[0] + ct * tau[1]
-    tt = tau[2]
+    ux = ct * t0 + st * t1
+    uz = -st * t0 + ct * t1
+    tt = t2
     h = 0.5 * ux
     scale = 1.0 + abs(uz) + abs(ux) + abs(tt)
 
@@ -200,8 +212,8 @@ def allocate_exact_into(tau, theta, p, input_map, warm, use_warm, qmax, out, inf
     lo_raw = True  # lo/hi not yet widened
     hi_raw = True
     x = 0.5 * uz
-    if use_warm and math.isfinite(warm[0] + warm[2]):  # a NaN row means: cold start
-        x = warm[0] * math.cos(warm[2])
+    if use_warm and math.isfinite(w0 + w2):  # a NaN row means: cold start
+        x = w0 * math.cos(w2)
     if lo_raw and not (lo < x):
         lo = _widen_lo(lo, uz, h, tt, ll, lr, eps, input_map)
         lo_raw = False
@@ -270,15 +282,18 @@ def allocate_exact_into(tau, theta, p, input_map, warm, use_warm, qmax, out, inf
         feasible = 0.0
         ql = min(max(ql, -qmax), qmax)
         qr = min(max(qr, -qmax), qmax)
-    out[0] = Tl
-    out[1] = Tr
-    out[2] = ql
-    out[3] = qr
     # residual: realised body force (through the chosen input map) minus the requested one
     tr = MK.generalized_forces((0.0, 0.0, theta, ql, qr), (Tl, Tr, 0.0, 0.0), p, input_map)
-    info[INFO_RESIDUAL] = max(abs(tr[0] - tau[0]), abs(tr[1] - tau[1]), abs(tr[2] - tau[2]))
-    info[INFO_ITERATIONS] = it
-    info[INFO_FEASIBLE] = feasible
+    residual = max(abs(tr[0] - t0), abs(tr[1] - t1), abs(tr[2] - t2))
+    return (Tl, Tr, ql, qr), (residual, float(it), feasible)
+
+
+@_jit
+def allocate_exact_into(tau, theta, p, input_map, warm, use_warm, qmax, out, info):
+    """:func:`allocate_exact` on arrays: tau (>= 3), warm (4), out (4), info (``N_INFO``)."""
+    o, inf = allocate_exact(tau[0], tau[1], tau[2], theta, p, input_map, warm[0], warm[2], use_warm, qmax)
+    out[0], out[1], out[2], out[3] = o
+    info[0], info[1], info[2] = inf
 
 
 # ------------------------------------------------------------------------------ paper allocation
@@ -306,17 +321,18 @@ def _paper_map(ql, qr, ux, uz, tt, ll, lr):
 
 
 @_jit
-def allocate_paper_into(tau, theta, p, warm, use_warm, out, info):
+def allocate_paper(t0, t1, t2, theta, p, w2, w3, use_warm):
     """The paper's allocation (Sec. 3.1): cos(q/2) for sin(q)/q, arctan/sqrt closed form, and the
     fixed point in (q_l^d, q_r^d) solved by Newton from the paper's initial guess (20, 10, 0.4, -0.2)
-    or from ``warm``. ``info`` residual = max |f(x)| of the paper's own eq. (solve_num)."""
+    or from the warm start (w2, w3) = (q_l^d, q_r^d). Returns ((T_l, T_r, q_l^d, q_r^d), (residual,
+    iterations, feasible)), residual = max |f(x)| of the paper's own eq. (solve_num)."""
     ll, lr = p[6], p[7]
     ct, st = math.cos(theta), math.sin(theta)
-    ux = ct * tau[0] + st * tau[1]
-    uz = -st * tau[0] + ct * tau[1]
-    tt = tau[2]
-    if use_warm and math.isfinite(warm[2] + warm[3]):  # a NaN row means: cold start
-        ql, qr = warm[2], warm[3]
+    ux = ct * t0 + st * t1
+    uz = -st * t0 + ct * t1
+    tt = t2
+    if use_warm and math.isfinite(w2 + w3):  # a NaN row means: cold start
+        ql, qr = w2, w3
     else:
         ql, qr = 0.4, -0.2
     eps = 1e-7
@@ -345,14 +361,17 @@ def allocate_paper_into(tau, theta, p, warm, use_warm, out, info):
         ql -= dql
         qr -= dqr
     Tl, Tr, pl, pr = _paper_map(ql, qr, ux, uz, tt, ll, lr)
-    out[0] = Tl
-    out[1] = Tr
-    out[2] = ql
-    out[3] = qr
     # residual of the paper's four equations at x = (T_l, T_r, q_l, q_r)
-    info[INFO_RESIDUAL] = max(abs(ql - pl), abs(qr - pr))
-    info[INFO_ITERATIONS] = it
-    info[INFO_FEASIBLE] = 1.0 if math.isfinite(ql + qr + Tl + Tr) else 0.0
+    residual = max(abs(ql - pl), abs(qr - pr))
+    return (Tl, Tr, ql, qr), (residual, float(it), 1.0 if math.isfinite(ql + qr + Tl + Tr) else 0.0)
+
+
+@_jit
+def allocate_paper_into(tau, theta, p, warm, use_warm, out, info):
+    """:func:`allocate_paper` on arrays: tau (>= 3), warm (4), out (4), info (``N_INFO``)."""
+    o, inf = allocate_paper(tau[0], tau[1], tau[2], theta, p, warm[2], warm[3], use_warm)
+    out[0], out[1], out[2], out[3] = o
+    info[0], info[1], info[2] = inf
 
 
 # ------------------------------------------------------------------------- fused controller step
@@ -373,10 +392,6 @@ CC_P, CC_LAM, CC_KG, CC_LEN = 8, 18, 23, 28
 ERR_NONE, ERR_TAU, ERR_CURVATURE = 0, 1, 2
 MAX_CURVATURE = 2.0 * math.pi
 
-# scratch layout of controller_row
-_W_D, _W_C, _W_G, _W_V, _W_A = 0, 25, 50, 55, 60
-_W_QR, _W_QDR, _W_QDDR, _W_TAU, _W_ALLOC, _W_WARM, _W_INFO = 65, 70, 75, 80, 85, 89, 93
-CONTROLLER_WORK = 96
 
 
 @_jit
@@ -390,48 +405,26 @@ def _clip(x, lo, hi):
 
 
 @_jit
-def _arm_derivatives(st, dt, vmax, amax, arm):
-    """Bounded second-order backward differences of the allocated curvature history of one arm."""
-    h0 = st[ST_HIST + arm]
-    h1 = st[ST_HIST + 2 + arm]
-    h2 = st[ST_HIST + 4 + arm]
-    h3 = st[ST_HIST + 6 + arm]
+def _arm_derivatives(h0, h1, h2, h3, dt, vmax, amax):
+    """Bounded second-order backward differences of an allocated curvature history (h3 newest)."""
     vel = _clip((3.0 * h3 - 4.0 * h2 + h1) / (2.0 * dt), -vmax, vmax)
     acc = _clip((2.0 * h3 - 5.0 * h2 + 4.0 * h1 - h0) / (dt * dt), -amax, amax)
     return vel, acc
 
 
 @_jit
-def controller_row(q, qd, qr, qdr, qddr, res, has_res, commit, cc, st, st_new, tau_out, act_out, arm_out,
-                   info, work):
-    """One step of the actuated passivity controller for one row; returns an ``ERR_*`` code.
+def controller_step(q, qd, qr, qdr, qddr, res, has_res, commit, cfg, p, lam, kg, st):
+    """One step of the actuated passivity controller for one batch row (all arguments tuples).
 
-    q, qd: state (5); qr, qdr, qddr: body reference (arm entries ignored); res: tau residual (5),
-    added when ``has_res``; st: the row's memory (read only), st_new: the memory after the step
-    (written when ``commit``; may be st itself). Outputs: tau_out (5) the commanded generalized
-    force (arm rows: the arm torques asked for), act_out (4) actuators (T_l, T_r, tau_l, tau_r),
-    arm_out (2) arm references, info (3) allocation diagnostics.
+    q, qd: state (5); qr, qdr, qddr: body reference (arm entries ignored); res: tau residual (5), added
+    when ``has_res``; cfg: (method, input map, algebraic iterations, arm feedforward, dt, vmax, amax,
+    curvature limit) (see ``CC_*``); p, lam, kg: params and gains; st: the row's memory (``ST_*``).
+    Returns (err, tau (5): the commanded generalized force (arm rows: the arm torques asked for),
+    actuators (T_l, T_r, tau_l, tau_r), arm references (2), allocation info (3), the memory after the
+    step (st itself unless ``commit``)). err != ERR_NONE: the other values are meaningless.
     """
-    p = cc[CC_P:CC_P + 10]
-    lam = cc[CC_LAM:CC_LAM + 5]
-    kg = cc[CC_KG:CC_KG + 5]
-    method = int(cc[CC_METHOD])
-    imap = int(cc[CC_IMAP])
-    ff = cc[CC_FF] > 0.0
-    dt, vmax, amax, qmax = cc[CC_DT], cc[CC_VMAX], cc[CC_AMAX], cc[CC_QMAX]
-    D = work[_W_D:_W_D + 25].reshape((5, 5))
-    C = work[_W_C:_W_C + 25].reshape((5, 5))
-    g = work[_W_G:_W_G + 5]
-    v = work[_W_V:_W_V + 5]
-    a = work[_W_A:_W_A + 5]
-    rq = work[_W_QR:_W_QR + 5]
-    rqd = work[_W_QDR:_W_QDR + 5]
-    rqdd = work[_W_QDDR:_W_QDDR + 5]
-    tau = work[_W_TAU:_W_TAU + 5]
-    alloc = work[_W_ALLOC:_W_ALLOC + 4]
-    warm = work[_W_WARM:_W_WARM + 4]
-    ainfo = work[_W_INFO:_W_INFO + 3]
-
+    method, imap, iters, ff, dt, vmax, amax, qmax = cfg
+    ents = model_entries(q, qd, p)
     # arm references of the body rows: the last allocated curvatures with their feedforward
     # derivatives, or (no history yet / just reset) the measured curvatures at rest
     fresh = st[ST_FRESH] > 0.5
@@ -441,90 +434,124 @@ def controller_row(q, qd, qr, qdr, qddr, res, has_res, commit, cc, st, st_new, t
     else:
         arm_l, arm_r = st[ST_HIST + 6], st[ST_HIST + 7]
         if ff:
-            vl, al = _arm_derivatives(st, dt, vmax, amax, 0)
-            vr, ar = _arm_derivatives(st, dt, vmax, amax, 1)
-    for i in range(3):
-        rq[i] = qr[i]
-        rqd[i] = qdr[i]
-        rqdd[i] = qddr[i]
-    for i in range(4):
-        warm[i] = st[ST_WARM + i]  # NaN: cold start
-    model_terms_into(q, qd, p, D, C, g)
-    iters = int(cc[CC_ITERS])
+            vl, al = _arm_derivatives(st[ST_HIST], st[ST_HIST + 2], st[ST_HIST + 4], st[ST_HIST + 6], dt, vmax, amax)
+            vr, ar = _arm_derivatives(st[ST_HIST + 1], st[ST_HIST + 3], st[ST_HIST + 5], st[ST_HIST + 7], dt, vmax,
+                                      amax)
+    alloc = (st[ST_WARM], st[ST_WARM + 1], st[ST_WARM + 2], st[ST_WARM + 3])  # warm start (NaN: cold)
+    info = (0.0, 0.0, 0.0)
+    tau = (0.0, 0.0, 0.0, 0.0, 0.0)
+    nothing = (ERR_TAU, tau, (0.0, 0.0, 0.0, 0.0), (0.0, 0.0), info, st)
     for _ in range(iters):
-        rq[3], rq[4] = arm_l, arm_r
-        rqd[3], rqd[4] = vl, vr
-        rqdd[3], rqdd[4] = al, ar
-        passivity_apply(D, C, g, q, qd, rq, rqd, rqdd, lam, kg, 0, tau, v, a)
+        tau = passivity_rows(ents, q, qd, (qr[0], qr[1], qr[2], arm_l, arm_r), (qdr[0], qdr[1], qdr[2], vl, vr),
+                             (qddr[0], qddr[1], qddr[2], al, ar), lam, kg)
         if has_res:
-            for i in range(5):
-                tau[i] = tau[i] + res[i]
+            tau = (tau[0] + res[0], tau[1] + res[1], tau[2] + res[2], tau[3] + res[3], tau[4] + res[4])
         if not (math.isfinite(tau[0]) and math.isfinite(tau[1]) and math.isfinite(tau[2])):
-            return ERR_TAU
+            return nothing
         if method == ALLOC_PAPER:
-            allocate_paper_into(tau, q[2], p, warm, True, alloc, ainfo)
+            alloc, info = allocate_paper(tau[0], tau[1], tau[2], q[2], p, alloc[2], alloc[3], True)
         else:
-            allocate_exact_into(tau, q[2], p, imap, warm, True, qmax, alloc, ainfo)
-        for i in range(4):
-            warm[i] = alloc[i]
+            alloc, info = allocate_exact(tau[0], tau[1], tau[2], q[2], p, imap, alloc[0], alloc[2], True, qmax)
         arm_l, arm_r = alloc[2], alloc[3]
     if imap == MK.INPUT_MAP_EXACT and not (abs(q[3]) <= MAX_CURVATURE and abs(q[4]) <= MAX_CURVATURE):
-        return ERR_CURVATURE
+        return (ERR_CURVATURE,) + nothing[1:]
+    st_new = st
     if commit:
         # push the allocated curvatures; a fresh row gets a flat history (no jump for the differences)
-        h = st_new[ST_HIST:ST_HIST + 8]
         if fresh:
-            for k in range(4):
-                h[2 * k] = arm_l
-                h[2 * k + 1] = arm_r
+            hist = (arm_l, arm_r, arm_l, arm_r, arm_l, arm_r, arm_l, arm_r)
         else:
-            old = (st[ST_HIST + 2], st[ST_HIST + 3], st[ST_HIST + 4], st[ST_HIST + 5], st[ST_HIST + 6],
-                   st[ST_HIST + 7])
-            h[0], h[1], h[2], h[3], h[4], h[5] = old
-            h[6] = arm_l
-            h[7] = arm_r
-        for i in range(4):
-            st_new[ST_WARM + i] = alloc[i]
-        st_new[ST_FRESH] = 0.0
+            hist = (st[ST_HIST + 2], st[ST_HIST + 3], st[ST_HIST + 4], st[ST_HIST + 5], st[ST_HIST + 6],
+                    st[ST_HIST + 7], arm_l, arm_r)
+        st_new = alloc + hist + (0.0,)
         if ff:
-            vl, al = _arm_derivatives(st_new, dt, vmax, amax, 0)
-            vr, ar = _arm_derivatives(st_new, dt, vmax, amax, 1)
+            vl, al = _arm_derivatives(hist[0], hist[2], hist[4], hist[6], dt, vmax, amax)
+            vr, ar = _arm_derivatives(hist[1], hist[3], hist[5], hist[7], dt, vmax, amax)
         else:
             vl = vr = al = ar = 0.0
     # arm rows with the new arm references
-    rq[3], rq[4] = arm_l, arm_r
-    rqd[3], rqd[4] = vl, vr
-    rqdd[3], rqdd[4] = al, ar
-    passivity_apply(D, C, g, q, qd, rq, rqd, rqdd, lam, kg, 3, tau_out, v, a)
-    tau_l, tau_r = tau_out[3], tau_out[4]
+    t_arm = passivity_rows(ents, q, qd, (qr[0], qr[1], qr[2], arm_l, arm_r), (qdr[0], qdr[1], qdr[2], vl, vr),
+                           (qddr[0], qddr[1], qddr[2], al, ar), lam, kg)
+    tau_l, tau_r = t_arm[3], t_arm[4]
     if has_res:
         tau_l = tau_l + res[3]
         tau_r = tau_r + res[4]
-    act_out[0] = alloc[0]
-    act_out[1] = alloc[1]
-    act_out[2] = tau_l
-    act_out[3] = tau_r
+    a2, a3 = tau_l, tau_r
     if imap == MK.INPUT_MAP_EXACT:  # cancel the thrusts' own work on the curvatures
         gf = MK.generalized_forces(q, (alloc[0], alloc[1], 0.0, 0.0), p, MK.INPUT_MAP_EXACT)
-        act_out[2] -= gf[3]
-        act_out[3] -= gf[4]
-    tau_out[0], tau_out[1], tau_out[2] = tau[0], tau[1], tau[2]
-    tau_out[3], tau_out[4] = tau_l, tau_r
-    arm_out[0], arm_out[1] = arm_l, arm_r
-    for i in range(3):
-        info[i] = ainfo[i]
-    return ERR_NONE
+        a2 -= gf[3]
+        a3 -= gf[4]
+    return (ERR_NONE, (tau[0], tau[1], tau[2], tau_l, tau_r), (alloc[0], alloc[1], a2, a3), (arm_l, arm_r), info,
+            st_new)
+
+
+@_jit
+def config_tuples(cc):
+    """(cfg, p, lam, kg) tuples of :func:`controller_step` from the constant vector ``cc``."""
+    cfg = (int(cc[CC_METHOD]), int(cc[CC_IMAP]), int(cc[CC_ITERS]), cc[CC_FF] > 0.0, cc[CC_DT], cc[CC_VMAX],
+           cc[CC_AMAX], cc[CC_QMAX])
+    o = CC_P
+    p = (cc[o], cc[o + 1], cc[o + 2], cc[o + 3], cc[o + 4], cc[o + 5], cc[o + 6], cc[o + 7], cc[o + 8], cc[o + 9])
+    lam = (cc[CC_LAM], cc[CC_LAM + 1], cc[CC_LAM + 2], cc[CC_LAM + 3], cc[CC_LAM + 4])
+    kg = (cc[CC_KG], cc[CC_KG + 1], cc[CC_KG + 2], cc[CC_KG + 3], cc[CC_KG + 4])
+    return cfg, p, lam, kg
+
+
+@_jit
+def row5(A, n, c):
+    """(A[n, c], ..., A[n, c + 4])."""
+    return (A[n, c], A[n, c + 1], A[n, c + 2], A[n, c + 3], A[n, c + 4])
+
+
+@_jit
+def state_row(S, n):
+    """Row n of a memory array as a tuple (``ST_LEN``)."""
+    return (S[n, 0], S[n, 1], S[n, 2], S[n, 3], S[n, 4], S[n, 5], S[n, 6], S[n, 7], S[n, 8], S[n, 9], S[n, 10],
+            S[n, 11], S[n, 12])
+
+
+@_jit
+def put_state_row(S, n, st):
+    S[n, 0], S[n, 1], S[n, 2], S[n, 3], S[n, 4], S[n, 5], S[n, 6] = st[0], st[1], st[2], st[3], st[4], st[5], st[6]
+    S[n, 7], S[n, 8], S[n, 9], S[n, 10], S[n, 11], S[n, 12] = st[7], st[8], st[9], st[10], st[11], st[12]
 
 
 @njit(cache=True, nogil=True)
-def batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, tau, act, arm, info, err):
-    """:func:`controller_row` over a batch (res: one row, broadcast, or one per row); the memory after
-    the step into S_new (commit it with :func:`commit_rows` once every row is done)."""
+def batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, tau, act, arm, resid, iters, feas,
+                     err):
+    """:func:`controller_step` over a batch (res: one row, broadcast, or one per row); the memory after
+    the step into S_new (commit it with :func:`commit_rows` once every row is done). Allocation info
+    into resid (float), iters (int), feas (bool)."""
     rs = np.int64(res.shape[0] > 1)
-    work = np.empty(CONTROLLER_WORK)
+    cfg, p, lam, kg = config_tuples(cc)
     for n in range(q.shape[0]):
-        err[n] = controller_row(q[n], qd[n], qr[n], qdr[n], qddr[n], res[n * rs], has_res, commit, cc, S[n],
-                                S_new[n], tau[n], act[n], arm[n], info[n], work)
+        e, t, a, r, inf, st = controller_step(row5(q, n, 0), row5(qd, n, 0), row5(qr, n, 0), row5(qdr, n, 0),
+                                              row5(qddr, n, 0), row5(res, n * rs, 0), has_res, commit, cfg, p, lam,
+                                              kg, state_row(S, n))
+        err[n] = e
+        tau[n, 0], tau[n, 1], tau[n, 2], tau[n, 3], tau[n, 4] = t
+        act[n, 0], act[n, 1], act[n, 2], act[n, 3] = a
+        arm[n, 0], arm[n, 1] = r
+        resid[n] = inf[INFO_RESIDUAL]
+        iters[n] = int(inf[INFO_ITERATIONS])
+        feas[n] = inf[INFO_FEASIBLE] > 0.5
+        put_state_row(S_new, n, st)
+
+
+@njit(cache=True, nogil=True)
+def batch_controller_commit(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, tau, act, arm, resid, iters, feas,
+                            err):
+    """:func:`batch_controller` and the commit in one call (batches run in one thread); returns
+    whether every row succeeded (the memory advanced if ``commit``)."""
+    S_new = S.copy()
+    batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, tau, act, arm, resid, iters, feas,
+                     err)
+    if commit:
+        return _commit_rows(S, S_new, err)
+    for n in range(err.shape[0]):
+        if err[n] != ERR_NONE:
+            return False
+    return True
 
 
 @_jit
@@ -553,9 +580,8 @@ _batch = njit(cache=True, nogil=True)
 @_batch
 def batch_passivity(q, qd, qr, qdr, qddr, P, lam, kg, out):
     ps = np.int64(P.shape[0] > 1)
-    work = np.empty(PASSIVITY_WORK)
     for n in range(q.shape[0]):
-        passivity_into(q[n], qd[n], qr[n], qdr[n], qddr[n], P[n * ps], lam, kg, out[n], work)
+        passivity_into(q[n], qd[n], qr[n], qdr[n], qddr[n], P[n * ps], lam, kg, out[n])
 
 
 @_batch

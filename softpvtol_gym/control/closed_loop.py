@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 
 from .._batching import broadcast_batch, check_curvature
-from .._parallel import run_rows
+from .._parallel import MIN_ROWS, run_rows
 from ..dynamics import forward_dynamics, generalized_forces, input_map_code
 from ..integrators import rk4_step
 from ..params import SoftPVTOLParams
@@ -78,7 +78,7 @@ class PassivityController:
         feedforward_limits: bounds (rad/s, rad/s^2) on the fed-forward arm reference velocity and
             acceleration.
 
-    A call of the actuated loops is one compiled kernel per batch (``control._kernels.controller_row``
+    A call of the actuated loops is one compiled kernel per batch (``control._kernels.controller_step``
     per row, built from the same passivity and allocation kernels as :func:`passivity_control` and
     :func:`allocate`); the env's residual mode and :class:`~softpvtol_gym.PassivityPolicy` run the same
     row function. The memory (allocation warm start, arm-reference history) is one row of
@@ -148,6 +148,12 @@ class PassivityController:
         self._state[rows, CK.ST_FRESH] = 1.0
         self._state[rows, CK.ST_WARM:CK.ST_WARM + 4] = np.nan
 
+    def reset_rows(self, rows: np.ndarray) -> None:
+        """:meth:`reset` of the batch entries ``rows`` (integer indices into the flattened batch)."""
+        if self._state is not None:
+            self._state[rows, CK.ST_FRESH] = 1.0
+            self._state[rows, CK.ST_WARM:CK.ST_WARM + 4] = np.nan
+
     _state = None
 
     def state_rows(self, n: int) -> np.ndarray:
@@ -188,29 +194,39 @@ class PassivityController:
                 tau = tau + tau_residual
             return ControlOutput(tau=tau, actuators=None, arm_reference=np.asarray(q_ref)[..., 3:5], allocation=None)
 
-        arrays = dict(q=(q, 5), qdot=(qdot, 5), q_ref=(q_ref, 5), qdot_ref=(qdot_ref, 5), qddot_ref=(qddot_ref, 5))
-        if tau_residual is not None:
-            arrays["tau_residual"] = (tau_residual, 5)
-        lead, flat = broadcast_batch(**arrays)
+        ins = (q, qdot, q_ref, qdot_ref, qddot_ref) if tau_residual is None else (
+            q, qdot, q_ref, qdot_ref, qddot_ref, tau_residual)
+        shape = getattr(q, "shape", None)
+        if shape and shape[-1] == 5 and all(type(x) is np.ndarray and x.dtype == np.float64 and x.shape == shape
+                                           for x in ins):  # fast path: float64 arrays of one shape
+            lead = shape[:-1]
+            flat = [np.ascontiguousarray(x.reshape(-1, 5)) for x in ins]
+        else:
+            names = ("q", "qdot", "q_ref", "qdot_ref", "qddot_ref", "tau_residual")
+            lead, flat = broadcast_batch(**{name: (x, 5) for name, x in zip(names, ins)})
         n = flat[0].shape[0]
-        res = flat[5] if tau_residual is not None else self._no_residual
         tau = np.empty((n, 5))
         act = np.empty((n, 4))
         arm = np.empty((n, 2))
-        info = np.empty((n, CK.N_INFO))
+        resid = np.empty(n)
+        iters = np.empty(n, dtype=np.int64)
+        feas = np.empty(n, dtype=np.bool_)
         err = np.zeros(n, dtype=np.int64)
         S = self.state_rows(n)
-        S_new = S.copy()
-        run_rows(CK.batch_controller, n, *flat[:5], res, tau_residual is not None, bool(commit),
-                 self.kernel_constants, S, S_new, tau, act, arm, info, err)
-        failed = (not CK.commit_rows(S, S_new, err)) if commit else bool(err.any())
-        if failed:
+        has_res, commit = tau_residual is not None, bool(commit)
+        res = flat[5] if has_res else self._no_residual
+        if n < MIN_ROWS:
+            ok = CK.batch_controller_commit(*flat[:5], res, has_res, commit, self.kernel_constants, S, tau, act, arm,
+                                            resid, iters, feas, err)
+        else:
+            S_new = S.copy()
+            run_rows(CK.batch_controller, n, *flat[:5], res, has_res, commit, self.kernel_constants, S, S_new, tau,
+                     act, arm, resid, iters, feas, err)
+            ok = CK.commit_rows(S, S_new, err) if commit else not err.any()
+        if not ok:
             self.raise_for(err, flat[0])
-        allocation = AllocationInfo(
-            residual=info[:, CK.INFO_RESIDUAL].reshape(lead),
-            iterations=info[:, CK.INFO_ITERATIONS].astype(np.int64).reshape(lead),
-            feasible=(info[:, CK.INFO_FEASIBLE] > 0.5).reshape(lead),
-        )
+        allocation = AllocationInfo(residual=resid.reshape(lead), iterations=iters.reshape(lead),
+                                    feasible=feas.reshape(lead))
         return ControlOutput(tau=tau.reshape(lead + (5,)), actuators=act.reshape(lead + (4,)),
                              arm_reference=arm.reshape(lead + (2,)), allocation=allocation)
 

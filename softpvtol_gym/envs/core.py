@@ -21,6 +21,7 @@ Contents:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any
 
@@ -228,6 +229,11 @@ class EnvConfig:
             out[k] = v if eff in enabled else (0.0 if k != "wind_correlation_time" else v)
         return out
 
+    @functools.cached_property
+    def mismatch_scale(self) -> float:
+        """Plant parameter mismatch scale in effect (0: off); cached (the config is immutable)."""
+        return self.tier_values["mismatch_scale"]
+
     @property
     def thrust_max(self) -> float:
         """T_max = 3 x the nominal hover thrust per rotor [N] (102.9 N with defaults)."""
@@ -338,6 +344,10 @@ def reference(task: str, t: np.ndarray, refp: np.ndarray) -> tuple[np.ndarray, n
 
 
 # -------------------------------------------------------------------------------- episode sampling
+_DQ_SCALE = np.array([1.0, 1.0, 0.3, 0.3, 0.3])
+_DQD_SCALE = np.array([0.5, 0.5, 0.2, 0.2, 0.2])
+
+
 def sample_episodes(cfg: EnvConfig, u: np.ndarray) -> dict[str, np.ndarray]:
     """Initial state, reference parameters, plant parameters and noise key of len(u) new episodes.
 
@@ -350,9 +360,10 @@ def sample_episodes(cfg: EnvConfig, u: np.ndarray) -> dict[str, np.ndarray]:
     refp = np.zeros((n, N_REF_PARAMS))
     q0 = np.zeros((n, 5))
     qd0 = np.zeros((n, 5))
-    # perturbation used by hover / setpoint / track_random
-    dq = np.stack([c[:, 0], c[:, 1], 0.3 * c[:, 2], 0.3 * c[:, 3], 0.3 * c[:, 4]], axis=1)
-    dqd = np.stack([0.5 * c[:, 5], 0.5 * c[:, 6], 0.2 * c[:, 7], 0.2 * c[:, 8], 0.2 * c[:, 9]], axis=1)
+    # perturbation used by hover / setpoint / track_random: (c0, c1, 0.3 c2, 0.3 c3, 0.3 c4) and
+    # (0.5 c5, 0.5 c6, 0.2 c7, 0.2 c8, 0.2 c9) (x 1.0 is exact)
+    dq = c[:, 0:5] * _DQ_SCALE
+    dqd = c[:, 5:10] * _DQD_SCALE
     task = cfg.task
     if task == "hover":
         refp[:, :3] = HOVER_SETPOINT
@@ -380,7 +391,7 @@ def sample_episodes(cfg: EnvConfig, u: np.ndarray) -> dict[str, np.ndarray]:
         q0 = r0 + 0.5 * dq
         qd0 = rd0 + 0.5 * dqd
     P = np.repeat(cfg.params.array[None, :], n, axis=0)
-    s = cfg.tier_values["mismatch_scale"]
+    s = cfg.mismatch_scale
     if s > 0:
         idx = [PARAM_FIELDS.index(f) for f in ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r")]
         P[:, idx] *= 1.0 + s * c[:, 31:39]
@@ -420,7 +431,7 @@ def counter_normal(key, counter, stream):
 # key (N,) uint64 and obs (N, 18) float32; constants C (C_*: the config vector cf, nominal params,
 # gains, residual scales, control period) and K (K_* codes). BatchSim exposes the column blocks as
 # views (sim.q, sim.qd, sim.qr, ...). In residual mode the controller's memory S (N, ST_LEN) and
-# constants cc are those of the PassivityController object (control._kernels.controller_row).
+# constants cc are those of the PassivityController object (control._kernels.controller_step).
 # The kernels index F[n, column] directly: slicing rows into views would cost two atomic reference
 # count updates per view, which dominated the step.
 F_Q, F_QD, F_QM, F_QDM = 0, 5, 10, 15
@@ -514,10 +525,43 @@ def _diag_row(F, n, C):
     F[n, F_DIAG + D_CURV_VIOL] = max(abs(F[n, F_Q + 3]) - math.pi, abs(F[n, F_Q + 4]) - math.pi, 0.0)
 
 
-@njit(cache=True)
-def observe_rows(F, obs, key, I, C, rows):
-    """Observation, measured state and diagnostics of the given rows right after a reset."""
-    for n in rows:
+@njit(cache=True, nogil=True)
+def reset_rows(F, obs, key, I, C, rows, q0, qd0, P, keys, qr, qdr, qddr):
+    """Start new episodes in the given rows (initial state, plant params, noise keys and reference
+    at t = 0, row j of the inputs for rows[j]): clear the episode state, draw the initial wind,
+    compute the observation, measured state and diagnostics."""
+    std = C[CF_WIND_STD]
+    for j in range(rows.shape[0]):
+        n = rows[j]
+        for i in range(5):
+            F[n, F_Q + i] = q0[j, i]
+            F[n, F_QD + i] = qd0[j, i]
+            F[n, F_QR + i] = qr[j, i]
+            F[n, F_QDR + i] = qdr[j, i]
+            F[n, F_QDDR + i] = qddr[j, i]
+            F[n, F_LAG + i] = 0.0
+            F[n, F_APPLIED + i] = math.nan
+        for i in range(10):
+            F[n, F_P + i] = P[j, i]
+        key[n] = keys[j]
+        I[n, I_COUNTER] = 0
+        I[n, I_STEPS] = 0
+        I[n, I_LAG_INIT] = 1
+        I[n, I_CLIPPED] = 0
+        I[n, I_REASON] = R_NONE
+        F[n, F_T] = 0.0
+        F[n, F_REW] = 0.0
+        for i in range(len(REWARD_TERMS)):
+            F[n, F_TERMS + i] = 0.0
+        for i in range(N_DIAG):
+            F[n, F_DIAG + i] = 0.0
+        # initial wind: stationary OU sample from the counter noise at counter 0
+        if std > 0:
+            F[n, F_WIND] = std * counter_normal(key[n], 0, 10)
+            F[n, F_WIND + 1] = std * counter_normal(key[n], 0, 11)
+        else:
+            F[n, F_WIND] = 0.0
+            F[n, F_WIND + 1] = 0.0
         _observe_range(n, n + 1, F, key, I, C, obs)
         _diag_row(F, n, C)
 
@@ -534,23 +578,20 @@ L_STORAGE = L_ENERGY + 1
 LANE_ROWS = L_STORAGE + 1
 # per-row controller outputs in residual mode: actuators (4), allocation residual, arm references (2)
 CTL_LEN = 7
-# scratch of _command: applied command (5), virtual tau (5), allocation out (4) and info (3)
-CMD_WORK = 20
+# scratch of _begin_range: applied command (5), virtual tau (5)
+CMD_WORK = 10
 
 
 @_jit
 def _virtual_allocation(F, n, C, alloc, imap, ws):
     """Virtual mode: thrusts from the body rows of tau (ws[5:10]) by the allocation, arm rows as
     generalized forces; the command into ws[0:4], diagnostics into F. Returns the thrust flag."""
-    tau = ws[5:10]
-    out = ws[10:14]
-    info = ws[14:14 + CK.N_INFO]
-    Pnom = C[C_PNOM:C_PNOM + 10]
+    pnom = _vec5(C, C_PNOM) + _vec5(C, C_PNOM + 5)
     thrust_sat = 0.0
     if alloc == CK.ALLOC_PAPER:
-        CK.allocate_paper_into(tau, F[n, F_Q + 2], Pnom, out, False, out, info)
+        out, info = CK.allocate_paper(ws[5], ws[6], ws[7], F[n, F_Q + 2], pnom, 0.0, 0.0, False)
     else:
-        CK.allocate_exact_into(tau, F[n, F_Q + 2], Pnom, imap, out, False, math.pi, out, info)
+        out, info = CK.allocate_exact(ws[5], ws[6], ws[7], F[n, F_Q + 2], pnom, imap, 0.0, 0.0, False, math.pi)
     Tl, Tr = out[0], out[1]
     if not (math.isfinite(Tl) and math.isfinite(Tr)):
         Tl, Tr = 0.0, 0.0
@@ -559,9 +600,9 @@ def _virtual_allocation(F, n, C, alloc, imap, ws):
     F[n, F_DIAG + D_ALLOC_RES] = info[CK.INFO_RESIDUAL] if math.isfinite(info[CK.INFO_RESIDUAL]) else 1.0e300
     F[n, F_DIAG + D_ARM_L] = out[2]
     F[n, F_DIAG + D_ARM_R] = out[3]
-    ws[2], ws[3] = tau[3], tau[4]
+    ws[2], ws[3] = ws[8], ws[9]
     if imap == MK.INPUT_MAP_EXACT:  # the arm rows get the requested generalized force
-        gf = MK.generalized_forces(_row5(F, n, F_Q), (Tl, Tr, 0.0, 0.0), Pnom, imap)
+        gf = MK.generalized_forces(_row5(F, n, F_Q), (Tl, Tr, 0.0, 0.0), pnom, imap)
         ws[2] -= gf[3]
         ws[3] -= gf[4]
     return thrust_sat
@@ -844,22 +885,24 @@ def _take_actions(act, F, I, adim):
 
 @_jit
 def _controller_rows(lo, hi, F, C, has_res, cc, S, S_new, ctl, err):
-    """The residual-mode base controller (PassivityController's row kernel) for envs lo .. hi - 1:
-    actuators, allocation residual and arm references into ctl, the new memory into S_new."""
-    work = np.empty(CK.CONTROLLER_WORK + 16)
-    cw = work[:CK.CONTROLLER_WORK]
-    w = work[CK.CONTROLLER_WORK:]
-    res, out5, arm, info = w[0:5], w[5:10], w[10:12], w[12:15]
+    """The residual-mode base controller (PassivityController's row kernel, fed the measured state)
+    for envs lo .. hi - 1: actuators, allocation residual and arm references into ctl, the new memory
+    into S_new."""
+    cfg, p, lam, kg = CK.config_tuples(cc)
+    zero = (0.0, 0.0, 0.0, 0.0, 0.0)
     for n in range(lo, hi):
+        res = zero
         if has_res:
-            for i in range(5):
-                res[i] = F[n, F_U + i] * C[C_RES_TAU + i]
-        err[n] = CK.controller_row(F[n, F_QM:F_QM + 5], F[n, F_QDM:F_QDM + 5], F[n, F_QR:F_QR + 5],
-                                   F[n, F_QDR:F_QDR + 5], F[n, F_QDDR:F_QDDR + 5], res, has_res, True, cc, S[n],
-                                   S_new[n], out5, ctl[n, 0:4], arm, info, cw)
-        ctl[n, 4] = info[CK.INFO_RESIDUAL]
-        ctl[n, 5] = arm[0]
-        ctl[n, 6] = arm[1]
+            res = (F[n, F_U] * C[C_RES_TAU], F[n, F_U + 1] * C[C_RES_TAU + 1], F[n, F_U + 2] * C[C_RES_TAU + 2],
+                   F[n, F_U + 3] * C[C_RES_TAU + 3], F[n, F_U + 4] * C[C_RES_TAU + 4])
+        e, _t, a, r, inf, st = CK.controller_step(
+            _row5(F, n, F_QM), _row5(F, n, F_QDM), _row5(F, n, F_QR), _row5(F, n, F_QDR), _row5(F, n, F_QDDR), res,
+            has_res, True, cfg, p, lam, kg, CK.state_row(S, n))
+        err[n] = e
+        ctl[n, 0], ctl[n, 1], ctl[n, 2], ctl[n, 3] = a
+        ctl[n, 4] = inf[CK.INFO_RESIDUAL]
+        ctl[n, 5], ctl[n, 6] = r
+        CK.put_state_row(S_new, n, st)
 
 
 @_jit
@@ -1025,38 +1068,15 @@ class BatchSim:
         ep = sample_episodes(self.cfg, u)
         if options:
             ep = _apply_options(self.cfg, ep, options)
-        self.q[idx] = ep["q0"]
-        self.qd[idx] = ep["qd0"]
-        self.refp[idx] = ep["refp"]
-        self.P[idx] = ep["P"]
-        self.key[idx] = ep["key"]
-        self.counter[idx] = 0
-        self.t[idx] = 0.0
-        self.steps[idx] = 0
-        self.lag[idx] = 0.0
-        self.lag_init[idx] = 1
-        self.applied[idx] = np.nan
-        self.clipped[idx] = 0
-        self.reason[idx] = R_NONE
-        self.rew[idx] = 0.0
-        self.terms[idx] = 0.0
-        qr, qdr, qddr = reference(self.cfg.task, self.t[idx], self.refp[idx])
-        self.qr[idx], self.qdr[idx], self.qddr[idx] = qr, qdr, qddr
-        # initial wind: stationary OU sample from the counter noise at counter 0
-        std = self.cf[CF_WIND_STD]
-        if std > 0:
-            for j, n in enumerate(np.atleast_1d(idx)):
-                self.wind[n, 0] = std * counter_normal(self.key[n], 0, 10)
-                self.wind[n, 1] = std * counter_normal(self.key[n], 0, 11)
-        else:
-            self.wind[idx] = 0.0
-        ii = np.atleast_1d(np.arange(self.n)[idx])
-        self.diag[ii] = 0.0
-        observe_rows(self.F, self.obs, self.key, self.I, self.C, ii)
+        rows = np.arange(self.n)[idx] if not isinstance(idx, np.ndarray) else idx
+        rows = np.ascontiguousarray(np.atleast_1d(rows), dtype=np.int64)
+        refp = ep["refp"]
+        self.refp[rows] = refp
+        qr, qdr, qddr = reference(self.cfg.task, np.zeros(rows.size), refp)
+        reset_rows(self.F, self.obs, self.key, self.I, self.C, rows, ep["q0"], ep["qd0"], ep["P"], ep["key"],
+                   np.ascontiguousarray(qr), np.ascontiguousarray(qdr), np.ascontiguousarray(qddr))
         if self.controller is not None:
-            mask = np.zeros(self.n, dtype=bool)
-            mask[ii] = True
-            self.controller.reset(mask)
+            self.controller.reset_rows(rows)
 
     # --------------------------------------------------------------------------------- step
     def step(self, action, batched: bool) -> None:

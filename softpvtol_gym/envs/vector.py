@@ -86,8 +86,9 @@ class SoftPVTOLVectorEnv(VectorEnv):
     # ------------------------------------------------------------------------------ seeding
     def _draw(self, idx: np.ndarray) -> np.ndarray:
         u = np.empty((idx.size, core.N_UNIFORMS))
+        rngs = self._rngs
         for j, i in enumerate(idx.tolist()):
-            u[j] = self._rngs[i].random(core.N_UNIFORMS)
+            rngs[i].random(core.N_UNIFORMS, out=u[j])
         return u
 
     def reset(self, *, seed: int | list | None = None, options: dict | None = None):

@@ -1,0 +1,327 @@
+"""Fast paths vs reference paths (issue 7), and the benchmark script end to end (quick mode).
+
+The fast paths: the SIMD lane kernels of the env's physics, the fused compiled controller step
+(PassivityController, the residual mode, PassivityPolicy), the lazily bracketed exact allocation and
+the thread split of large batches. The reference paths: the public per-piece API (dynamics,
+integrators, passivity_control, allocate) composed in Python. They must agree to 1e-12 (they are the
+same kernels, so in fact bit for bit). Nothing here is timed.
+"""
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from softpvtol_gym import PassivityPolicy, SoftPVTOLEnv, SoftPVTOLParams, SoftPVTOLVectorEnv, _kernels as MK
+from softpvtol_gym import dynamics, integrators
+from softpvtol_gym.control import PassivityController, _kernels as CK, allocate, passivity_control, storage_function
+from softpvtol_gym.control.closed_loop import LOOPS
+from softpvtol_gym._parallel import row_ranges
+
+ROOT = Path(__file__).resolve().parent.parent
+P = SoftPVTOLParams()
+TOL = dict(rtol=1e-12, atol=1e-12)
+
+
+# ------------------------------------------------------------------------- reference controller
+class ReferenceController:
+    """The actuated passivity controller composed from the public per-piece API in Python (the
+    pre-fusion implementation): body rows of passivity_control -> allocate -> arm rows."""
+
+    def __init__(self, loop, input_map="paper", algebraic_iterations=1, dt=0.01, limits=(5.0, 50.0)):
+        self.allocation = LOOPS[loop]["allocation"]
+        self.ff = LOOPS[loop]["arm_feedforward"]
+        self.input_map, self.iters, self.dt, self.limits = input_map, algebraic_iterations, dt, limits
+        self.history = self.warm = self.reseed = None
+
+    def reset(self, mask=None):
+        if mask is None or self.history is None:
+            self.history = self.warm = self.reseed = None
+            return
+        self.reseed = mask if self.reseed is None else (self.reseed | mask)
+        if self.warm is not None:
+            self.warm[mask] = np.nan
+
+    def _derivatives(self):
+        h = self.history
+        if not self.ff:
+            return np.zeros_like(h[-1]), np.zeros_like(h[-1])
+        dt, (vmax, amax) = self.dt, self.limits
+        vel = np.clip((3.0 * h[-1] - 4.0 * h[-2] + h[-3]) / (2.0 * dt), -vmax, vmax)
+        acc = np.clip((2.0 * h[-1] - 5.0 * h[-2] + 4.0 * h[-3] - h[-4]) / (dt * dt), -amax, amax)
+        return vel, acc
+
+    def __call__(self, q, qd, q_ref, qd_ref, qdd_ref, res=None, commit=True):
+        q_ref, qd_ref, qdd_ref = (np.array(np.broadcast_to(r, q.shape), dtype=float) for r in (q_ref, qd_ref, qdd_ref))
+        if self.history is None:
+            arm, arm_d, arm_dd = q[..., 3:5].copy(), np.zeros_like(q[..., 3:5]), np.zeros_like(q[..., 3:5])
+        else:
+            arm = self.history[-1].copy()
+            arm_d, arm_dd = self._derivatives()
+            if self.reseed is not None:
+                arm[self.reseed] = q[..., 3:5][self.reseed]
+                arm_d[self.reseed] = 0.0
+                arm_dd[self.reseed] = 0.0
+        warm = self.warm
+        for _ in range(self.iters):
+            q_ref[..., 3:5], qd_ref[..., 3:5], qdd_ref[..., 3:5] = arm, arm_d, arm_dd
+            tau = passivity_control(q, qd, q_ref, qd_ref, qdd_ref, P)
+            if res is not None:
+                tau = tau + res
+            alloc, info = allocate(tau, q, P, self.allocation, input_map=self.input_map, warm_start=warm,
+                                   return_info=True)
+            warm = alloc
+            arm = alloc[..., 2:4]
+        if commit:
+            self.warm = alloc.copy()
+            if self.history is None:
+                self.history = [arm.copy() for _ in range(4)]
+            else:
+                self.history = self.history[1:] + [arm.copy()]
+                if self.reseed is not None:
+                    for h in self.history[:-1]:
+                        h[self.reseed] = arm[self.reseed]
+            self.reseed = None
+            arm_d, arm_dd = self._derivatives()
+        q_ref[..., 3:5], qd_ref[..., 3:5], qdd_ref[..., 3:5] = arm, arm_d, arm_dd
+        tau_arm = passivity_control(q, qd, q_ref, qd_ref, qdd_ref, P)[..., 3:5]
+        if res is not None:
+            tau_arm = tau_arm + res[..., 3:5]
+        act = np.concatenate([alloc[..., :2], tau_arm], axis=-1)
+        if self.input_map == "exact":
+            thrust = act.copy()
+            thrust[..., 2:4] = 0.0
+            act[..., 2:4] -= dynamics.generalized_forces(q, thrust, P, "exact")[..., 3:5]
+        tau_cmd = tau.copy()
+        tau_cmd[..., 3:5] = tau_arm
+        return tau_cmd, act, arm, info
+
+
+@pytest.mark.parametrize("loop, input_map, iters", [("exact", "paper", 1), ("paper", "paper", 1),
+                                                      ("improved", "exact", 1), ("improved", "paper", 3)])
+def test_fused_controller_matches_per_piece_reference(loop, input_map, iters):
+    rng = np.random.default_rng(0)
+    n = 40
+    fast = PassivityController.from_loop(loop, input_map=input_map, algebraic_iterations=iters)
+    ref = ReferenceController(loop, input_map=input_map, algebraic_iterations=iters)
+    q = rng.uniform(-1, 1, (n, 5)) * [3, 3, 1, 0.8, 0.8]
+    qd = rng.uniform(-1, 1, (n, 5))
+    refs = [rng.uniform(-1, 1, (n, 5)) for _ in range(3)]
+    for k in range(10):
+        q = q + 0.01 * qd
+        res = rng.uniform(-2, 2, (n, 5)) if k % 3 == 1 else None
+        commit = k % 4 != 2
+        if k == 6:
+            mask = rng.random(n) < 0.3
+            fast.reset(mask)
+            ref.reset(mask)
+        out = fast(q, qd, *refs, tau_residual=res, commit=commit)
+        tau, act, arm, info = ref(q, qd, *refs, res=res, commit=commit)
+        np.testing.assert_allclose(out.tau, tau, **TOL)
+        np.testing.assert_allclose(out.actuators, act, **TOL)
+        np.testing.assert_allclose(out.arm_reference, arm, **TOL)
+        np.testing.assert_allclose(out.allocation.residual, info.residual, **TOL)
+        np.testing.assert_array_equal(out.allocation.iterations, info.iterations)
+
+
+def test_residual_env_and_policy_run_the_fused_controller():
+    """Residual action 0 in the vector env = the reference controller on the measured state; the
+    policy's compiled pass = the reference controller on its state from the observation."""
+    n = 70
+    venv = SoftPVTOLVectorEnv(num_envs=n, action_mode="residual", tier="mismatch", actuator_limits=(1e6, 1e6))
+    venv.reset(seed=1)
+    ref = ReferenceController("exact")
+    sim = venv._sim
+    for _ in range(5):
+        _, act, _, _ = ref(sim.qm.copy(), sim.qdm.copy(), sim.qr.copy(), sim.qdr.copy(), sim.qddr.copy())
+        _, _, term, trunc, _ = venv.step(np.zeros((n, 5)))
+        assert not (term | trunc).any()
+        np.testing.assert_allclose(sim.applied[:, :4], act, **TOL)  # no saturation, no lag
+    env = SoftPVTOLVectorEnv(num_envs=n, action_mode="actuators", task="track_random", actuator_limits=(102.9, 1e3))
+    pol = PassivityPolicy.from_env(env)
+    ref = ReferenceController("exact")
+    obs, _ = env.reset(seed=2)
+    for _ in range(5):
+        a, _ = pol.predict(obs)
+        _, act, _, _ = ref(*PassivityPolicy.state_from_observation(obs))
+        u = np.clip(np.concatenate([2.0 * act[:, :2] / pol._tmax - 1.0, act[:, 2:4] / pol._taumax], axis=1), -1, 1)
+        np.testing.assert_allclose(a, u.astype(np.float32), rtol=0, atol=1e-7)
+        obs, *_ = env.step(a)
+
+
+# ---------------------------------------------------------------------------------- physics
+@pytest.mark.parametrize("n", [1, 5, MK.LANES, 2 * MK.LANES + 5])
+def test_rk4_lanes_match_public_rk4(n):
+    rng = np.random.default_rng(n)
+    q = rng.uniform(-1, 1, (n, 5)) * [5, 5, 3, 2.5, 2.5]
+    qd = rng.uniform(-3, 3, (n, 5))
+    tau = rng.uniform(-80, 80, (n, 5))
+    Pm = P.array * rng.uniform(0.8, 1.2, (n, 10))
+    L = MK.LANES
+    for b in range(0, n, L):
+        m = min(L, n - b)
+        W = np.zeros(MK.LANE_ROWS_RK4 * L)
+        for i in range(5):
+            W[(MK.LANE_Q + i) * L:(MK.LANE_Q + i) * L + m] = q[b:b + m, i]
+            W[(MK.LANE_QD + i) * L:(MK.LANE_QD + i) * L + m] = qd[b:b + m, i]
+            W[(MK.LANE_TAU + i) * L:(MK.LANE_TAU + i) * L + m] = tau[b:b + m, i]
+        for i in range(10):
+            W[(MK.LANE_P + i) * L:(MK.LANE_P + i) * L + m] = Pm[b:b + m, i]
+        MK.rk4_lanes(W, 0.01, m)
+        for j in range(m):
+            qn, vn = integrators.rk4_step(q[b + j], qd[b + j], tau[b + j], SoftPVTOLParams.from_array(Pm[b + j]))
+            np.testing.assert_allclose([W[(MK.LANE_Q + i) * L + j] for i in range(5)], qn, **TOL)
+            np.testing.assert_allclose([W[(MK.LANE_QD + i) * L + j] for i in range(5)], vn, **TOL)
+
+
+def test_vector_env_physics_matches_public_api():
+    """One step of the compiled env (SIMD blocks + remainder) = generalized_forces + rk4_step of the
+    public API on the applied actuators; energy and storage in info = total_energy, storage_function."""
+    n = 2 * MK.LANES + 5
+    venv = SoftPVTOLVectorEnv(num_envs=n, tier="mismatch", task="setpoint")
+    venv.reset(seed=3)
+    sim = venv._sim
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        q0, qd0, Pm = sim.q.copy(), sim.qd.copy(), sim.P.copy()
+        _, _, term, _, info = venv.step(rng.uniform(-0.3, 0.3, (n, 4)))
+        a = sim.applied[:, :4]
+        for i in range(n):
+            p = SoftPVTOLParams.from_array(Pm[i])
+            tau = dynamics.generalized_forces(q0[i], a[i], p)
+            q1, v1 = integrators.rk4_step(q0[i], qd0[i], tau, p, 0.01)
+            np.testing.assert_allclose(sim.q[i], q1, **TOL)
+            np.testing.assert_allclose(sim.qd[i], v1, **TOL)
+            np.testing.assert_allclose(info["total_energy"][i], dynamics.total_energy(q1, v1, p), **TOL)
+            qr = np.r_[sim.qr[i, :3], 0, 0]
+            qdr = np.r_[sim.qdr[i, :3], 0, 0]
+            np.testing.assert_allclose(info["storage_function"][i], storage_function(q1, v1, qr, qdr, P), **TOL)
+        assert not term.any()
+
+
+def test_large_vector_env_subenvs_equal_single_envs():
+    """Threads + SIMD blocks (600 envs) vs single envs seeded s + i, residual mode, hard tier."""
+    n, s = 600, 5
+    kw = dict(action_mode="residual", tier="hard", task="track_random")
+    venv = SoftPVTOLVectorEnv(num_envs=n, **kw)
+    assert venv._sim._ranges == row_ranges(n, align=MK.LANES)
+    picks = [0, MK.LANES - 1, MK.LANES, 301, n - 1]
+    singles = {i: SoftPVTOLEnv(**kw) for i in picks}
+    vo, _ = venv.reset(seed=s)
+    for i, e in singles.items():
+        np.testing.assert_array_equal(vo[i], e.reset(seed=s + i)[0])
+    rng = np.random.default_rng(0)
+    for _ in range(25):
+        a = rng.uniform(-1, 1, (n, 5))
+        vo, vr, vt, vtr, _ = venv.step(a)
+        for i, e in singles.items():
+            o, r, t, tr, _ = e.step(a[i])
+            np.testing.assert_array_equal(vo[i], o)
+            assert vr[i] == r and vt[i] == t and vtr[i] == tr
+            if t or tr:
+                e.reset()  # the vector env resets it at its next step: compare until then only
+                singles = {k: v for k, v in singles.items() if k != i}
+
+
+def test_thread_split_equals_one_call():
+    rng = np.random.default_rng(1)
+    n = 1500
+    q = rng.uniform(-1, 1, (n, 5))
+    qd = rng.uniform(-1, 1, (n, 5))
+    tau = rng.uniform(-20, 20, (n, 5))
+    whole = dynamics.forward_dynamics(q, qd, tau, P)
+    parts = np.concatenate([dynamics.forward_dynamics(q[i:i + 100], qd[i:i + 100], tau[i:i + 100], P)
+                            for i in range(0, n, 100)])
+    np.testing.assert_array_equal(whole, parts)
+    ctrl = PassivityController.from_loop("improved")
+    small = [PassivityController.from_loop("improved") for _ in range(3)]
+    for _ in range(3):
+        out = ctrl(q, qd, 0 * q, 0 * q, 0 * q)
+        for j, c in enumerate(small):
+            sl = slice(500 * j, 500 * j + 500)
+            np.testing.assert_array_equal(out.actuators[sl], c(q[sl], qd[sl], 0 * q[sl], 0 * q[sl], 0 * q[sl]).actuators)
+
+
+# ------------------------------------------------------------------------- lazy bracket
+def _eager_exact_allocation(tau, theta, p, imap, warm, use_warm, qmax=math.pi):
+    """The exact allocation with its bracket widened up front (the pre-optimisation algorithm)."""
+    lever = CK._lever
+    ll, lr, eps = p[6], p[7], p[9]
+    ct, st = math.cos(theta), math.sin(theta)
+    ux, uz, tt = ct * tau[0] + st * tau[1], -st * tau[0] + ct * tau[1], tau[2]
+    h = 0.5 * ux
+    scale = 1.0 + abs(uz) + abs(ux) + abs(tt)
+    lo = -scale * (1.0 + 1.0 / min(ll, lr))
+    hi = -lo
+    for _ in range(60):
+        if lever(uz - lo, -h, lr, eps, imap)[0] - lever(lo, h, ll, eps, imap)[0] - tt > 0.0:
+            break
+        lo *= 2.0
+    for _ in range(60):
+        if lever(uz - hi, -h, lr, eps, imap)[0] - lever(hi, h, ll, eps, imap)[0] - tt < 0.0:
+            break
+        hi *= 2.0
+    x = 0.5 * uz
+    if use_warm and math.isfinite(warm[0] + warm[2]):
+        x = warm[0] * math.cos(warm[2])
+    if not (lo < x < hi):
+        x = 0.5 * (lo + hi)
+    for _ in range(1, 101):
+        Gl, dGl = lever(x, h, ll, eps, imap)
+        Gr, dGr = lever(uz - x, -h, lr, eps, imap)
+        F = Gr - Gl - tt
+        if abs(F) <= 1e-13 * scale:
+            break
+        if F > 0.0:
+            lo = x
+        else:
+            hi = x
+        dF = -dGr - dGl
+        xn = x - F / dF if dF < 0.0 else 0.5 * (lo + hi)
+        if not (lo < xn < hi):
+            xn = 0.5 * (lo + hi)
+        if abs(xn - x) <= 1e-16 * (1.0 + abs(x)):
+            x = xn
+            break
+        x = xn
+    ql, qr = math.atan2(h, x), math.atan2(-h, uz - x)
+    ql, qr = min(max(ql, -qmax), qmax), min(max(qr, -qmax), qmax)
+    return math.hypot(h, x), math.hypot(h, uz - x), ql, qr
+
+
+@pytest.mark.parametrize("imap", ["paper", "exact"])
+def test_lazy_bracket_gives_the_eager_bracket_solution(imap):
+    rng = np.random.default_rng(7)
+    n = 300
+    tau = rng.standard_cauchy((n, 3)) * 10.0 ** rng.integers(-2, 5, (n, 1))
+    q = np.zeros((n, 5))
+    q[:, 2] = rng.uniform(-3, 3, n)
+    warm = np.where(rng.random((n, 1)) < 0.5, rng.standard_cauchy((n, 4)) * 100, np.nan)
+    fast = allocate(tau, q, P, "exact", input_map=imap, warm_start=warm)
+    code = MK.INPUT_MAP_PAPER if imap == "paper" else MK.INPUT_MAP_EXACT
+    for i in range(n):
+        ref = _eager_exact_allocation(tau[i], q[i, 2], P.array, code, warm[i], True)
+        np.testing.assert_allclose(fast[i], ref, **TOL)
+
+
+# ------------------------------------------------------------------------- benchmark script
+def test_benchmark_script_runs_end_to_end_quick(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "run.py"), "--quick", "--out", str(tmp_path)],
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    md = (tmp_path / "RESULTS.md").read_text()
+    data = json.loads((tmp_path / "results.json").read_text())
+    assert set(data["items"]) == {"single", "vector", "controller", "ppo", "cold_start"}
+    for item in data["items"].values():
+        assert item["targets"] and all(isinstance(t["pass"], bool) for t in item["targets"].values())
+    for key in ("cores", "python", "numpy", "numba", "gymnasium", "torch", "stable_baselines3", "commit"):
+        assert key in data["machine"]
+    for title in ("1. Single-env", "2. Vector-env", "3. Passivity controller", "4. PPO", "5. Cold start"):
+        assert title in md
+    assert "Pendulum-v1" in md and "CartPoleVectorEnv" in md and "do not edit" in md
