@@ -516,10 +516,17 @@ def _energy_storage(q, qd, qr, qdr, P, Pnom, lam, kg):
 
 
 @_jit
+def energy_storage(q, qd, qr, qdr, P, Pnom, lam, kg):
+    """:func:`_energy_storage` as a compiled call (tuples: q, qd (5), qr, qdr (3), P, Pnom (10), lam,
+    kg (5)): the non-inlined copy, shared by partial lane blocks and resets (inlining costs compile time)."""
+    return _energy_storage(q, qd, qr, qdr, P, Pnom, lam, kg)
+
+
+@_jit
 def _diag_row(F, n, C):
-    e, v = _energy_storage(_row5(F, n, F_Q), _row5(F, n, F_QD), _row5(F, n, F_QR), _row5(F, n, F_QDR),
-                           _row10(F, n, F_P), _vec5(C, C_PNOM) + _vec5(C, C_PNOM + 5), _vec5(C, C_LAM),
-                           _vec5(C, C_KG))
+    e, v = energy_storage(_row5(F, n, F_Q), _row5(F, n, F_QD), (F[n, F_QR], F[n, F_QR + 1], F[n, F_QR + 2]),
+                          (F[n, F_QDR], F[n, F_QDR + 1], F[n, F_QDR + 2]), _row10(F, n, F_P),
+                          _vec5(C, C_PNOM) + _vec5(C, C_PNOM + 5), _vec5(C, C_LAM), _vec5(C, C_KG))
     F[n, F_DIAG + D_ENERGY] = e
     F[n, F_DIAG + D_STORAGE] = v
     F[n, F_DIAG + D_CURV_VIOL] = max(abs(F[n, F_Q + 3]) - math.pi, abs(F[n, F_Q + 4]) - math.pi, 0.0)
@@ -710,25 +717,26 @@ def _lane5(W, row, j):
 
 
 @MK._inline
-def _diag_lane(W, j, pnom, lam, kg):
+def _diag_lane_in(W, j):
     q, qd, _tau, p = MK._lane_load(W, j)
     L = MK.LANES
     qr = (W[L_QR * L + j], W[(L_QR + 1) * L + j], W[(L_QR + 2) * L + j])
     qdr = (W[L_QDR * L + j], W[(L_QDR + 1) * L + j], W[(L_QDR + 2) * L + j])
-    e, v = _energy_storage(q, qd, qr, qdr, p, pnom, lam, kg)
-    W[L_ENERGY * L + j] = e
-    W[L_STORAGE * L + j] = v
+    return q, qd, qr, qdr, p
 
 
 @_jit
 def _diag_lanes(W, m, pnom, lam, kg):
     """Energy and storage of the first m lanes (the functions of _diag_row; SIMD for full blocks)."""
-    if m == MK.LANES:
-        for j in range(MK.LANES):
-            _diag_lane(W, j, pnom, lam, kg)
+    L = MK.LANES
+    if m == L:
+        for j in range(L):
+            q, qd, qr, qdr, p = _diag_lane_in(W, j)
+            W[L_ENERGY * L + j], W[L_STORAGE * L + j] = _energy_storage(q, qd, qr, qdr, p, pnom, lam, kg)
     else:
         for j in range(m):
-            _diag_lane(W, j, pnom, lam, kg)
+            q, qd, qr, qdr, p = _diag_lane_in(W, j)
+            W[L_ENERGY * L + j], W[L_STORAGE * L + j] = energy_storage(q, qd, qr, qdr, p, pnom, lam, kg)
 
 
 @_jit
