@@ -869,15 +869,23 @@ def _step_block(n0, m, F, obs, key, I, C, K, ctl, W, ws):
 
 
 @_jit
-def _take_actions(act, F, I, adim):
-    """Validate (finite) and clip the actions into F's action block; returns (ok, any nonzero)."""
-    n = act.shape[0]
-    for i in range(n):
-        for k in range(adim):
-            if not math.isfinite(act[i, k]):
-                return False, False
+def _check_actions(act, adim):
+    """(all actions finite, any clipped action nonzero): read only, so a bad action changes nothing."""
     anyu = False
-    for i in range(n):
+    for i in range(act.shape[0]):
+        for k in range(adim):
+            x = act[i, k]
+            if not math.isfinite(x):
+                return False, False
+            if x != 0.0:  # the clipped value is nonzero exactly when x is (x finite)
+                anyu = True
+    return True, anyu
+
+
+@_jit
+def _clip_actions(lo, hi, act, F, I, adim):
+    """Clip the actions of envs lo .. hi - 1 to [-1, 1] into F's action block; flag clipped rows."""
+    for i in range(lo, hi):
         clipped = 0
         for k in range(adim):
             x = act[i, k]
@@ -885,10 +893,7 @@ def _take_actions(act, F, I, adim):
             F[i, F_U + k] = c
             if c != x:
                 clipped = 1
-            if c != 0.0:
-                anyu = True
         I[i, I_CLIPPED] = clipped
-    return True, anyu
 
 
 @_jit
@@ -939,19 +944,21 @@ def _physics_rows(lo, hi, F, obs, key, I, C, K, ctl):
 # Entry points. Small batches: step_serial (one call). Large batches: BatchSim splits the rows over
 # threads (Python threads calling these nogil kernels on disjoint row ranges, waiting passively;
 # numba's OpenMP pool spin-waits, which collapses when the machine is busy):
-# step_take_actions, then (residual mode) step_controller_rows + step_commit_controller, then
-# step_physics_rows. An error code changes nothing.
+# step_check_actions, then (residual mode) step_controller_rows + step_commit_controller, then
+# step_physics_rows. An error code changes nothing (but the clipped action of the controller phase).
 
 
 @njit(cache=True, nogil=True)
-def step_take_actions(act, F, I, K):
-    """Validate (finite) and clip the actions; returns (ok, residual added) (see _take_actions)."""
-    ok, anyu = _take_actions(act, F, I, K[K_ADIM])
+def step_check_actions(act, K):
+    """(all actions finite, a tau residual is added) (see _check_actions)."""
+    ok, anyu = _check_actions(act, K[K_ADIM])
     return ok, anyu and K[K_RES_VIRTUAL] != 0
 
 
 @njit(cache=True, nogil=True)
-def step_controller_rows(lo, hi, F, C, has_res, cc, S, S_new, ctl, err):
+def step_controller_rows(lo, hi, act, F, I, C, K, has_res, cc, S, S_new, ctl, err):
+    """Residual mode, envs lo .. hi - 1: clip the actions, then the base controller."""
+    _clip_actions(lo, hi, act, F, I, K[K_ADIM])
     _controller_rows(lo, hi, F, C, has_res, cc, S, S_new, ctl, err)
 
 
@@ -961,7 +968,10 @@ def step_commit_controller(err, S, S_new):
 
 
 @njit(cache=True, nogil=True)
-def step_physics_rows(lo, hi, F, obs, key, I, C, K, ctl):
+def step_physics_rows(lo, hi, act, F, obs, key, I, C, K, ctl):
+    """Envs lo .. hi - 1: clip the actions (unless the controller phase did), then the step."""
+    if K[K_MODE] != MODE_RES_ACT:
+        _clip_actions(lo, hi, act, F, I, K[K_ADIM])
     _physics_rows(lo, hi, F, obs, key, I, C, K, ctl)
 
 
@@ -969,9 +979,10 @@ def step_physics_rows(lo, hi, F, obs, key, I, C, K, ctl):
 def step_serial(act, F, obs, key, I, C, K, cc, S):
     """One control step of every env (actions act (N, A)); returns a ``STEP_*`` code."""
     n = F.shape[0]
-    ok, anyu = _take_actions(act, F, I, K[K_ADIM])
+    ok, anyu = _check_actions(act, K[K_ADIM])
     if not ok:
         return STEP_BAD_ACTION
+    _clip_actions(0, n, act, F, I, K[K_ADIM])
     ctl = np.empty((n, CTL_LEN))
     if K[K_MODE] == MODE_RES_ACT:
         S_new = S.copy()
@@ -1127,18 +1138,18 @@ class BatchSim:
     def _step_split(self, a, cc, S) -> int:
         """The step of a large batch with its rows split over threads (same result as step_serial)."""
         F, obs, key, I, C, K, ctl = self.F, self.obs, self.key, self.I, self.C, self.K, self._ctl
-        ok, has_res = step_take_actions(a, F, I, K)
+        ok, has_res = step_check_actions(a, K)
         if not ok:
             return STEP_BAD_ACTION
         if self.controller is not None:
             S_new = S.copy()
             err = np.zeros(self.n, dtype=np.int64)
-            run_split(lambda lo, hi: step_controller_rows(lo, hi, F, C, has_res, cc, S, S_new, ctl, err),
-                       self._ranges)
+            run_split(lambda lo, hi: step_controller_rows(lo, hi, a, F, I, C, K, has_res, cc, S, S_new, ctl, err),
+                      self._ranges)
             code = step_commit_controller(err, S, S_new)
             if code != STEP_OK:
                 return code
-        run_split(lambda lo, hi: step_physics_rows(lo, hi, F, obs, key, I, C, K, ctl), self._ranges)
+        run_split(lambda lo, hi: step_physics_rows(lo, hi, a, F, obs, key, I, C, K, ctl), self._ranges)
         return STEP_OK
 
 

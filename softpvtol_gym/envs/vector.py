@@ -155,15 +155,16 @@ class SoftPVTOLVectorEnv(VectorEnv):
 
     def _infos(self, reasons) -> dict[str, Any]:
         sim = self._sim
-        d = sim.diag
+        d = sim.diag.copy()  # one private copy each; the info arrays are its columns
+        t = sim.terms.copy()
         m = self._true
-        terms = {name: sim.terms[:, i].copy() for i, name in enumerate(core.REWARD_TERMS)}
+        terms = {name: t[:, i] for i, name in enumerate(core.REWARD_TERMS)}
         info = {
             "reward_terms": terms,
-            "total_energy": d[:, core.D_ENERGY].copy(),
-            "storage_function": d[:, core.D_STORAGE].copy(),
-            "curvature_violation": d[:, core.D_CURV_VIOL].copy(),
-            "allocation_residual": d[:, core.D_ALLOC_RES].copy(),
+            "total_energy": d[:, core.D_ENERGY],
+            "storage_function": d[:, core.D_STORAGE],
+            "curvature_violation": d[:, core.D_CURV_VIOL],
+            "allocation_residual": d[:, core.D_ALLOC_RES],
             "thrust_saturated": d[:, core.D_THRUST_SAT] > 0.5,
             "arm_torque_saturated": d[:, core.D_TORQUE_SAT] > 0.5,
             "action_clipped": sim.clipped != 0,
