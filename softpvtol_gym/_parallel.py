@@ -27,27 +27,43 @@ def thread_count() -> int:
     return max(1, int(numba.config.NUMBA_NUM_THREADS))
 
 
+#: most rows in one chunk of a split batch
+MAX_CHUNK = 1024
+
+
 def row_ranges(n: int, align: int = 1) -> list[tuple[int, int]]:
-    """Contiguous (lo, hi) ranges covering n rows, one per thread, lo a multiple of ``align``."""
-    threads = min(thread_count(), n // (MIN_ROWS // 2)) if n >= MIN_ROWS else 1
-    if threads <= 1:
+    """Contiguous (lo, hi) chunks covering n rows (lo a multiple of ``align``): one chunk below
+    ``MIN_ROWS`` or with one thread, else at least two per thread and at most ``MAX_CHUNK`` rows each."""
+    threads = thread_count()
+    if n < MIN_ROWS or threads <= 1:
         return [(0, n)]
-    per = -(-(-(-n // threads)) // align) * align
+    per = min(MAX_CHUNK, -(-n // (2 * threads)))
+    per = -(-per // align) * align
     return [(lo, min(n, lo + per)) for lo in range(0, n, per)]
 
 
-def run_split(fn, ranges: list[tuple[int, int]]) -> list:
-    """fn(lo, hi) for every range: the first in this thread, the others in a shared thread pool."""
+def run_split(fn, ranges: list[tuple[int, int]]) -> None:
+    """fn(lo, hi) for every range, the ranges taken in turn by this thread and the pool's threads
+    (dynamic scheduling: a thread that the OS does not run, on a busy machine, holds up one chunk at
+    most)."""
     global _pool, _pool_pid
     if len(ranges) == 1:
-        return [fn(*ranges[0])]
+        fn(*ranges[0])
+        return
     if _pool is None or _pool_pid != os.getpid():  # a forked child does not inherit the threads
         _pool = concurrent.futures.ThreadPoolExecutor(max_workers=max(1, thread_count() - 1),
                                                       thread_name_prefix="softpvtol")
         _pool_pid = os.getpid()
-    futures = [_pool.submit(fn, lo, hi) for lo, hi in ranges[1:]]
-    first = fn(*ranges[0])
-    return [first] + [f.result() for f in futures]
+    todo = iter(ranges)  # next() on a list iterator is atomic under the GIL
+
+    def work() -> None:
+        for lo, hi in todo:
+            fn(lo, hi)
+
+    futures = [_pool.submit(work) for _ in range(min(thread_count() - 1, len(ranges) - 1))]
+    work()
+    for f in futures:
+        f.result()
 
 
 def run_rows(kernel, n: int, *args) -> None:
