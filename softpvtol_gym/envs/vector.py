@@ -88,7 +88,7 @@ class SoftPVTOLVectorEnv(VectorEnv):
         u = np.empty((idx.size, core.N_UNIFORMS))
         rngs = self._rngs
         for j, i in enumerate(idx.tolist()):
-            rngs[i].random(core.N_UNIFORMS, out=u[j])
+            u[j] = rngs[i].random(core.N_UNIFORMS)
         return u
 
     def reset(self, *, seed: int | list | None = None, options: dict | None = None):
