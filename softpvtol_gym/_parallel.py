@@ -42,13 +42,15 @@ def row_ranges(n: int, align: int = 1) -> list[tuple[int, int]]:
     return [(lo, min(n, lo + per)) for lo in range(0, n, per)]
 
 
-def run_split(fn, ranges: list[tuple[int, int]]) -> None:
+def run_split(fn, ranges: list[tuple[int, int]], side=None) -> None:
     """fn(lo, hi) for every range, the ranges taken in turn by this thread and the pool's threads
     (dynamic scheduling: a thread that the OS does not run, on a busy machine, holds up one chunk at
-    most)."""
+    most). ``side()``, if given, runs first in this thread while the pool's threads start on the ranges."""
     global _pool, _pool_pid
     if len(ranges) == 1:
         fn(*ranges[0])
+        if side is not None:
+            side()
         return
     if _pool is None or _pool_pid != os.getpid():  # a forked child does not inherit the threads
         _pool = concurrent.futures.ThreadPoolExecutor(max_workers=max(1, thread_count() - 1),
@@ -61,6 +63,8 @@ def run_split(fn, ranges: list[tuple[int, int]]) -> None:
             fn(lo, hi)
 
     futures = [_pool.submit(work) for _ in range(min(thread_count() - 1, len(ranges) - 1))]
+    if side is not None:
+        side()
     work()
     for f in futures:
         f.result()

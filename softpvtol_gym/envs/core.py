@@ -1084,22 +1084,33 @@ class BatchSim:
     # -------------------------------------------------------------------------------- reset
     def reset_entries(self, idx: np.ndarray, u: np.ndarray, options: dict | None = None) -> None:
         """Start new episodes in entries ``idx`` from uniforms ``u`` (len(idx), N_UNIFORMS)."""
+        self.apply_reset(idx, self.prepare_reset(u, options))
+
+    def prepare_reset(self, u: np.ndarray, options: dict | None = None) -> dict:
+        """The new episodes of :meth:`reset_entries` (changes nothing yet)."""
         ep = sample_episodes(self.cfg, u)
         if options:
             ep = _apply_options(self.cfg, ep, options)
+        ep["ref"] = tuple(np.ascontiguousarray(r) for r in reference(self.cfg.task, np.zeros(u.shape[0]), ep["refp"]))
+        return ep
+
+    def apply_reset(self, idx: np.ndarray, ep: dict) -> None:
+        """Write episodes from :meth:`prepare_reset` into entries ``idx``."""
         rows = np.arange(self.n)[idx] if not isinstance(idx, np.ndarray) else idx
         rows = np.ascontiguousarray(np.atleast_1d(rows), dtype=np.int64)
-        refp = ep["refp"]
-        self.refp[rows] = refp
-        qr, qdr, qddr = reference(self.cfg.task, np.zeros(rows.size), refp)
-        reset_rows(self.F, self.obs, self.key, self.I, self.C, rows, ep["q0"], ep["qd0"], ep["P"], ep["key"],
-                   np.ascontiguousarray(qr), np.ascontiguousarray(qdr), np.ascontiguousarray(qddr))
+        self.refp[rows] = ep["refp"]
+        qr, qdr, qddr = ep["ref"]
+        reset_rows(self.F, self.obs, self.key, self.I, self.C, rows, ep["q0"], ep["qd0"], ep["P"], ep["key"], qr, qdr,
+                   qddr)
         if self.controller is not None:
             self.controller.reset_rows(rows)
 
     # --------------------------------------------------------------------------------- step
-    def step(self, action, batched: bool) -> None:
-        """Validate the action (shape, finite), clip it and advance every entry by one control step."""
+    def step(self, action, batched: bool, side=None) -> None:
+        """Validate the action (shape, finite), clip it and advance every entry by one control step.
+
+        ``side()``, if given, runs in this thread once the step cannot fail any more, beside the
+        kernel threads of a large batch (Python work that overlaps the physics)."""
         expected = self._shape[batched]
         try:
             a = np.asarray(action, dtype=np.float64)
@@ -1125,8 +1136,10 @@ class BatchSim:
             cc, S = self.C, self.F
         if len(self._ranges) == 1:
             code = step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, cc, S)
+            if code == STEP_OK and side is not None:
+                side()
         else:
-            code = self._step_split(a, cc, S)
+            code = self._step_split(a, cc, S, side)
         if code != STEP_OK:
             if code == STEP_BAD_ACTION:
                 raise ValueError(f"action must be finite (in [-1, 1]), got {action!r}")
@@ -1135,7 +1148,7 @@ class BatchSim:
             check_curvature(self.qm)
             raise RuntimeError(f"step kernel failed with code {code}")  # pragma: no cover
 
-    def _step_split(self, a, cc, S) -> int:
+    def _step_split(self, a, cc, S, side=None) -> int:
         """The step of a large batch with its rows split over threads (same result as step_serial)."""
         F, obs, key, I, C, K, ctl = self.F, self.obs, self.key, self.I, self.C, self.K, self._ctl
         ok, has_res = step_check_actions(a, K)
@@ -1149,7 +1162,7 @@ class BatchSim:
             code = step_commit_controller(err, S, S_new)
             if code != STEP_OK:
                 return code
-        run_split(lambda lo, hi: step_physics_rows(lo, hi, a, F, obs, key, I, C, K, ctl), self._ranges)
+        run_split(lambda lo, hi: step_physics_rows(lo, hi, a, F, obs, key, I, C, K, ctl), self._ranges, side)
         return STEP_OK
 
 

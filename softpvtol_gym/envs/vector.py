@@ -109,7 +109,20 @@ class SoftPVTOLVectorEnv(VectorEnv):
 
     def step(self, actions):
         sim = self._sim
-        sim.step(actions, batched=True)
+        mode = self.autoreset_mode
+        pending = None
+        if mode == AutoresetMode.NEXT_STEP:
+            idx = np.flatnonzero(self._autoreset)
+            if idx.size:
+                # the sub-envs reset at this step draw their uniforms and sample their episodes while
+                # the physics runs (in this thread, beside the kernel threads; only once the step can
+                # no longer fail, so an error consumes no random numbers)
+                pending = []
+                sim.step(actions, batched=True, side=lambda: pending.append(sim.prepare_reset(self._draw(idx))))
+            else:
+                sim.step(actions, batched=True)
+        else:
+            sim.step(actions, batched=True)
         reason = sim.reason
         terminated = reason != core.R_NONE
         truncated = (sim.steps >= sim.max_steps) & ~terminated
@@ -121,11 +134,9 @@ class SoftPVTOLVectorEnv(VectorEnv):
             r_names = np.array(core.REASONS, dtype=object)
             reasons[terminated] = r_names[reason[terminated]]
             reasons[truncated] = "time_limit"
-        mode = self.autoreset_mode
         if mode == AutoresetMode.NEXT_STEP:
-            idx = np.flatnonzero(self._autoreset)
-            if idx.size:
-                sim.reset_entries(idx, self._draw(idx))
+            if pending is not None:
+                sim.apply_reset(idx, pending[0])
                 rewards[idx] = 0.0
                 terminated[idx] = False
                 truncated[idx] = False
