@@ -13,7 +13,11 @@ Contents:
     * :func:`sample_episodes` — initial states, setpoints/reference parameters, plant parameters and
       per-episode noise keys from a block of uniforms drawn from each env's own RNG.
     * the step kernel (action scaling, allocation, saturation, actuator lag, wind, RK4, observation
-      with noise, reward terms, termination), :func:`observe` for resets.
+      with noise, reward terms, termination), :func:`reset_rows` for resets. The state of the N envs is
+      a few packed arrays (``F_*``, ``I_*`` column blocks), the physics of 64 envs at a time runs as
+      SIMD lanes (``_kernels.rk4_lanes``), the residual mode's base controller is the fused controller
+      step of :mod:`softpvtol_gym.control._kernels`, and large batches are split over threads
+      (:mod:`softpvtol_gym._parallel`). Speed: ``benchmarks/``.
     * counter-based Gaussian noise (per-episode key, step counter, stream) so that noise does not
       depend on how many envs are stepped together.
 """
