@@ -37,6 +37,34 @@ def test_residual_zero_is_passivity_controller_bit_for_bit(allocation, input_map
         np.testing.assert_array_equal(ve, v[0])
 
 
+@pytest.mark.parametrize("space", ["virtual", "actuators"])
+def test_nonzero_residual_is_applied_once_in_its_own_space(space):
+    """The residual enters once: added to the controller's tau (virtual) or to its actuators."""
+    from softpvtol_gym.control import hover_reference
+
+    env = SoftPVTOLEnv(action_mode="residual", residual_space=space, task="hover")
+    q0 = np.array([0.4, 1.5, 0.1, 0.2, -0.1])
+    env.reset(seed=0, options={"q0": q0, "qdot0": np.zeros(5), "setpoint": (0.0, 2.0, 0.0)})
+    cfg, p = env.config, env.config.params
+    ctrl = PassivityController.from_loop(cfg.controller_loop, params=p, input_map=cfg.input_map, dt=0.01)
+    ref = tuple(r[None, :] for r in hover_reference(0.0, 2.0, 0.0))
+    q, v = q0[None, :], np.zeros((1, 5))
+    u = np.array([0.3, -0.2, 0.1, 0.25, -0.15])[: cfg.action_dim]
+    for k in range(100):
+        if space == "virtual":
+            act = ctrl(q, v, *ref, tau_residual=(u * cfg.residual_tau_scale)[None, :]).actuators
+        else:
+            act = ctrl(q, v, *ref).actuators + u * cfg.residual_actuator_scale
+        act[:, :2] = np.clip(act[:, :2], 0.0, cfg.thrust_max)
+        act[:, 2:] = np.clip(act[:, 2:], -cfg.arm_torque_max, cfg.arm_torque_max)
+        q, v = rk4_step(q, v, generalized_forces(q, act, p, cfg.input_map), p, 0.01)
+        terminated = env.step(u.astype(np.float32))[2]
+        assert not terminated
+        # equal up to rounding (the env adds the residual inside its compiled controller step);
+        # applying it twice, as before the fix, differs by > 1e-4
+        np.testing.assert_allclose(env.state[0], q[0], rtol=0, atol=1e-6)
+
+
 def test_residual_nonzero_changes_trajectory():
     e = SoftPVTOLEnv(action_mode="residual")
     e.reset(seed=0)

@@ -305,7 +305,10 @@ class EnvConfig:
         cf[CF_NQD:CF_NQD + 5] = np.asarray(OBS_NOISE_QD) * s
         cf[CF_SCALE:CF_SCALE + 5] = self.virtual_scale
         cf[CF_OFFSET:CF_OFFSET + 5] = self.virtual_offset
-        cf[CF_RES_ACT:CF_RES_ACT + 4] = self.residual_actuator_scale
+        # actuator-space residuals only: a virtual residual enters through the controller's tau alone
+        # (before 2026-11-23 its first 4 entries were also added to the actuators: applied twice)
+        if self.action_mode == "residual" and self.residual_space == "actuators":
+            cf[CF_RES_ACT:CF_RES_ACT + 4] = self.residual_actuator_scale
         cf[CF_THOVER] = self.params.hover_thrust
         cf[CF_FLAGS] = 1.0 if tc > 0 else 0.0
         cf[CF_FLAGS + 1] = 1.0 if tv["wind_std"] > 0 else 0.0

@@ -142,7 +142,9 @@ class SoftPVTOLEnv(gym.Env):
 
     ## Version History
 
-    * v0: initial version.
+    * v0: initial version. Fixed before any release (2026-11-23): with ``residual_space="virtual"``
+      the residual was added to the controller's tau *and* its first four entries to the actuators;
+      it is now applied once, through tau, as documented.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
