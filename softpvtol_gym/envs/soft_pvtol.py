@@ -147,7 +147,7 @@ class SoftPVTOLEnv(gym.Env):
       it is now applied once, through tau, as documented.
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 100}  # per instance: 1 / control period
 
     def __init__(
         self,
