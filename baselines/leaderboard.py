@@ -94,10 +94,24 @@ def _three_metrics(scores: np.ndarray) -> np.ndarray:
                      metrics.aggregate_mean(scores[..., 2])])
 
 
+def _seeded_interval_estimates(score_dict, func, reps):
+    """rliable's get_interval_estimates, reproducible: its StratifiedBootstrap draws its indices from
+    numpy's global RNG (np.random.choice), not from the random_state it is given, so the global RNG is
+    seeded for the call and restored afterwards."""
+    from rliable import library as rly
+
+    saved = np.random.get_state()
+    np.random.seed(BOOTSTRAP_SEED)
+    try:
+        return rly.get_interval_estimates(score_dict, func, task_bootstrap=True, reps=reps,
+                                          random_state=np.random.RandomState(BOOTSTRAP_SEED))
+    finally:
+        np.random.set_state(saved)
+
+
 def aggregate(cells: list[dict]) -> list[dict]:
     """Per (task, tier, entry): IQM RMS position error, IQM return, mean crash rate, P(improvement)
     over the reference passivity controller; each with a 95 % stratified-bootstrap CI."""
-    from rliable import library as rly
     from rliable import metrics
 
     warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
@@ -112,8 +126,7 @@ def aggregate(cells: list[dict]) -> list[dict]:
         # one bootstrap for the three metrics: scores (runs x episodes x 3)
         scores = np.stack([_matrix(group, "rms_position_error"), _matrix(group, "return"),
                            _matrix(group, "crashed")], axis=-1)
-        point, ci = rly.get_interval_estimates({"x": scores}, _three_metrics, task_bootstrap=True,
-                                               reps=BOOTSTRAP_REPS, random_state=np.random.RandomState(BOOTSTRAP_SEED))
+        point, ci = _seeded_interval_estimates({"x": scores}, _three_metrics, BOOTSTRAP_REPS)
         for k, name in enumerate(("rms_position_error_iqm", "return_iqm", "crash_rate")):
             row[name] = float(point["x"][k])
             row[name.replace("_iqm", "") + "_ci"] = [float(ci["x"][0, k]), float(ci["x"][1, k])]
@@ -121,9 +134,8 @@ def aggregate(cells: list[dict]) -> list[dict]:
         if ref is not None and entry != REFERENCE:
             x = _matrix(group, "rms_position_error", -1.0)  # higher is better for rliable
             y = _matrix(ref, "rms_position_error", -1.0)
-            point, ci = rly.get_interval_estimates({"p": (x, y)}, metrics.probability_of_improvement,
-                                                   task_bootstrap=True, reps=POI_BOOTSTRAP_REPS,
-                                                   random_state=np.random.RandomState(BOOTSTRAP_SEED))
+            point, ci = _seeded_interval_estimates({"p": (x, y)}, metrics.probability_of_improvement,
+                                                   POI_BOOTSTRAP_REPS)
             row["prob_improvement"] = float(np.asarray(point["p"]).reshape(-1)[0])
             row["prob_improvement_ci"] = [float(v) for v in np.asarray(ci["p"]).reshape(-1)[:2]]
         rows.append(row)
