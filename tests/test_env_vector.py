@@ -130,3 +130,19 @@ def test_sb3_adapter_ppo_and_terminal_observation():
             assert "TimeLimit.truncated" in infos[i]
             found = True
     assert found
+
+
+def test_diverging_residual_envs_terminate_instead_of_raising():
+    """Huge actuator limits and random residuals make sub-envs diverge within a step; the base
+    controller then sees a non-finite state (a terminated sub-env is stepped once more before its
+    next-step autoreset): the step must not raise, and must return finite values and reasons."""
+    env = SoftPVTOLVectorEnv(num_envs=8, action_mode="residual", task="track_paper", actuator_limits=(1e6, 1e6))
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    reasons = set()
+    for _ in range(50):
+        obs, rew, term, trunc, info = env.step(rng.uniform(-1, 1, (8, 5)).astype(np.float32))
+        assert np.isfinite(obs).all() and np.isfinite(rew).all()
+        assert all(info["termination_reason"][term])
+        reasons |= {r for r in info["termination_reason"][term]}
+    assert reasons and reasons <= {"curvature_limit", "ground", "out_of_bounds", "non_finite"}

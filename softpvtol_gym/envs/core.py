@@ -918,6 +918,16 @@ def _controller_rows(lo, hi, F, C, has_res, cc, S, S_new, ctl, err):
         e, _t, a, r, inf, st = CK.controller_step(
             _row5(F, n, F_QM), _row5(F, n, F_QDM), _row5(F, n, F_QR), _row5(F, n, F_QDR), _row5(F, n, F_QDDR), res,
             has_res, True, cfg, p, lam, kg, CK.state_row(S, n))
+        if e != CK.ERR_NONE:
+            # a non-finite or out-of-model measured state (a diverged env: one that terminated and is
+            # stepped once more before its autoreset, or stepped past termination): NaN actuators, so
+            # that the physics ends the episode as "non_finite" instead of the step raising; the row's
+            # controller memory stays as it was
+            err[n] = CK.ERR_NONE
+            for k in range(CTL_LEN):
+                ctl[n, k] = math.nan
+            CK.put_state_row(S_new, n, CK.state_row(S, n))
+            continue
         err[n] = e
         ctl[n, 0], ctl[n, 1], ctl[n, 2], ctl[n, 3] = a
         ctl[n, 4] = inf[CK.INFO_RESIDUAL]
