@@ -181,6 +181,28 @@ def _widen_hi(hi, uz, h, tt, ll, lr, eps, input_map):
 
 
 @_jit
+def _bracket_point(x, lo, hi, lo_raw, hi_raw, uz, h, tt, ll, lr, eps, input_map):
+    """Make x a point strictly inside the bracket: widen a not-yet-widened end that x lies beyond;
+    if x is still outside (or NaN), widen both raw ends and take the midpoint.
+    Returns (x, lo, hi, lo_raw, hi_raw)."""
+    if lo_raw and not (lo < x):
+        lo = _widen_lo(lo, uz, h, tt, ll, lr, eps, input_map)
+        lo_raw = False
+    if hi_raw and not (x < hi):
+        hi = _widen_hi(hi, uz, h, tt, ll, lr, eps, input_map)
+        hi_raw = False
+    if not (lo < x < hi):
+        if lo_raw:
+            lo = _widen_lo(lo, uz, h, tt, ll, lr, eps, input_map)
+            lo_raw = False
+        if hi_raw:
+            hi = _widen_hi(hi, uz, h, tt, ll, lr, eps, input_map)
+            hi_raw = False
+        x = 0.5 * (lo + hi)
+    return x, lo, hi, lo_raw, hi_raw
+
+
+@_jit
 def allocate_exact(t0, t1, t2, theta, p, input_map, w0, w2, use_warm, qmax):
     """(T_l, T_r, q_l^d, q_r^d) realising the body force (tau_x, tau_z, tau_theta) exactly.
 
@@ -214,20 +236,7 @@ def allocate_exact(t0, t1, t2, theta, p, input_map, w0, w2, use_warm, qmax):
     x = 0.5 * uz
     if use_warm and math.isfinite(w0 + w2):  # a NaN row means: cold start
         x = w0 * math.cos(w2)
-    if lo_raw and not (lo < x):
-        lo = _widen_lo(lo, uz, h, tt, ll, lr, eps, input_map)
-        lo_raw = False
-    if hi_raw and not (x < hi):
-        hi = _widen_hi(hi, uz, h, tt, ll, lr, eps, input_map)
-        hi_raw = False
-    if not (lo < x < hi):
-        if lo_raw:
-            lo = _widen_lo(lo, uz, h, tt, ll, lr, eps, input_map)
-            lo_raw = False
-        if hi_raw:
-            hi = _widen_hi(hi, uz, h, tt, ll, lr, eps, input_map)
-            hi_raw = False
-        x = 0.5 * (lo + hi)
+    x, lo, hi, lo_raw, hi_raw = _bracket_point(x, lo, hi, lo_raw, hi_raw, uz, h, tt, ll, lr, eps, input_map)
     F = 0.0
     it = 0
     for it in range(1, 101):
@@ -243,30 +252,9 @@ def allocate_exact(t0, t1, t2, theta, p, input_map, w0, w2, use_warm, qmax):
             hi = x
             hi_raw = False
         dF = -dGr - dGl
-        if dF < 0.0:
-            xn = x - F / dF
-        else:
-            if lo_raw:
-                lo = _widen_lo(lo, uz, h, tt, ll, lr, eps, input_map)
-                lo_raw = False
-            if hi_raw:
-                hi = _widen_hi(hi, uz, h, tt, ll, lr, eps, input_map)
-                hi_raw = False
-            xn = 0.5 * (lo + hi)
-        if lo_raw and not (lo < xn):
-            lo = _widen_lo(lo, uz, h, tt, ll, lr, eps, input_map)
-            lo_raw = False
-        if hi_raw and not (xn < hi):
-            hi = _widen_hi(hi, uz, h, tt, ll, lr, eps, input_map)
-            hi_raw = False
-        if not (lo < xn < hi):
-            if lo_raw:
-                lo = _widen_lo(lo, uz, h, tt, ll, lr, eps, input_map)
-                lo_raw = False
-            if hi_raw:
-                hi = _widen_hi(hi, uz, h, tt, ll, lr, eps, input_map)
-                hi_raw = False
-            xn = 0.5 * (lo + hi)
+        # a Newton step, or (dF >= 0: no usable step) NaN, which lies inside no bracket: bisection
+        xn = x - F / dF if dF < 0.0 else math.nan
+        xn, lo, hi, lo_raw, hi_raw = _bracket_point(xn, lo, hi, lo_raw, hi_raw, uz, h, tt, ll, lr, eps, input_map)
         if abs(xn - x) <= 1e-16 * (1.0 + abs(x)):
             x = xn
             break
