@@ -479,6 +479,57 @@ BENCHES = {"single": bench_single, "vector": bench_vector, "controller": bench_c
            "cold_start": bench_cold_start}
 
 
+# ------------------------------------------------------------------------------- README table
+README = ROOT / "README.md"
+README_START = "<!-- benchmarks/run.py: table start (generated from benchmarks/results.json, do not edit) -->"
+README_END = "<!-- benchmarks/run.py: table end -->"
+
+
+def readme_table(payload: dict) -> str:
+    """The README's Performance table from a full run's results.json payload."""
+    it = payload["items"]
+    tg = {name: {k: t["value"] for k, t in res["targets"].items()} for name, res in it.items()}
+    ctl = tg["controller"]
+    cold = it["cold_start"]
+    ppo = it["ppo"]
+    rows = [
+        ["1. single env step (`gym.make(\"SoftPVTOL-v0\")`, random actions) / `Pendulum-v1`",
+         f"{tg['single']['ratio_vs_pendulum']:.2f}x (Acrobot-v1: {it['single']['ratio_vs_acrobot']:.2f}x)",
+         "<= 2.0x, aim <= 1.0x"],
+        ["2. vector env, N = 4096, random actions",
+         f"{tg['vector']['steps_per_second_4096'] / 1e6:.2f} M env-steps/s, "
+         f"{tg['vector']['ratio_vs_cartpole_4096']:.2f}x `CartPoleVectorEnv`", ">= 3 M/s, >= 0.2x"],
+        ["2. vector env / `make_vec(..., \"sync\")`, N = 256", f"{tg['vector']['ratio_vs_sync_256']:.0f}x", ">= 50x"],
+        ["3. controller + allocation / one env step, single: residual mode, `PassivityPolicy.predict`, "
+         "`PassivityController()`",
+         ", ".join(f"{ctl['single_' + k]:.2f}x" for k in ("ratio_residual_extra", "ratio_policy", "ratio_controller")),
+         "<= 1x"],
+        ["3. the same, batched (N = 4096, per env)",
+         ", ".join(f"{ctl['batched_' + k]:.2f}x" for k in ("ratio_residual_extra", "ratio_policy", "ratio_controller")),
+         "<= 1x"],
+        ["4. PPO (default `train.py` configuration): share of wall time in `env.step`",
+         f"{100 * ppo['env_share']:.1f} % ({ppo['env_steps_per_second'] / 1e3:.1f} k env-steps/s)", "<= 10 %"],
+        ["5. `import softpvtol_gym` + first reset and step, fresh process",
+         f"{tg['cold_start']['import_plus_first_step']:.2f} s (cold numba cache: "
+         f"{cold['cold_cache']['process']:.1f} s in all)", "< 2 s"],
+    ]
+    m = payload["machine"]
+    head = (f"From `{payload['command']}` at commit `{m['commit'][:7]}`, {payload['date']}, {m['cores']} cores, "
+            f"load average {m['loadavg_start'][0]:.2f} at the start.")
+    return "\n".join([head, "", table(["item", "measured", "target"], rows)])
+
+
+def update_readme(payload: dict, path: Path = README) -> bool:
+    """Replace the README's generated table; False if its markers are missing."""
+    text = path.read_text()
+    if README_START not in text or README_END not in text:
+        return False
+    a = text.index(README_START) + len(README_START)
+    b = text.index(README_END)
+    path.write_text(text[:a] + "\n" + readme_table(payload) + "\n" + text[b:])
+    return True
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="few repetitions (a smoke test, ~20 s)")
@@ -532,6 +583,9 @@ def main(argv=None) -> int:
                "items": {k: {kk: vv for kk, vv in v.items() if kk != "text"} for k, v in results.items()}}
     (args.out / "results.json").write_text(json.dumps(payload, indent=2, default=float) + "\n")
     print(f"wrote {args.out / 'RESULTS.md'} and {args.out / 'results.json'}")
+    if not args.quick and not args.only and args.out.resolve() == (ROOT / "benchmarks").resolve():
+        if update_readme(json.loads((args.out / "results.json").read_text())):
+            print(f"updated the Performance table in {README}")
     return 0
 
 

@@ -165,6 +165,28 @@ def gravity_vector_into(q, p, out):
 
 
 @_inline
+def thrust_curvature_work(T, length, q):
+    """Generalized force T l (1 - cos q)/q^2 of a thrust T on its own arm's curvature q (exact map)."""
+    return T * length * one_minus_cos_over_q2(q)
+
+
+@_inline
+def thrust_body_forces(st, ct, ql, qr, Tl, Tr, p, input_map):
+    """The body rows (tau_x, tau_z, tau_theta) of :func:`generalized_forces` for thrusts (T_l, T_r) at
+    curvatures (q_l, q_r), given st, ct = sin(theta), cos(theta)."""
+    sl, cl = math.sin(ql), math.cos(ql)
+    sr, cr = math.sin(qr), math.cos(qr)
+    vx = Tl * sl - Tr * sr
+    vz = Tl * cl + Tr * cr
+    t0 = ct * vx - st * vz
+    t1 = st * vx + ct * vz
+    ll, lr, eps = p[6], p[7], p[9]
+    if input_map == INPUT_MAP_PAPER:
+        return t0, t1, lr * Tr * cr * sinc(qr) - ll * Tl * cl * sinc(ql)
+    return t0, t1, Tr * (eps * cr + lr * sinc(qr)) - Tl * (eps * cl + ll * sinc(ql))
+
+
+@_inline
 def generalized_forces(q, a, p, input_map):
     """tau = B(q) a for a = (T_l, T_r, tau_l, tau_r), as a 5-tuple (q, a: arrays or tuples).
 
@@ -175,23 +197,10 @@ def generalized_forces(q, a, p, input_map):
     """
     th, ql, qr = q[2], q[3], q[4]
     Tl, Tr = a[0], a[1]
-    sl, cl = math.sin(ql), math.cos(ql)
-    sr, cr = math.sin(qr), math.cos(qr)
-    vx = Tl * sl - Tr * sr
-    vz = Tl * cl + Tr * cr
-    st, ct = math.sin(th), math.cos(th)
-    t0 = ct * vx - st * vz
-    t1 = st * vx + ct * vz
-    ll, lr, eps = p[6], p[7], p[9]
+    t0, t1, t2 = thrust_body_forces(math.sin(th), math.cos(th), ql, qr, Tl, Tr, p, input_map)
     if input_map == INPUT_MAP_PAPER:
-        return (t0, t1, lr * Tr * cr * sinc(qr) - ll * Tl * cl * sinc(ql), a[2], a[3])
-    return (
-        t0,
-        t1,
-        Tr * (eps * cr + lr * sinc(qr)) - Tl * (eps * cl + ll * sinc(ql)),
-        a[2] + Tl * ll * one_minus_cos_over_q2(ql),
-        a[3] + Tr * lr * one_minus_cos_over_q2(qr),
-    )
+        return (t0, t1, t2, a[2], a[3])
+    return (t0, t1, t2, a[2] + thrust_curvature_work(Tl, p[6], ql), a[3] + thrust_curvature_work(Tr, p[7], qr))
 
 
 @_jit

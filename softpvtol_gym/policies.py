@@ -32,31 +32,39 @@ def _clip1(x):
 def policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, out, err):
     """Rows lo .. hi - 1 of :meth:`PassivityPolicy.predict` for the actuated loops: the state of
     :meth:`PassivityPolicy.state_from_observation` (theta given), one controller step
-    (``control._kernels.controller_step``, new memory into S_new) and the scaled, clipped action."""
+    (``control._kernels.controller_lanes``, new memory into S_new) and the scaled, clipped action."""
     cfg, p, lam, kg = CK.config_tuples(cc)
     zero = (0.0, 0.0, 0.0, 0.0, 0.0)
-    for n in range(lo, hi):
-        th = theta[n]
-        q = (obs[n, 0], obs[n, 1], th, obs[n, 5], obs[n, 6])
-        qr = (0.0, 0.0, th - obs[n, 2], 0.0, 0.0)
-        qd = (obs[n, 7], obs[n, 8], obs[n, 9], obs[n, 10], obs[n, 11])
-        qdr = (obs[n, 12], obs[n, 13], obs[n, 14], 0.0, 0.0)
-        qddr = (obs[n, 15], obs[n, 16], obs[n, 17], 0.0, 0.0)
-        e, tau, act, _r, _i, st = CK.controller_step(q, qd, qr, qdr, qddr, zero, False, True, cfg, p, lam, kg,
-                                                     CK.state_row(S, n))
-        err[n] = e
-        CK.put_state_row(S_new, n, st)
-        if kind == ACTION_VIRTUAL:
-            out[n, 0] = _clip1((tau[0] - offset[0]) / scale[0])
-            out[n, 1] = _clip1((tau[1] - offset[1]) / scale[1])
-            out[n, 2] = _clip1((tau[2] - offset[2]) / scale[2])
-            out[n, 3] = _clip1((tau[3] - offset[3]) / scale[3])
-            out[n, 4] = _clip1((tau[4] - offset[4]) / scale[4])
-        else:
-            out[n, 0] = _clip1(2.0 * act[0] / tmax - 1.0)
-            out[n, 1] = _clip1(2.0 * act[1] / tmax - 1.0)
-            out[n, 2] = _clip1(act[2] / taumax)
-            out[n, 3] = _clip1(act[3] / taumax)
+    B, A = CK.controller_work()
+    for n0 in range(lo, hi, CK.CTRL_LANES):
+        m = min(CK.CTRL_LANES, hi - n0)
+        for j in range(m):
+            n = n0 + j
+            th = theta[n]
+            q = (obs[n, 0], obs[n, 1], th, obs[n, 5], obs[n, 6])
+            qr = (0.0, 0.0, th - obs[n, 2], 0.0, 0.0)
+            qd = (obs[n, 7], obs[n, 8], obs[n, 9], obs[n, 10], obs[n, 11])
+            qdr = (obs[n, 12], obs[n, 13], obs[n, 14], 0.0, 0.0)
+            qddr = (obs[n, 15], obs[n, 16], obs[n, 17], 0.0, 0.0)
+            CK.put_lane_inputs(B, j, q, qd, qr, qdr, qddr, zero, S, n)
+        CK.controller_lanes(m, B, A, False, True, cfg, p, lam, kg)
+        for j in range(m):
+            n = n0 + j
+            err[n] = int(B[CK.CB_ERR, j])
+            CK.put_lane_memory(B, j, S_new, n)
+            if kind == ACTION_VIRTUAL:
+                t = CK.CB_TAU
+                out[n, 0] = _clip1((B[t, j] - offset[0]) / scale[0])
+                out[n, 1] = _clip1((B[t + 1, j] - offset[1]) / scale[1])
+                out[n, 2] = _clip1((B[t + 2, j] - offset[2]) / scale[2])
+                out[n, 3] = _clip1((B[t + 3, j] - offset[3]) / scale[3])
+                out[n, 4] = _clip1((B[t + 4, j] - offset[4]) / scale[4])
+            else:
+                a = CK.CB_ACT
+                out[n, 0] = _clip1(2.0 * B[a, j] / tmax - 1.0)
+                out[n, 1] = _clip1(2.0 * B[a + 1, j] / tmax - 1.0)
+                out[n, 2] = _clip1(B[a + 2, j] / taumax)
+                out[n, 3] = _clip1(B[a + 3, j] / taumax)
 
 
 @njit(cache=True, nogil=True)

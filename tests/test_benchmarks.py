@@ -272,8 +272,8 @@ def _eager_exact_allocation(tau, theta, p, imap, warm, use_warm, qmax=math.pi):
     if not (lo < x < hi):
         x = 0.5 * (lo + hi)
     for _ in range(1, 101):
-        Gl, dGl = lever(x, h, ll, eps, imap)
-        Gr, dGr = lever(uz - x, -h, lr, eps, imap)
+        Gl, dGl, _, _ = lever(x, h, ll, eps, imap)
+        Gr, dGr, _, _ = lever(uz - x, -h, lr, eps, imap)
         F = Gr - Gl - tt
         if abs(F) <= 1e-13 * scale:
             break
@@ -309,6 +309,74 @@ def test_lazy_bracket_gives_the_eager_bracket_solution(imap):
         np.testing.assert_allclose(fast[i], ref, **TOL)
 
 
+# ------------------------------------------------------------------------- lane allocation
+@pytest.mark.parametrize("imap", [MK.INPUT_MAP_PAPER, MK.INPUT_MAP_EXACT])
+@pytest.mark.parametrize("m", [1, 7, CK.CTRL_LANES])
+def test_lane_allocation_equals_scalar_allocation_bit_for_bit(imap, m):
+    """allocate_exact_lanes (the controller's interleaved Newton) = allocate_exact lane by lane, on
+    heavy-tailed forces, cold and wild warm starts, clipped curvatures; inactive lanes untouched."""
+    rng = np.random.default_rng(m + 100 * imap)
+    L, p = CK.CTRL_LANES, tuple(P.array)
+    for trial in range(25):
+        tau = rng.standard_cauchy((3, L)) * 10.0 ** rng.integers(-2, 5, (1, L))
+        theta = rng.uniform(-3, 3, L)
+        warm = np.where(rng.random(L) < 0.5, rng.standard_cauchy((4, L)) * 100, np.nan)
+        active = (rng.random(L) < 0.8).astype(float)
+        qmax = math.pi if trial % 2 else 0.5
+        out, info = np.full((4, L), -7.0), np.full((CK.N_INFO, L), -7.0)
+        CK.allocate_exact_lanes(m, tau, theta, warm, True, p, imap, qmax, active, out, info, np.zeros((CK.N_AW, L)))
+        for j in range(L):
+            if j < m and active[j]:
+                o, i = CK.allocate_exact(tau[0, j], tau[1, j], tau[2, j], theta[j], p, imap, warm[0, j], warm[2, j],
+                                         True, qmax)
+                np.testing.assert_array_equal(out[:, j], o)
+                np.testing.assert_array_equal(info[:, j], i)
+            else:
+                assert (out[:, j] == -7.0).all() and (info[:, j] == -7.0).all()
+
+
+@pytest.mark.parametrize("loop", ["exact", "paper", "improved"])
+def test_controller_row_does_not_depend_on_its_block(loop):
+    """Rows computed in lane blocks: a permuted batch gives the permuted results, bit for bit."""
+    rng = np.random.default_rng(3)
+    n = 2 * CK.CTRL_LANES + 5
+    q, qd, qr, qdr, qddr = (rng.uniform(-1, 1, (n, 5)) for _ in range(5))
+    perm = rng.permutation(n)
+    a, b = PassivityController.from_loop(loop), PassivityController.from_loop(loop)
+    for k in range(3):
+        res = rng.uniform(-1, 1, (n, 5)) if k == 1 else None
+        oa = a(q, qd, qr, qdr, qddr, tau_residual=res)
+        ob = b(q[perm], qd[perm], qr[perm], qdr[perm], qddr[perm], tau_residual=None if res is None else res[perm])
+        for f in ("tau", "actuators", "arm_reference"):
+            np.testing.assert_array_equal(getattr(oa, f)[perm], getattr(ob, f))
+        np.testing.assert_array_equal(oa.allocation.iterations[perm], ob.allocation.iterations)
+        q = q + 0.01 * qd
+
+
+@pytest.mark.parametrize("loop", ["exact", "paper", "improved"])
+def test_single_state_fast_path_equals_a_batch_of_one(loop):
+    rng = np.random.default_rng(4)
+    one, batch = PassivityController.from_loop(loop), PassivityController.from_loop(loop)
+    q, qd, qr, qdr, qddr = (rng.uniform(-1, 1, 5) for _ in range(5))
+    for k in range(4):
+        res = rng.uniform(-1, 1, 5) if k == 2 else None
+        o1 = one(q, qd, qr, qdr, qddr, tau_residual=res, commit=k != 1)
+        ob = batch(*(x[None] for x in (q, qd, qr, qdr, qddr)), tau_residual=None if res is None else res[None],
+                   commit=k != 1)
+        for f in ("tau", "actuators", "arm_reference"):
+            assert getattr(o1, f).shape == getattr(ob, f).shape[1:]
+            np.testing.assert_array_equal(getattr(o1, f), getattr(ob, f)[0])
+        for f in ("residual", "iterations", "feasible"):
+            v1, vb = getattr(o1.allocation, f), getattr(ob.allocation, f)
+            assert v1.shape == () and v1.dtype == vb.dtype
+            np.testing.assert_array_equal(v1, vb[0])
+        q = q + 0.01 * qd
+    memory = one._state.copy()
+    with pytest.raises(ValueError, match="NaN or inf"):
+        one(np.full(5, np.nan), qd, qr, qdr, qddr)
+    np.testing.assert_array_equal(one._state, memory)  # a failed call changes nothing
+
+
 # ------------------------------------------------------------------------- benchmark script
 def test_benchmark_script_runs_end_to_end_quick(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
@@ -325,3 +393,17 @@ def test_benchmark_script_runs_end_to_end_quick(tmp_path):
     for title in ("1. Single-env", "2. Vector-env", "3. Passivity controller", "4. PPO", "5. Cold start"):
         assert title in md
     assert "Pendulum-v1" in md and "CartPoleVectorEnv" in md and "do not edit" in md
+
+
+def test_readme_performance_table_is_the_generated_one():
+    """README's Performance table = benchmarks/run.py's table from the committed results.json."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("softpvtol_benchmarks_run", ROOT / "benchmarks" / "run.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    payload = json.loads((ROOT / "benchmarks" / "results.json").read_text())
+    text = (ROOT / "README.md").read_text()
+    block = text[text.index(bench.README_START) + len(bench.README_START):text.index(bench.README_END)]
+    assert block.strip() == bench.readme_table(payload).strip()
+    assert not payload["quick"]

@@ -135,15 +135,10 @@ def storage_into(q, qd, qr, qdr, p, lam, kg):
 
 
 # ------------------------------------------------------------------------------ exact allocation
-@_jit
-def _lever(v, h, length, eps, input_map):
-    """Torque lever term G(v) of one rotor whose thrust has body components (h, v), and dG/dv.
-
-    The rotor's curvature is q = atan2(h, v) and its thrust T = hypot(h, v) >= 0.
-    paper map:  G = l v sin(q)/q;  exact map: G = eps v + l T sin(q)/q.
-    """
-    q = math.atan2(h, v)
-    T = math.hypot(h, v)
+@MK._inline
+def _lever_poly(v, h, q, T, length, eps, input_map):
+    """(G, dG/dv) of :func:`_lever` given q = atan2(h, v) and T = hypot(h, v): the polynomial part
+    (vectorizes over a lane block)."""
     s0 = MK.sinc(q)
     # d sinc / dq = -q A(q); dq/dv = -h / T^2
     dsinc = -q * MK.horner(MK._A, q * q)
@@ -157,11 +152,24 @@ def _lever(v, h, length, eps, input_map):
 
 
 @_jit
+def _lever(v, h, length, eps, input_map):
+    """Torque lever term G(v) of one rotor whose thrust has body components (h, v), dG/dv, and the
+    rotor's curvature q = atan2(h, v) and thrust T = hypot(h, v) >= 0: (G, dG, q, T).
+
+    paper map:  G = l v sin(q)/q;  exact map: G = eps v + l T sin(q)/q.
+    """
+    q = math.atan2(h, v)
+    T = math.hypot(h, v)
+    G, dG = _lever_poly(v, h, q, T, length, eps, input_map)
+    return G, dG, q, T
+
+
+@_jit
 def _widen_lo(lo, uz, h, tt, ll, lr, eps, input_map):
     """Lower end of the bracket: doubled until F(lo) > 0 (at most 60 times)."""
     for _ in range(60):
-        Glo, _d = _lever(lo, h, ll, eps, input_map)
-        Grl, _d = _lever(uz - lo, -h, lr, eps, input_map)
+        Glo, _d, _q, _t = _lever(lo, h, ll, eps, input_map)
+        Grl, _d, _q, _t = _lever(uz - lo, -h, lr, eps, input_map)
         if Grl - Glo - tt > 0.0:
             break
         lo *= 2.0
@@ -172,8 +180,8 @@ def _widen_lo(lo, uz, h, tt, ll, lr, eps, input_map):
 def _widen_hi(hi, uz, h, tt, ll, lr, eps, input_map):
     """Upper end of the bracket: doubled until F(hi) < 0 (at most 60 times)."""
     for _ in range(60):
-        Ghi, _d = _lever(hi, h, ll, eps, input_map)
-        Grh, _d = _lever(uz - hi, -h, lr, eps, input_map)
+        Ghi, _d, _q, _t = _lever(hi, h, ll, eps, input_map)
+        Grh, _d, _q, _t = _lever(uz - hi, -h, lr, eps, input_map)
         if Grh - Ghi - tt < 0.0:
             break
         hi *= 2.0
@@ -202,6 +210,74 @@ def _bracket_point(x, lo, hi, lo_raw, hi_raw, uz, h, tt, ll, lr, eps, input_map)
     return x, lo, hi, lo_raw, hi_raw
 
 
+@MK._inline
+def _exact_setup(t0, t1, t2, theta, p, input_map, w0, w2, use_warm):
+    """Start of :func:`allocate_exact`: the body force in body axes, the bracket and the first point.
+    Returns ((x, lo, hi, lo_raw, hi_raw), (uz, h, tt, scale, st, ct))."""
+    ll, lr, eps = p[6], p[7], p[9]
+    ct, st = math.cos(theta), math.sin(theta)
+    ux = ct * t0 + st * t1
+    uz = -st * t0 + ct * t1
+    tt = t2
+    h = 0.5 * ux
+    scale = 1.0 + abs(uz) + abs(ux) + abs(tt)
+    # F(vl) = G_r(uz - vl; -h) - G_l(vl; h) - tau_theta is non-increasing in vl: bracket and solve
+    lo = -scale * (1.0 + 1.0 / min(ll, lr))
+    hi = -lo
+    lo_raw = True  # lo/hi not yet widened
+    hi_raw = True
+    x = 0.5 * uz
+    if use_warm and math.isfinite(w0 + w2):  # a NaN row means: cold start
+        x = w0 * math.cos(w2)
+    x, lo, hi, lo_raw, hi_raw = _bracket_point(x, lo, hi, lo_raw, hi_raw, uz, h, tt, ll, lr, eps, input_map)
+    return (x, lo, hi, lo_raw, hi_raw), (uz, h, tt, scale, st, ct)
+
+
+@MK._inline
+def _exact_newton(x, lo, hi, lo_raw, hi_raw, Gl, dGl, Gr, dGr, uz, h, tt, scale, p, input_map):
+    """One safeguarded Newton iteration of :func:`allocate_exact` from the levers at x.
+    Returns (status, x, lo, hi, lo_raw, hi_raw); status 0: go on from the new x, 1: converged at x
+    (the levers' q and T are the result's), 2: converged at the new x (not evaluated)."""
+    F = Gr - Gl - tt
+    if abs(F) <= 1e-13 * scale:
+        return 1, x, lo, hi, lo_raw, hi_raw
+    if F > 0.0:
+        lo = x
+        lo_raw = False
+    else:
+        hi = x
+        hi_raw = False
+    dF = -dGr - dGl
+    # a Newton step, or (dF >= 0: no usable step) NaN, which lies inside no bracket: bisection
+    xn = x - F / dF if dF < 0.0 else math.nan
+    xn, lo, hi, lo_raw, hi_raw = _bracket_point(xn, lo, hi, lo_raw, hi_raw, uz, h, tt, p[6], p[7], p[9], input_map)
+    if abs(xn - x) <= 1e-16 * (1.0 + abs(x)):
+        return 2, xn, lo, hi, lo_raw, hi_raw
+    return 0, xn, lo, hi, lo_raw, hi_raw
+
+
+@MK._inline
+def _exact_result(x, evaluated, ql, Tl, qr, Tr, uz, h, st, ct, t0, t1, t2, p, input_map, qmax, it):
+    """End of :func:`allocate_exact` at the solution x (the split v_l = x): curvatures, thrusts, the
+    curvature clip and the residual. (ql, Tl, qr, Tr): those of the levers at x if ``evaluated``."""
+    if not evaluated:
+        vl = x
+        vr = uz - x
+        ql = math.atan2(h, vl)
+        qr = math.atan2(-h, vr)
+        Tl = math.hypot(h, vl)
+        Tr = math.hypot(-h, vr)
+    feasible = 1.0
+    if abs(ql) > qmax or abs(qr) > qmax:
+        feasible = 0.0
+        ql = min(max(ql, -qmax), qmax)
+        qr = min(max(qr, -qmax), qmax)
+    # residual: realised body force (through the chosen input map) minus the requested one
+    tr = MK.thrust_body_forces(st, ct, ql, qr, Tl, Tr, p, input_map)
+    residual = max(abs(tr[0] - t0), abs(tr[1] - t1), abs(tr[2] - t2))
+    return (Tl, Tr, ql, qr), (residual, float(it), feasible)
+
+
 @_jit
 def allocate_exact(t0, t1, t2, theta, p, input_map, w0, w2, use_warm, qmax):
     """(T_l, T_r, q_l^d, q_r^d) realising the body force (tau_x, tau_z, tau_theta) exactly.
@@ -219,61 +295,94 @@ def allocate_exact(t0, t1, t2, theta, p, input_map, w0, w2, use_warm, qmax):
     moves an end outwards, so a test ``lo < x`` (``x < hi``) that holds before holds after, and an end
     replaced by a Newton iterate is never needed. The iterates are those of the eager bracket, bit
     for bit; a well warm-started solve skips the four bracket evaluations.
+
+    :func:`allocate_exact_lanes` runs the same steps (``_exact_setup``, ``_lever``, ``_exact_newton``,
+    ``_exact_result``) for a block of problems at once.
     """
     ll, lr, eps = p[6], p[7], p[9]
-    ct, st = math.cos(theta), math.sin(theta)
-    ux = ct * t0 + st * t1
-    uz = -st * t0 + ct * t1
-    tt = t2
-    h = 0.5 * ux
-    scale = 1.0 + abs(uz) + abs(ux) + abs(tt)
-
-    # F(vl) = G_r(uz - vl; -h) - G_l(vl; h) - tau_theta is non-increasing in vl: bracket and solve
-    lo = -scale * (1.0 + 1.0 / min(ll, lr))
-    hi = -lo
-    lo_raw = True  # lo/hi not yet widened
-    hi_raw = True
-    x = 0.5 * uz
-    if use_warm and math.isfinite(w0 + w2):  # a NaN row means: cold start
-        x = w0 * math.cos(w2)
-    x, lo, hi, lo_raw, hi_raw = _bracket_point(x, lo, hi, lo_raw, hi_raw, uz, h, tt, ll, lr, eps, input_map)
-    F = 0.0
+    (x, lo, hi, lo_raw, hi_raw), (uz, h, tt, scale, st, ct) = _exact_setup(t0, t1, t2, theta, p, input_map, w0,
+                                                                           w2, use_warm)
+    ql = qr = Tl = Tr = 0.0
+    status = 0
     it = 0
     for it in range(1, 101):
-        Gl, dGl = _lever(x, h, ll, eps, input_map)
-        Gr, dGr = _lever(uz - x, -h, lr, eps, input_map)
-        F = Gr - Gl - tt
-        if abs(F) <= 1e-13 * scale:
+        Gl, dGl, ql, Tl = _lever(x, h, ll, eps, input_map)
+        Gr, dGr, qr, Tr = _lever(uz - x, -h, lr, eps, input_map)
+        status, x, lo, hi, lo_raw, hi_raw = _exact_newton(x, lo, hi, lo_raw, hi_raw, Gl, dGl, Gr, dGr, uz, h, tt,
+                                                          scale, p, input_map)
+        if status != 0:
             break
-        if F > 0.0:
-            lo = x
-            lo_raw = False
+    return _exact_result(x, status == 1, ql, Tl, qr, Tr, uz, h, st, ct, t0, t1, t2, p, input_map, qmax, it)
+
+
+#: rows of the work array of :func:`allocate_exact_lanes` (one column per lane)
+(AW_X, AW_LO, AW_HI, AW_LO_RAW, AW_HI_RAW, AW_UZ, AW_H, AW_TT, AW_SCALE, AW_ST, AW_CT, AW_QL, AW_TL, AW_QR, AW_TR,
+ AW_GL, AW_DGL, AW_GR, AW_DGR, AW_LIVE, AW_IT) = range(21)
+N_AW = 21
+
+
+@_jit
+def allocate_exact_lanes(m, tau, theta, warm, use_warm, p, input_map, qmax, active, out, info, A):
+    """:func:`allocate_exact` for the m problems of a lane block at once, every lane's arithmetic
+    that of allocate_exact, bit for bit.
+
+    tau (3, L): body rows of the force; theta (L); warm (4, L): (T_l, T_r, q_l^d, q_r^d) of the warm
+    start (may be ``out`` itself); active (L, nonzero): lanes to solve (the others are left alone); results
+    into out (4, L) and info (N_INFO, L); A (N_AW, L): work. The Newton iterations of the lanes are
+    interleaved: one lane's iteration is a chain of dependent libm calls and polynomials, so lanes
+    side by side keep the CPU busy (and the polynomials run in SIMD).
+    """
+    ll, lr, eps = p[6], p[7], p[9]
+    live = 0
+    for j in range(m):
+        if active[j] != 0.0:
+            (x, lo, hi, lo_raw, hi_raw), (uz, h, tt, scale, st, ct) = _exact_setup(
+                tau[0, j], tau[1, j], tau[2, j], theta[j], p, input_map, warm[0, j], warm[2, j], use_warm)
+            A[AW_X, j], A[AW_LO, j], A[AW_HI, j] = x, lo, hi
+            A[AW_LO_RAW, j], A[AW_HI_RAW, j] = 1.0 if lo_raw else 0.0, 1.0 if hi_raw else 0.0
+            A[AW_UZ, j], A[AW_H, j], A[AW_TT, j], A[AW_SCALE, j], A[AW_ST, j], A[AW_CT, j] = uz, h, tt, scale, st, ct
+            A[AW_LIVE, j] = 1.0
+            live += 1
         else:
-            hi = x
-            hi_raw = False
-        dF = -dGr - dGl
-        # a Newton step, or (dF >= 0: no usable step) NaN, which lies inside no bracket: bisection
-        xn = x - F / dF if dF < 0.0 else math.nan
-        xn, lo, hi, lo_raw, hi_raw = _bracket_point(xn, lo, hi, lo_raw, hi_raw, uz, h, tt, ll, lr, eps, input_map)
-        if abs(xn - x) <= 1e-16 * (1.0 + abs(x)):
-            x = xn
+            A[AW_X, j], A[AW_UZ, j], A[AW_H, j] = 0.0, 0.0, 0.0
+            A[AW_LIVE, j] = 0.0
+    for it in range(1, 101):
+        if live == 0:
             break
-        x = xn
-    vl = x
-    vr = uz - x
-    ql = math.atan2(h, vl)
-    qr = math.atan2(-h, vr)
-    Tl = math.hypot(h, vl)
-    Tr = math.hypot(h, vr)
-    feasible = 1.0
-    if abs(ql) > qmax or abs(qr) > qmax:
-        feasible = 0.0
-        ql = min(max(ql, -qmax), qmax)
-        qr = min(max(qr, -qmax), qmax)
-    # residual: realised body force (through the chosen input map) minus the requested one
-    tr = MK.generalized_forces((0.0, 0.0, theta, ql, qr), (Tl, Tr, 0.0, 0.0), p, input_map)
-    residual = max(abs(tr[0] - t0), abs(tr[1] - t1), abs(tr[2] - t2))
-    return (Tl, Tr, ql, qr), (residual, float(it), feasible)
+        for j in range(m):  # libm (atan2, hypot): independent lanes, overlapped by the CPU
+            if A[AW_LIVE, j] == 1.0:
+                x, h = A[AW_X, j], A[AW_H, j]
+                vr = A[AW_UZ, j] - x
+                A[AW_QL, j] = math.atan2(h, x)
+                A[AW_TL, j] = math.hypot(h, x)
+                A[AW_QR, j] = math.atan2(-h, vr)
+                A[AW_TR, j] = math.hypot(-h, vr)
+        for j in range(m):  # polynomials of every lane (finished ones too: branch-free, SIMD)
+            x, h = A[AW_X, j], A[AW_H, j]
+            A[AW_GL, j], A[AW_DGL, j] = _lever_poly(x, h, A[AW_QL, j], A[AW_TL, j], ll, eps, input_map)
+            A[AW_GR, j], A[AW_DGR, j] = _lever_poly(A[AW_UZ, j] - x, -h, A[AW_QR, j], A[AW_TR, j], lr, eps,
+                                                    input_map)
+        for j in range(m):
+            if A[AW_LIVE, j] != 1.0:
+                continue
+            status, x, lo, hi, lo_raw, hi_raw = _exact_newton(
+                A[AW_X, j], A[AW_LO, j], A[AW_HI, j], A[AW_LO_RAW, j] != 0.0, A[AW_HI_RAW, j] != 0.0, A[AW_GL, j],
+                A[AW_DGL, j], A[AW_GR, j], A[AW_DGR, j], A[AW_UZ, j], A[AW_H, j], A[AW_TT, j], A[AW_SCALE, j], p,
+                input_map)
+            A[AW_X, j], A[AW_LO, j], A[AW_HI, j] = x, lo, hi
+            A[AW_LO_RAW, j], A[AW_HI_RAW, j] = 1.0 if lo_raw else 0.0, 1.0 if hi_raw else 0.0
+            if status != 0:
+                A[AW_LIVE, j] = 1.0 + status  # done: 2 (converged at x) or 3 (at the new x)
+                A[AW_IT, j] = it
+                live -= 1
+    # (a lane not converged in 100 iterations ends at its last iterate, not evaluated)
+    for j in range(m):
+        if active[j] != 0.0:
+            o, inf = _exact_result(A[AW_X, j], A[AW_LIVE, j] == 2.0, A[AW_QL, j], A[AW_TL, j], A[AW_QR, j], A[AW_TR, j],
+                                   A[AW_UZ, j], A[AW_H, j], A[AW_ST, j], A[AW_CT, j], tau[0, j], tau[1, j], tau[2, j],
+                                   p, input_map, qmax, 100 if A[AW_LIVE, j] == 1.0 else int(A[AW_IT, j]))
+            out[0, j], out[1, j], out[2, j], out[3, j] = o
+            info[0, j], info[1, j], info[2, j] = inf
 
 
 @_jit
@@ -363,10 +472,12 @@ def allocate_paper_into(tau, theta, p, warm, use_warm, out, info):
 
 
 # ------------------------------------------------------------------------- fused controller step
-# One control step of :class:`~softpvtol_gym.control.PassivityController` (actuated loops) for one
-# batch row, composed of the kernels above: body rows of the passivity law -> allocation (repeated
-# ``algebraic_iterations`` times) -> arm references -> arm rows -> actuators. The controller's memory
-# per row lives in a float vector (``ST_*``); the constants in ``cc`` (``CC_*``).
+# One control step of :class:`~softpvtol_gym.control.PassivityController` (actuated loops) for a block
+# of up to CTRL_LANES batch rows, composed of the kernels above: body rows of the passivity law ->
+# allocation (repeated ``algebraic_iterations`` times) -> arm references -> arm rows -> actuators.
+# The controller's memory per row lives in a float vector (``ST_*``); the constants in ``cc``
+# (``CC_*``). Every row is computed alone (the rows of a block only share the loops), so the result
+# of a row does not depend on the block it is in.
 
 #: controller memory per row: warm start (T_l, T_r, q_l^d, q_r^d), the last four allocated arm
 #: curvatures (oldest first, (q_l^d, q_r^d) each) and a flag "no history" (fresh, 1.0)
@@ -400,82 +511,206 @@ def _arm_derivatives(h0, h1, h2, h3, dt, vmax, amax):
     return vel, acc
 
 
-@_jit
-def controller_step(q, qd, qr, qdr, qddr, res, has_res, commit, cfg, p, lam, kg, st):
-    """One step of the actuated passivity controller for one batch row (all arguments tuples).
+#: lanes of a controller block: B[row, lane] holds CB_LEN values per batch row (structure of arrays)
+CTRL_LANES = 16
+#: inputs: q, qdot, body reference (arm entries ignored), its velocity and acceleration, tau residual
+CB_Q, CB_QD, CB_QR, CB_QDR, CB_QDDR, CB_RES = 0, 5, 10, 15, 20, 25
+#: the row's memory before (``ST_*``) and after the step
+CB_ST = 30
+CB_STN = CB_ST + ST_LEN
+#: outputs: error code (ERR_*), tau (5), actuators (4), arm references (2), allocation info (N_INFO)
+CB_ERR = CB_STN + ST_LEN
+CB_TAU = CB_ERR + 1
+CB_ACT = CB_TAU + 5
+CB_ARM = CB_ACT + 4
+CB_INFO = CB_ARM + 2
+#: work: D, C, g entries (17), arm references with their derivatives (6), allocation (4), active flag
+CB_ENTS = CB_INFO + N_INFO
+CB_REF = CB_ENTS + 17
+CB_ALLOC = CB_REF + 6
+CB_ACTIVE = CB_ALLOC + 4
+CB_LEN = CB_ACTIVE + 1
 
-    q, qd: state (5); qr, qdr, qddr: body reference (arm entries ignored); res: tau residual (5), added
-    when ``has_res``; cfg: (method, input map, algebraic iterations, arm feedforward, dt, vmax, amax,
-    curvature limit) (see ``CC_*``); p, lam, kg: params and gains; st: the row's memory (``ST_*``).
-    Returns (err, tau (5): the commanded generalized force (arm rows: the arm torques asked for),
-    actuators (T_l, T_r, tau_l, tau_r), arm references (2), allocation info (3), the memory after the
-    step (st itself unless ``commit``)). err != ERR_NONE: the other values are meaningless.
+
+@_jit
+def controller_work():
+    """(B, A): the work arrays of :func:`controller_lanes` (one pair per thread)."""
+    return np.zeros((CB_LEN, CTRL_LANES)), np.zeros((N_AW, CTRL_LANES))
+
+
+@MK._inline
+def lane5(B, c, j):
+    """(B[c, j], ..., B[c + 4, j])."""
+    return (B[c, j], B[c + 1, j], B[c + 2, j], B[c + 3, j], B[c + 4, j])
+
+
+@MK._inline
+def put_lane5(B, c, j, t):
+    B[c, j], B[c + 1, j], B[c + 2, j], B[c + 3, j], B[c + 4, j] = t
+
+
+@MK._inline
+def put_lane_inputs(B, j, q, qd, qr, qdr, qddr, res, S, n):
+    """Inputs of lane j (5-tuples) and its memory S[n] into the block."""
+    put_lane5(B, CB_Q, j, q)
+    put_lane5(B, CB_QD, j, qd)
+    put_lane5(B, CB_QR, j, qr)
+    put_lane5(B, CB_QDR, j, qdr)
+    put_lane5(B, CB_QDDR, j, qddr)
+    put_lane5(B, CB_RES, j, res)
+    c = CB_ST  # written out: a loop here would keep the arrays' reference counting in the row loop
+    B[c, j], B[c + 1, j], B[c + 2, j], B[c + 3, j], B[c + 4, j] = S[n, 0], S[n, 1], S[n, 2], S[n, 3], S[n, 4]
+    B[c + 5, j], B[c + 6, j], B[c + 7, j], B[c + 8, j] = S[n, 5], S[n, 6], S[n, 7], S[n, 8]
+    B[c + 9, j], B[c + 10, j], B[c + 11, j], B[c + 12, j] = S[n, 9], S[n, 10], S[n, 11], S[n, 12]
+
+
+@MK._inline
+def put_lane_memory(B, j, S_new, n):
+    """The memory of lane j after the step into S_new[n]."""
+    c = CB_STN
+    S_new[n, 0], S_new[n, 1], S_new[n, 2], S_new[n, 3], S_new[n, 4] = B[c, j], B[c + 1, j], B[c + 2, j], B[
+        c + 3, j], B[c + 4, j]
+    S_new[n, 5], S_new[n, 6], S_new[n, 7], S_new[n, 8] = B[c + 5, j], B[c + 6, j], B[c + 7, j], B[c + 8, j]
+    S_new[n, 9], S_new[n, 10], S_new[n, 11], S_new[n, 12] = B[c + 9, j], B[c + 10, j], B[c + 11, j], B[c + 12, j]
+
+
+@MK._inline
+def _lane_inputs(B, j):
+    """(D, C, g entries, q, qdot, body reference rows (3 each of qr, qdr, qddr), arm references with
+    their derivatives (6), residual) of lane j. (Helpers that take the block array stay branch-free:
+    a branch would keep numba's reference counting of the array in the row loops.)"""
+    c = CB_ENTS
+    ents = ((B[c, j], B[c + 1, j], B[c + 2, j], B[c + 3, j], B[c + 4, j], B[c + 5, j], B[c + 6, j], B[c + 7, j]),
+            (B[c + 8, j], B[c + 9, j], B[c + 10, j], B[c + 11, j], B[c + 12, j], B[c + 13, j]),
+            (B[c + 14, j], B[c + 15, j], B[c + 16, j]))
+    body_ref = (B[CB_QR, j], B[CB_QR + 1, j], B[CB_QR + 2, j], B[CB_QDR, j], B[CB_QDR + 1, j], B[CB_QDR + 2, j],
+                B[CB_QDDR, j], B[CB_QDDR + 1, j], B[CB_QDDR + 2, j])
+    refs = (B[CB_REF, j], B[CB_REF + 1, j], B[CB_REF + 2, j], B[CB_REF + 3, j], B[CB_REF + 4, j], B[CB_REF + 5, j])
+    return ents, lane5(B, CB_Q, j), lane5(B, CB_QD, j), body_ref, refs, lane5(B, CB_RES, j)
+
+
+@MK._inline
+def _lane_tau(ents, q, qd, br, refs, res, lam, kg, has_res):
+    """tau of the passivity law (plus the residual) for the inputs of :func:`_lane_inputs`."""
+    arm_l, arm_r, vl, vr, al, ar = refs
+    tau = passivity_rows(ents, q, qd, (br[0], br[1], br[2], arm_l, arm_r), (br[3], br[4], br[5], vl, vr),
+                         (br[6], br[7], br[8], al, ar), lam, kg)
+    if has_res:
+        tau = (tau[0] + res[0], tau[1] + res[1], tau[2] + res[2], tau[3] + res[3], tau[4] + res[4])
+    return tau
+
+
+@_jit
+def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
+    """One step of the actuated passivity controller for the rows of a block: lanes 0 .. m - 1 of
+    B (``CB_*`` rows, inputs filled, see :func:`put_lane_inputs`); A: the allocation's work.
+
+    cfg: (method, input map, algebraic iterations, arm feedforward, dt, vmax, amax, curvature limit)
+    (see ``CC_*``); p, lam, kg: params and gains (tuples); the tau residual is added when ``has_res``;
+    the memory after the step (into CB_STN) is the one before unless ``commit``. Outputs per lane:
+    the error code (CB_ERR: ERR_NONE, or the row's outputs are zeros and its memory unchanged), tau (5:
+    the commanded generalized force, arm rows: the arm torques asked for), actuators (T_l, T_r,
+    tau_l, tau_r), arm references (2) and allocation info (N_INFO).
     """
     method, imap, iters, ff, dt, vmax, amax, qmax = cfg
-    ents = model_entries(q, qd, p)
-    # arm references of the body rows: the last allocated curvatures with their feedforward
-    # derivatives, or (no history yet / just reset) the measured curvatures at rest
-    fresh = st[ST_FRESH] > 0.5
-    vl = vr = al = ar = 0.0
-    if fresh:
-        arm_l, arm_r = q[3], q[4]
-    else:
-        arm_l, arm_r = st[ST_HIST + 6], st[ST_HIST + 7]
-        if ff:
-            vl, al = _arm_derivatives(st[ST_HIST], st[ST_HIST + 2], st[ST_HIST + 4], st[ST_HIST + 6], dt, vmax, amax)
-            vr, ar = _arm_derivatives(st[ST_HIST + 1], st[ST_HIST + 3], st[ST_HIST + 5], st[ST_HIST + 7], dt, vmax,
-                                      amax)
-    alloc = (st[ST_WARM], st[ST_WARM + 1], st[ST_WARM + 2], st[ST_WARM + 3])  # warm start (NaN: cold)
-    info = (0.0, 0.0, 0.0)
-    tau = (0.0, 0.0, 0.0, 0.0, 0.0)
-    nothing = (ERR_TAU, tau, (0.0, 0.0, 0.0, 0.0), (0.0, 0.0), info, st)
+    c = CB_ENTS
+    for j in range(m):  # D, C, g of every lane: polynomials only (SIMD)
+        (M, inertia, d03, d13, d04, d14, d33, d44), (c03, c13, c04, c14, c33, c44), (g1, g3, g4) = model_entries(
+            lane5(B, CB_Q, j), lane5(B, CB_QD, j), p)
+        B[c, j], B[c + 1, j], B[c + 2, j], B[c + 3, j], B[c + 4, j], B[c + 5, j] = M, inertia, d03, d13, d04, d14
+        B[c + 6, j], B[c + 7, j], B[c + 8, j], B[c + 9, j], B[c + 10, j], B[c + 11, j] = d33, d44, c03, c13, c04, c14
+        B[c + 12, j], B[c + 13, j], B[c + 14, j], B[c + 15, j], B[c + 16, j] = c33, c44, g1, g3, g4
+    for j in range(m):
+        # arm references of the body rows: the last allocated curvatures with their feedforward
+        # derivatives, or (no history yet / just reset) the measured curvatures at rest
+        vl = vr = al = ar = 0.0
+        if B[CB_ST + ST_FRESH, j] > 0.5:
+            arm_l, arm_r = B[CB_Q + 3, j], B[CB_Q + 4, j]
+        else:
+            h = CB_ST + ST_HIST
+            arm_l, arm_r = B[h + 6, j], B[h + 7, j]
+            if ff:
+                vl, al = _arm_derivatives(B[h, j], B[h + 2, j], B[h + 4, j], B[h + 6, j], dt, vmax, amax)
+                vr, ar = _arm_derivatives(B[h + 1, j], B[h + 3, j], B[h + 5, j], B[h + 7, j], dt, vmax, amax)
+        B[CB_REF, j], B[CB_REF + 1, j], B[CB_REF + 2, j] = arm_l, arm_r, vl
+        B[CB_REF + 3, j], B[CB_REF + 4, j], B[CB_REF + 5, j] = vr, al, ar
+        for k in range(4):  # warm start (NaN: cold)
+            B[CB_ALLOC + k, j] = B[CB_ST + ST_WARM + k, j]
+        B[CB_INFO, j], B[CB_INFO + 1, j], B[CB_INFO + 2, j] = 0.0, 0.0, 0.0
+        B[CB_ERR, j] = ERR_NONE
     for _ in range(iters):
-        tau = passivity_rows(ents, q, qd, (qr[0], qr[1], qr[2], arm_l, arm_r), (qdr[0], qdr[1], qdr[2], vl, vr),
-                             (qddr[0], qddr[1], qddr[2], al, ar), lam, kg)
-        if has_res:
-            tau = (tau[0] + res[0], tau[1] + res[1], tau[2] + res[2], tau[3] + res[3], tau[4] + res[4])
-        if not (math.isfinite(tau[0]) and math.isfinite(tau[1]) and math.isfinite(tau[2])):
-            return nothing
+        for j in range(m):
+            active = B[CB_ERR, j] == ERR_NONE
+            if active:
+                ents, q, qd, br, refs, res = _lane_inputs(B, j)
+                tau = _lane_tau(ents, q, qd, br, refs, res, lam, kg, has_res)
+                B[CB_TAU, j], B[CB_TAU + 1, j], B[CB_TAU + 2, j] = tau[0], tau[1], tau[2]
+                if not (math.isfinite(tau[0]) and math.isfinite(tau[1]) and math.isfinite(tau[2])):
+                    B[CB_ERR, j] = ERR_TAU
+                    active = False
+            B[CB_ACTIVE, j] = 1.0 if active else 0.0
         if method == ALLOC_PAPER:
-            alloc, info = allocate_paper(tau[0], tau[1], tau[2], q[2], p, alloc[2], alloc[3], True)
+            for j in range(m):
+                if B[CB_ACTIVE, j] != 0.0:
+                    alloc, info = allocate_paper(B[CB_TAU, j], B[CB_TAU + 1, j], B[CB_TAU + 2, j], B[CB_Q + 2, j], p,
+                                                 B[CB_ALLOC + 2, j], B[CB_ALLOC + 3, j], True)
+                    B[CB_ALLOC, j], B[CB_ALLOC + 1, j], B[CB_ALLOC + 2, j], B[CB_ALLOC + 3, j] = alloc
+                    B[CB_INFO, j], B[CB_INFO + 1, j], B[CB_INFO + 2, j] = info
         else:
-            alloc, info = allocate_exact(tau[0], tau[1], tau[2], q[2], p, imap, alloc[0], alloc[2], True, qmax)
-        arm_l, arm_r = alloc[2], alloc[3]
-    if imap == MK.INPUT_MAP_EXACT and not (abs(q[3]) <= MAX_CURVATURE and abs(q[4]) <= MAX_CURVATURE):
-        return (ERR_CURVATURE,) + nothing[1:]
-    st_new = st
-    if commit:
-        # push the allocated curvatures; a fresh row gets a flat history (no jump for the differences)
-        if fresh:
-            hist = (arm_l, arm_r, arm_l, arm_r, arm_l, arm_r, arm_l, arm_r)
-        else:
-            hist = (st[ST_HIST + 2], st[ST_HIST + 3], st[ST_HIST + 4], st[ST_HIST + 5], st[ST_HIST + 6],
-                    st[ST_HIST + 7], arm_l, arm_r)
-        st_new = alloc + hist + (0.0,)
-        if ff:
-            vl, al = _arm_derivatives(hist[0], hist[2], hist[4], hist[6], dt, vmax, amax)
-            vr, ar = _arm_derivatives(hist[1], hist[3], hist[5], hist[7], dt, vmax, amax)
-        else:
+            alloc = B[CB_ALLOC:CB_ALLOC + 4]
+            allocate_exact_lanes(m, B[CB_TAU:CB_TAU + 3], B[CB_Q + 2], alloc, True, p, imap, qmax, B[CB_ACTIVE],
+                                 alloc, B[CB_INFO:CB_INFO + N_INFO], A)
+        for j in range(m):
+            if B[CB_ACTIVE, j] != 0.0:
+                B[CB_REF, j], B[CB_REF + 1, j] = B[CB_ALLOC + 2, j], B[CB_ALLOC + 3, j]
+    for j in range(m):
+        ents, q, qd, br, refs, res = _lane_inputs(B, j)
+        err = B[CB_ERR, j]
+        if err == ERR_NONE and imap == MK.INPUT_MAP_EXACT and not (abs(q[3]) <= MAX_CURVATURE
+                                                                   and abs(q[4]) <= MAX_CURVATURE):
+            err = ERR_CURVATURE
+        for k in range(ST_LEN):
+            B[CB_STN + k, j] = B[CB_ST + k, j]
+        if err != ERR_NONE:  # zero outputs, memory unchanged
+            B[CB_ERR, j] = err
+            for k in range(CB_INFO + N_INFO - CB_TAU):
+                B[CB_TAU + k, j] = 0.0
+            continue
+        arm_l, arm_r, vl, vr, al, ar = refs
+        Tl, Tr = B[CB_ALLOC, j], B[CB_ALLOC + 1, j]
+        if commit:
+            # push the allocated curvatures; a fresh row gets a flat history (no jump for the differences)
+            h = CB_ST + ST_HIST
+            if B[CB_ST + ST_FRESH, j] > 0.5:
+                hist = (arm_l, arm_r, arm_l, arm_r, arm_l, arm_r, arm_l, arm_r)
+            else:
+                hist = (B[h + 2, j], B[h + 3, j], B[h + 4, j], B[h + 5, j], B[h + 6, j], B[h + 7, j], arm_l, arm_r)
+            for k in range(4):
+                B[CB_STN + ST_WARM + k, j] = B[CB_ALLOC + k, j]
+            n = CB_STN + ST_HIST
+            B[n, j], B[n + 1, j], B[n + 2, j], B[n + 3, j] = hist[0], hist[1], hist[2], hist[3]
+            B[n + 4, j], B[n + 5, j], B[n + 6, j], B[n + 7, j] = hist[4], hist[5], hist[6], hist[7]
+            B[CB_STN + ST_FRESH, j] = 0.0
             vl = vr = al = ar = 0.0
-    # arm rows with the new arm references
-    t_arm = passivity_rows(ents, q, qd, (qr[0], qr[1], qr[2], arm_l, arm_r), (qdr[0], qdr[1], qdr[2], vl, vr),
-                           (qddr[0], qddr[1], qddr[2], al, ar), lam, kg)
-    tau_l, tau_r = t_arm[3], t_arm[4]
-    if has_res:
-        tau_l = tau_l + res[3]
-        tau_r = tau_r + res[4]
-    a2, a3 = tau_l, tau_r
-    if imap == MK.INPUT_MAP_EXACT:  # cancel the thrusts' own work on the curvatures
-        gf = MK.generalized_forces(q, (alloc[0], alloc[1], 0.0, 0.0), p, MK.INPUT_MAP_EXACT)
-        a2 -= gf[3]
-        a3 -= gf[4]
-    return (ERR_NONE, (tau[0], tau[1], tau[2], tau_l, tau_r), (alloc[0], alloc[1], a2, a3), (arm_l, arm_r), info,
-            st_new)
+            if ff:
+                vl, al = _arm_derivatives(hist[0], hist[2], hist[4], hist[6], dt, vmax, amax)
+                vr, ar = _arm_derivatives(hist[1], hist[3], hist[5], hist[7], dt, vmax, amax)
+        # arm rows with the new arm references
+        t_arm = _lane_tau(ents, q, qd, br, (arm_l, arm_r, vl, vr, al, ar), res, lam, kg, has_res)
+        tau_l, tau_r = t_arm[3], t_arm[4]
+        a2, a3 = tau_l, tau_r
+        if imap == MK.INPUT_MAP_EXACT:  # cancel the thrusts' own work on the curvatures
+            gf = MK.generalized_forces(q, (Tl, Tr, 0.0, 0.0), p, MK.INPUT_MAP_EXACT)
+            a2 -= gf[3]
+            a3 -= gf[4]
+        B[CB_TAU + 3, j], B[CB_TAU + 4, j] = tau_l, tau_r
+        B[CB_ACT, j], B[CB_ACT + 1, j], B[CB_ACT + 2, j], B[CB_ACT + 3, j] = Tl, Tr, a2, a3
+        B[CB_ARM, j], B[CB_ARM + 1, j] = arm_l, arm_r
 
 
 @_jit
 def config_tuples(cc):
-    """(cfg, p, lam, kg) tuples of :func:`controller_step` from the constant vector ``cc``."""
+    """(cfg, p, lam, kg) tuples of :func:`controller_lanes` from the constant vector ``cc``."""
     cfg = (int(cc[CC_METHOD]), int(cc[CC_IMAP]), int(cc[CC_ITERS]), cc[CC_FF] > 0.0, cc[CC_DT], cc[CC_VMAX],
            cc[CC_AMAX], cc[CC_QMAX])
     o = CC_P
@@ -485,61 +720,91 @@ def config_tuples(cc):
     return cfg, p, lam, kg
 
 
-@_jit
+@MK._inline
 def row5(A, n, c):
     """(A[n, c], ..., A[n, c + 4])."""
     return (A[n, c], A[n, c + 1], A[n, c + 2], A[n, c + 3], A[n, c + 4])
 
 
-@_jit
+@MK._inline
+def row5_1d(a):
+    """(a[0], ..., a[4])."""
+    return (a[0], a[1], a[2], a[3], a[4])
+
+
+@MK._inline
 def state_row(S, n):
     """Row n of a memory array as a tuple (``ST_LEN``)."""
     return (S[n, 0], S[n, 1], S[n, 2], S[n, 3], S[n, 4], S[n, 5], S[n, 6], S[n, 7], S[n, 8], S[n, 9], S[n, 10],
             S[n, 11], S[n, 12])
 
 
-@_jit
+@MK._inline
 def put_state_row(S, n, st):
     S[n, 0], S[n, 1], S[n, 2], S[n, 3], S[n, 4], S[n, 5], S[n, 6] = st[0], st[1], st[2], st[3], st[4], st[5], st[6]
     S[n, 7], S[n, 8], S[n, 9], S[n, 10], S[n, 11], S[n, 12] = st[7], st[8], st[9], st[10], st[11], st[12]
 
 
+#: columns of the output of :func:`batch_controller`: tau (5), actuators (4), arm references (2),
+#: allocation info (residual, iterations, feasible), in the order of the block's output rows
+OUT_TAU, OUT_ACT, OUT_ARM, OUT_INFO, OUT_LEN = 0, 5, 9, 11, 14
+
+
 @njit(cache=True, nogil=True)
-def batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, tau, act, arm, resid, iters, feas,
-                     err):
-    """:func:`controller_step` over a batch (res: one row, broadcast, or one per row); the memory after
-    the step into S_new (commit it with :func:`commit_rows` once every row is done). Allocation info
-    into resid (float), iters (int), feas (bool)."""
+def batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, out, err):
+    """:func:`controller_lanes` over a batch (res: one row, broadcast, or one per row): outputs into
+    out (N, ``OUT_LEN``), error codes into err (N), the memory after the step into S_new (commit it
+    with :func:`commit_rows` once every row is done)."""
     rs = np.int64(res.shape[0] > 1)
     cfg, p, lam, kg = config_tuples(cc)
-    for n in range(q.shape[0]):
-        e, t, a, r, inf, st = controller_step(row5(q, n, 0), row5(qd, n, 0), row5(qr, n, 0), row5(qdr, n, 0),
-                                              row5(qddr, n, 0), row5(res, n * rs, 0), has_res, commit, cfg, p, lam,
-                                              kg, state_row(S, n))
-        err[n] = e
-        tau[n, 0], tau[n, 1], tau[n, 2], tau[n, 3], tau[n, 4] = t
-        act[n, 0], act[n, 1], act[n, 2], act[n, 3] = a
-        arm[n, 0], arm[n, 1] = r
-        resid[n] = inf[INFO_RESIDUAL]
-        iters[n] = int(inf[INFO_ITERATIONS])
-        feas[n] = inf[INFO_FEASIBLE] > 0.5
-        put_state_row(S_new, n, st)
+    B, A = controller_work()
+    N = q.shape[0]
+    for n0 in range(0, N, CTRL_LANES):
+        m = min(CTRL_LANES, N - n0)
+        for j in range(m):
+            n = n0 + j
+            put_lane_inputs(B, j, row5(q, n, 0), row5(qd, n, 0), row5(qr, n, 0), row5(qdr, n, 0), row5(qddr, n, 0),
+                            row5(res, n * rs, 0), S, n)
+        controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg)
+        for j in range(m):
+            n = n0 + j
+            err[n] = int(B[CB_ERR, j])
+            for k in range(OUT_LEN):
+                out[n, k] = B[CB_TAU + k, j]
+            put_lane_memory(B, j, S_new, n)
 
 
 @njit(cache=True, nogil=True)
-def batch_controller_commit(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, tau, act, arm, resid, iters, feas,
-                            err):
-    """:func:`batch_controller` and the commit in one call (batches run in one thread); returns
-    whether every row succeeded (the memory advanced if ``commit``)."""
+def batch_controller_commit(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, out):
+    """:func:`batch_controller` and the commit in one call (batches run in one thread); returns the
+    first failed row's error code, or ERR_NONE: every row succeeded (and the memory advanced if
+    ``commit``). A failed call changes no memory."""
     S_new = S.copy()
-    batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, tau, act, arm, resid, iters, feas,
-                     err)
-    if commit:
-        return _commit_rows(S, S_new, err)
+    err = np.zeros(q.shape[0], dtype=np.int64)
+    batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, out, err)
     for n in range(err.shape[0]):
         if err[n] != ERR_NONE:
-            return False
-    return True
+            return err[n]
+    if commit:
+        _commit_rows(S, S_new, err)
+    return ERR_NONE
+
+
+@njit(cache=True, nogil=True)
+def single_controller_commit(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, out):
+    """:func:`batch_controller_commit` for one state: 1-D inputs (5), out (``OUT_LEN``), S (1, ST_LEN)."""
+    cfg, p, lam, kg = config_tuples(cc)
+    B, A = controller_work()
+    put_lane_inputs(B, 0, row5_1d(q), row5_1d(qd), row5_1d(qr), row5_1d(qdr), row5_1d(qddr), row5_1d(res), S, 0)
+    controller_lanes(1, B, A, has_res, commit, cfg, p, lam, kg)
+    e = int(B[CB_ERR, 0])
+    if e != ERR_NONE:
+        return e
+    for k in range(OUT_LEN):
+        out[k] = B[CB_TAU + k, 0]
+    if commit:
+        put_lane_memory(B, 0, S, 0)
+    return ERR_NONE
 
 
 @_jit

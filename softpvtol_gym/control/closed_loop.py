@@ -32,11 +32,13 @@ from ..dynamics import forward_dynamics, generalized_forces, input_map_code
 from ..integrators import rk4_step
 from ..params import SoftPVTOLParams
 from . import _kernels as CK
-from .allocation import ALLOCATION_METHODS, AllocationInfo
+from .allocation import ALLOCATION_METHODS, AllocationInfo, _allocation_info
 from .passivity import PassivityGains, passivity_control, storage_function
 from .references import paper_reference
 
 __all__ = ["LOOPS", "ControlOutput", "PassivityController", "simulate_closed_loop"]
+
+_F64 = np.dtype(np.float64)
 
 LOOPS: dict[str, dict] = {
     "paper": dict(allocation="paper", arm_feedforward=False),
@@ -78,10 +80,11 @@ class PassivityController:
         feedforward_limits: bounds (rad/s, rad/s^2) on the fed-forward arm reference velocity and
             acceleration.
 
-    A call of the actuated loops is one compiled kernel per batch (``control._kernels.controller_step``
-    per row, built from the same passivity and allocation kernels as :func:`passivity_control` and
-    :func:`allocate`); the env's residual mode and :class:`~softpvtol_gym.PassivityPolicy` run the same
-    row function. The memory (allocation warm start, arm-reference history) is one row of
+    A call of the actuated loops is one compiled kernel per batch (``control._kernels.controller_lanes``
+    on blocks of ``CTRL_LANES`` rows, built from the same passivity and allocation kernels as
+    :func:`passivity_control` and :func:`allocate`; every row computed alone, so its result does not
+    depend on the batch); the env's residual mode and :class:`~softpvtol_gym.PassivityPolicy` run the
+    same block function. The memory (allocation warm start, arm-reference history) is one row of
     ``ST_LEN`` floats per batch entry, created at the first call; the batch size is then fixed until
     :meth:`reset` (a call with another batch size raises ValueError).
     """
@@ -197,38 +200,60 @@ class PassivityController:
         ins = (q, qdot, q_ref, qdot_ref, qddot_ref) if tau_residual is None else (
             q, qdot, q_ref, qdot_ref, qddot_ref, tau_residual)
         shape = getattr(q, "shape", None)
-        if shape and shape[-1] == 5 and all(type(x) is np.ndarray and x.dtype == np.float64 and x.shape == shape
-                                           for x in ins):  # fast path: float64 arrays of one shape
+        ndarray, f64 = np.ndarray, np.float64
+        if shape == (5,):  # fast path: one state, contiguous float64 arrays (5,)
+            for x in ins:
+                if type(x) is not ndarray or x.dtype is not _F64 or x.shape != shape or x.strides != (8,):
+                    break
+            else:
+                return self._call_single(ins, tau_residual is not None, bool(commit))
+        if shape and shape[-1] == 5 and all([type(x) is ndarray and x.dtype == f64 and x.shape == shape for x in ins]):
+            # fast path: float64 arrays of one shape
             lead = shape[:-1]
-            flat = [np.ascontiguousarray(x.reshape(-1, 5)) for x in ins]
+            flat = [x.reshape(-1, 5) for x in ins]
+            if not all([x.flags.c_contiguous for x in flat]):
+                flat = [np.ascontiguousarray(x) for x in flat]
         else:
             names = ("q", "qdot", "q_ref", "qdot_ref", "qddot_ref", "tau_residual")
             lead, flat = broadcast_batch(**{name: (x, 5) for name, x in zip(names, ins)})
         n = flat[0].shape[0]
-        tau = np.empty((n, 5))
-        act = np.empty((n, 4))
-        arm = np.empty((n, 2))
-        resid = np.empty(n)
-        iters = np.empty(n, dtype=np.int64)
-        feas = np.empty(n, dtype=np.bool_)
-        err = np.zeros(n, dtype=np.int64)
+        out = np.empty((n, CK.OUT_LEN))
         S = self.state_rows(n)
         has_res, commit = tau_residual is not None, bool(commit)
         res = flat[5] if has_res else self._no_residual
         if n < MIN_ROWS:
-            ok = CK.batch_controller_commit(*flat[:5], res, has_res, commit, self.kernel_constants, S, tau, act, arm,
-                                            resid, iters, feas, err)
+            code = CK.batch_controller_commit(flat[0], flat[1], flat[2], flat[3], flat[4], res, has_res, commit,
+                                              self.kernel_constants, S, out)
+            if code != CK.ERR_NONE:
+                self.raise_for(np.array([code]), flat[0])
         else:
             S_new = S.copy()
-            run_rows(CK.batch_controller, n, *flat[:5], res, has_res, commit, self.kernel_constants, S, S_new, tau,
-                     act, arm, resid, iters, feas, err)
-            ok = CK.commit_rows(S, S_new, err) if commit else not err.any()
-        if not ok:
-            self.raise_for(err, flat[0])
-        allocation = AllocationInfo(residual=resid.reshape(lead), iterations=iters.reshape(lead),
-                                    feasible=feas.reshape(lead))
-        return ControlOutput(tau=tau.reshape(lead + (5,)), actuators=act.reshape(lead + (4,)),
-                             arm_reference=arm.reshape(lead + (2,)), allocation=allocation)
+            err = np.zeros(n, dtype=np.int64)
+            run_rows(CK.batch_controller, n, *flat[:5], res, has_res, commit, self.kernel_constants, S, S_new, out,
+                     err)
+            if not (CK.commit_rows(S, S_new, err) if commit else not err.any()):
+                self.raise_for(err, flat[0])
+        if lead != (n,):
+            out = out.reshape(lead + (CK.OUT_LEN,))
+        info = out[..., CK.OUT_INFO:]
+        allocation = AllocationInfo(residual=info[..., 0], iterations=info[..., 1].astype(np.int64),
+                                    feasible=info[..., 2] > 0.5)
+        return ControlOutput(tau=out[..., :5], actuators=out[..., 5:9], arm_reference=out[..., 9:11],
+                             allocation=allocation)
+
+
+    def _call_single(self, ins, has_res: bool, commit: bool) -> ControlOutput:
+        """__call__ for one state given as contiguous float64 arrays (5,) (the fast path)."""
+        out = np.empty(CK.OUT_LEN)
+        S = self.state_rows(1)
+        code = CK.single_controller_commit(ins[0], ins[1], ins[2], ins[3], ins[4],
+                                           ins[5] if has_res else self._no_residual[0], has_res, commit,
+                                           self.kernel_constants, S, out)
+        if code != CK.ERR_NONE:
+            self.raise_for(np.array([code]), ins[0].reshape(1, 5))
+        allocation = _allocation_info(out[..., CK.OUT_INFO], np.array(int(out[CK.OUT_INFO + 1])),
+                                      np.array(out[CK.OUT_INFO + 2] > 0.5))
+        return ControlOutput(tau=out[0:5], actuators=out[5:9], arm_reference=out[9:11], allocation=allocation)
 
 
 HOLDS = ("stage", "step")

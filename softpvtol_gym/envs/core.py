@@ -438,7 +438,7 @@ def counter_normal(key, counter, stream):
 # key (N,) uint64 and obs (N, 18) float32; constants C (C_*: the config vector cf, nominal params,
 # gains, residual scales, control period) and K (K_* codes). BatchSim exposes the column blocks as
 # views (sim.q, sim.qd, sim.qr, ...). In residual mode the controller's memory S (N, ST_LEN) and
-# constants cc are those of the PassivityController object (control._kernels.controller_step).
+# constants cc are those of the PassivityController object (control._kernels.controller_lanes).
 # The kernels index F[n, column] directly: slicing rows into views would cost two atomic reference
 # count updates per view, which dominated the step.
 F_Q, F_QD, F_QM, F_QDM = 0, 5, 10, 15
@@ -905,34 +905,39 @@ def _clip_actions(lo, hi, act, F, I, adim):
 
 @_jit
 def _controller_rows(lo, hi, F, C, has_res, cc, S, S_new, ctl, err):
-    """The residual-mode base controller (PassivityController's row kernel, fed the measured state)
+    """The residual-mode base controller (PassivityController's block kernel, fed the measured state)
     for envs lo .. hi - 1: actuators, allocation residual and arm references into ctl, the new memory
     into S_new."""
     cfg, p, lam, kg = CK.config_tuples(cc)
     zero = (0.0, 0.0, 0.0, 0.0, 0.0)
-    for n in range(lo, hi):
-        res = zero
-        if has_res:
-            res = (F[n, F_U] * C[C_RES_TAU], F[n, F_U + 1] * C[C_RES_TAU + 1], F[n, F_U + 2] * C[C_RES_TAU + 2],
-                   F[n, F_U + 3] * C[C_RES_TAU + 3], F[n, F_U + 4] * C[C_RES_TAU + 4])
-        e, _t, a, r, inf, st = CK.controller_step(
-            _row5(F, n, F_QM), _row5(F, n, F_QDM), _row5(F, n, F_QR), _row5(F, n, F_QDR), _row5(F, n, F_QDDR), res,
-            has_res, True, cfg, p, lam, kg, CK.state_row(S, n))
-        if e != CK.ERR_NONE:
-            # a non-finite or out-of-model measured state (a diverged env: one that terminated and is
-            # stepped once more before its autoreset, or stepped past termination): NaN actuators, so
-            # that the physics ends the episode as "non_finite" instead of the step raising; the row's
-            # controller memory stays as it was
+    B, A = CK.controller_work()
+    for n0 in range(lo, hi, CK.CTRL_LANES):
+        m = min(CK.CTRL_LANES, hi - n0)
+        for j in range(m):
+            n = n0 + j
+            res = zero
+            if has_res:
+                res = (F[n, F_U] * C[C_RES_TAU], F[n, F_U + 1] * C[C_RES_TAU + 1], F[n, F_U + 2] * C[C_RES_TAU + 2],
+                       F[n, F_U + 3] * C[C_RES_TAU + 3], F[n, F_U + 4] * C[C_RES_TAU + 4])
+            CK.put_lane_inputs(B, j, _row5(F, n, F_QM), _row5(F, n, F_QDM), _row5(F, n, F_QR), _row5(F, n, F_QDR),
+                               _row5(F, n, F_QDDR), res, S, n)
+        CK.controller_lanes(m, B, A, has_res, True, cfg, p, lam, kg)
+        for j in range(m):
+            n = n0 + j
             err[n] = CK.ERR_NONE
-            for k in range(CTL_LEN):
-                ctl[n, k] = math.nan
-            CK.put_state_row(S_new, n, CK.state_row(S, n))
-            continue
-        err[n] = e
-        ctl[n, 0], ctl[n, 1], ctl[n, 2], ctl[n, 3] = a
-        ctl[n, 4] = inf[CK.INFO_RESIDUAL]
-        ctl[n, 5], ctl[n, 6] = r
-        CK.put_state_row(S_new, n, st)
+            if B[CK.CB_ERR, j] != CK.ERR_NONE:
+                # a non-finite or out-of-model measured state (a diverged env: one that terminated and
+                # is stepped once more before its autoreset, or stepped past termination): NaN
+                # actuators, so that the physics ends the episode as "non_finite" instead of the step
+                # raising; the row's controller memory stays as it was (the block kernel's choice)
+                for k in range(CTL_LEN):
+                    ctl[n, k] = math.nan
+            else:
+                a = CK.CB_ACT
+                ctl[n, 0], ctl[n, 1], ctl[n, 2], ctl[n, 3] = B[a, j], B[a + 1, j], B[a + 2, j], B[a + 3, j]
+                ctl[n, 4] = B[CK.CB_INFO + CK.INFO_RESIDUAL, j]
+                ctl[n, 5], ctl[n, 6] = B[CK.CB_ARM, j], B[CK.CB_ARM + 1, j]
+            CK.put_lane_memory(B, j, S_new, n)
 
 
 @_jit
