@@ -22,6 +22,7 @@ from softpvtol_gym import dynamics, integrators
 from softpvtol_gym.control import PassivityController, _kernels as CK, allocate, passivity_control, storage_function
 from softpvtol_gym.control.closed_loop import LOOPS
 from softpvtol_gym._parallel import row_ranges
+from softpvtol_gym.envs import core
 
 ROOT = Path(__file__).resolve().parent.parent
 P = SoftPVTOLParams()
@@ -375,6 +376,67 @@ def test_single_state_fast_path_equals_a_batch_of_one(loop):
     with pytest.raises(ValueError, match="NaN or inf"):
         one(np.full(5, np.nan), qd, qr, qdr, qddr)
     np.testing.assert_array_equal(one._state, memory)  # a failed call changes nothing
+
+
+# ------------------------------------------------------------------------- episode sampling
+def _numpy_sample_episodes(cfg, u):
+    """The episode sampling written with numpy array operations (the pre-compilation version)."""
+    n = u.shape[0]
+    c = 2.0 * u - 1.0  # in [-1, 1)
+    refp = np.zeros((n, core.N_REF_PARAMS))
+    q0 = np.zeros((n, 5))
+    qd0 = np.zeros((n, 5))
+    # perturbation used by hover / setpoint / track_random: (c0, c1, 0.3 c2, 0.3 c3, 0.3 c4) and
+    # (0.5 c5, 0.5 c6, 0.2 c7, 0.2 c8, 0.2 c9) (x 1.0 is exact)
+    dq = c[:, 0:5] * np.array([1.0, 1.0, 0.3, 0.3, 0.3])
+    dqd = c[:, 5:10] * np.array([0.5, 0.5, 0.2, 0.2, 0.2])
+    task = cfg.task
+    if task == "hover":
+        refp[:, :3] = core.HOVER_SETPOINT
+        q0[:, :3] = core.HOVER_SETPOINT
+        q0 += dq
+        qd0 = dqd
+    elif task == "setpoint":
+        refp[:, 0] = 3.0 * c[:, 10]
+        refp[:, 1] = 2.0 + 2.0 * c[:, 11]
+        refp[:, 2] = 0.3 * c[:, 12]
+        q0[:, 0] = 3.0 * c[:, 0]
+        q0[:, 1] = 2.0 + 2.0 * c[:, 1]
+        q0[:, 2:] = dq[:, 2:]
+        qd0 = dqd
+    elif task == "track_paper":
+        q0[:] = core.PAPER_Q0
+    else:
+        refp[:, 1] = 3.0  # z0
+        for axis, amax in ((0, 1.0), (1, 0.5)):
+            b = 3 + 9 * axis
+            refp[:, b:b + 3] = amax * u[:, 13 + 9 * axis:16 + 9 * axis]
+            refp[:, b + 3:b + 6] = 0.2 + 0.6 * u[:, 16 + 9 * axis:19 + 9 * axis]
+            refp[:, b + 6:b + 9] = 2.0 * math.pi * u[:, 19 + 9 * axis:22 + 9 * axis]
+        r0, rd0, _ = core.reference(task, np.zeros(n), refp)
+        q0 = r0 + 0.5 * dq
+        qd0 = rd0 + 0.5 * dqd
+    P = np.repeat(cfg.params.array[None, :], n, axis=0)
+    s = cfg.mismatch_scale
+    if s > 0:
+        idx = [core.PARAM_FIELDS.index(f) for f in ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r")]
+        P[:, idx] *= 1.0 + s * c[:, 31:39]
+    key = (u[:, 46] * 2.0**53).astype(np.uint64) ^ ((u[:, 47] * 2.0**53).astype(np.uint64) << np.uint64(11))
+    return dict(q0=q0, qd0=qd0, refp=refp, P=np.ascontiguousarray(P), key=key)
+
+
+@pytest.mark.parametrize("task", core.TASKS)
+@pytest.mark.parametrize("tier", ["nominal", "mismatch", "hard"])
+def test_compiled_episode_sampling_equals_numpy_version(task, tier):
+    cfg = core.EnvConfig(task=task, tier=tier)
+    u = np.random.default_rng(5).random((200, core.N_UNIFORMS))
+    u[:3] = 0.0
+    u[3:6] = np.nextafter(1.0, 0.0)
+    ref, fast = _numpy_sample_episodes(cfg, u), core.sample_episodes(cfg, u)
+    assert ref.keys() == fast.keys()
+    for k in ref:
+        assert ref[k].dtype == fast[k].dtype and ref[k].shape == fast[k].shape
+        assert ref[k].tobytes() == fast[k].tobytes(), k
 
 
 # ------------------------------------------------------------------------- benchmark script

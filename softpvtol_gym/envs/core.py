@@ -351,8 +351,6 @@ def reference(task: str, t: np.ndarray, refp: np.ndarray) -> tuple[np.ndarray, n
 
 
 # -------------------------------------------------------------------------------- episode sampling
-_DQ_SCALE = np.array([1.0, 1.0, 0.3, 0.3, 0.3])
-_DQD_SCALE = np.array([0.5, 0.5, 0.2, 0.2, 0.2])
 
 
 def sample_episodes(cfg: EnvConfig, u: np.ndarray) -> dict[str, np.ndarray]:
@@ -361,49 +359,85 @@ def sample_episodes(cfg: EnvConfig, u: np.ndarray) -> dict[str, np.ndarray]:
     ``u`` (N, N_UNIFORMS) are uniforms in [0, 1) drawn from each env's own RNG (one ``random`` call
     per reset), so that an env's episode depends only on its own generator. Layout of u: 0-9 initial
     state, 10-12 setpoint, 13-30 track_random reference, 31-38 plant mismatch, 46-47 noise key.
+    With c = 2 u - 1 in [-1, 1): the perturbation of hover / setpoint / track_random is
+    dq = (c0, c1, 0.3 c2, 0.3 c3, 0.3 c4), dqd = (0.5 c5, 0.5 c6, 0.2 c7, 0.2 c8, 0.2 c9); hover starts
+    at the setpoint + dq, setpoint at x = 3 c0, z = 2 + 2 c1 (setpoint x = 3 c10, z = 2 + 2 c11,
+    theta = 0.3 c12), track_paper at the paper's q0 at rest, track_random at its reference + dq/2 (the
+    reference: z0 = 3, amplitudes u*(1.0 | 0.5), rates 0.2 + 0.6 u, phases 2 pi u); plant mismatch
+    scales the masses, inertias and lengths by 1 + s c31..c38. (Compiled: :func:`_sample_rows`.)
     """
     n = u.shape[0]
-    c = 2.0 * u - 1.0  # in [-1, 1)
-    refp = np.zeros((n, N_REF_PARAMS))
-    q0 = np.zeros((n, 5))
-    qd0 = np.zeros((n, 5))
-    # perturbation used by hover / setpoint / track_random: (c0, c1, 0.3 c2, 0.3 c3, 0.3 c4) and
-    # (0.5 c5, 0.5 c6, 0.2 c7, 0.2 c8, 0.2 c9) (x 1.0 is exact)
-    dq = c[:, 0:5] * _DQ_SCALE
-    dqd = c[:, 5:10] * _DQD_SCALE
-    task = cfg.task
-    if task == "hover":
-        refp[:, :3] = HOVER_SETPOINT
-        q0[:, :3] = HOVER_SETPOINT
-        q0 += dq
-        qd0 = dqd
-    elif task == "setpoint":
-        refp[:, 0] = 3.0 * c[:, 10]
-        refp[:, 1] = 2.0 + 2.0 * c[:, 11]
-        refp[:, 2] = 0.3 * c[:, 12]
-        q0[:, 0] = 3.0 * c[:, 0]
-        q0[:, 1] = 2.0 + 2.0 * c[:, 1]
-        q0[:, 2:] = dq[:, 2:]
-        qd0 = dqd
-    elif task == "track_paper":
-        q0[:] = PAPER_Q0
-    else:
-        refp[:, 1] = 3.0  # z0
-        for axis, amax in ((0, 1.0), (1, 0.5)):
-            b = 3 + 9 * axis
-            refp[:, b:b + 3] = amax * u[:, 13 + 9 * axis:16 + 9 * axis]
-            refp[:, b + 3:b + 6] = 0.2 + 0.6 * u[:, 16 + 9 * axis:19 + 9 * axis]
-            refp[:, b + 6:b + 9] = 2.0 * math.pi * u[:, 19 + 9 * axis:22 + 9 * axis]
-        r0, rd0, _ = reference(task, np.zeros(n), refp)
-        q0 = r0 + 0.5 * dq
-        qd0 = rd0 + 0.5 * dqd
-    P = np.repeat(cfg.params.array[None, :], n, axis=0)
-    s = cfg.mismatch_scale
-    if s > 0:
-        idx = [PARAM_FIELDS.index(f) for f in ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r")]
-        P[:, idx] *= 1.0 + s * c[:, 31:39]
-    key = (u[:, 46] * 2.0**53).astype(np.uint64) ^ ((u[:, 47] * 2.0**53).astype(np.uint64) << np.uint64(11))
-    return dict(q0=q0, qd0=qd0, refp=refp, P=np.ascontiguousarray(P), key=key)
+    refp = np.empty((n, N_REF_PARAMS))
+    q0 = np.empty((n, 5))
+    qd0 = np.empty((n, 5))
+    P = np.empty((n, len(PARAM_FIELDS)))
+    key = np.empty(n, dtype=np.uint64)
+    _sample_rows(np.ascontiguousarray(u, dtype=np.float64), TASKS.index(cfg.task), cfg.params.array,
+                 float(cfg.mismatch_scale), refp, q0, qd0, P, key)
+    if cfg.task == "track_random":
+        r0, rd0, _ = reference(cfg.task, np.zeros(n), refp)
+        q0 = r0 + q0  # q0, qd0 hold dq / 2, dqd / 2 here
+        qd0 = rd0 + qd0
+    return dict(q0=q0, qd0=qd0, refp=refp, P=P, key=key)
+
+
+_MISMATCH_COLUMNS = tuple(PARAM_FIELDS.index(f) for f in ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r"))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _sample_rows(u, task, params, scale, refp, q0, qd0, P, key):
+    """The rows of :func:`sample_episodes` (task: index into TASKS; track_random: q0, qd0 get the
+    halved perturbation, the caller adds the reference)."""
+    two_pi = 2.0 * math.pi
+    for i in range(u.shape[0]):
+        c0, c1, c2, c3, c4 = (2.0 * u[i, 0] - 1.0, 2.0 * u[i, 1] - 1.0, 2.0 * u[i, 2] - 1.0, 2.0 * u[i, 3] - 1.0,
+                              2.0 * u[i, 4] - 1.0)
+        c5, c6, c7, c8, c9 = (2.0 * u[i, 5] - 1.0, 2.0 * u[i, 6] - 1.0, 2.0 * u[i, 7] - 1.0, 2.0 * u[i, 8] - 1.0,
+                              2.0 * u[i, 9] - 1.0)
+        dq = (c0 * 1.0, c1 * 1.0, c2 * 0.3, c3 * 0.3, c4 * 0.3)
+        dqd = (c5 * 0.5, c6 * 0.5, c7 * 0.2, c8 * 0.2, c9 * 0.2)
+        for k in range(N_REF_PARAMS):
+            refp[i, k] = 0.0
+        for k in range(5):
+            q0[i, k] = 0.0
+            qd0[i, k] = dqd[k]
+        if task == 0:  # hover
+            for k in range(3):
+                refp[i, k] = HOVER_SETPOINT[k]
+                q0[i, k] = HOVER_SETPOINT[k]
+            for k in range(5):
+                q0[i, k] = q0[i, k] + dq[k]
+        elif task == 1:  # setpoint
+            refp[i, 0] = 3.0 * (2.0 * u[i, 10] - 1.0)
+            refp[i, 1] = 2.0 + 2.0 * (2.0 * u[i, 11] - 1.0)
+            refp[i, 2] = 0.3 * (2.0 * u[i, 12] - 1.0)
+            q0[i, 0] = 3.0 * c0
+            q0[i, 1] = 2.0 + 2.0 * c1
+            q0[i, 2], q0[i, 3], q0[i, 4] = dq[2], dq[3], dq[4]
+        elif task == 2:  # track_paper
+            for k in range(5):
+                q0[i, k] = PAPER_Q0[k]
+                qd0[i, k] = 0.0
+        else:  # track_random
+            refp[i, 1] = 3.0  # z0
+            for axis in range(2):
+                amax = 1.0 if axis == 0 else 0.5
+                b = 3 + 9 * axis
+                o = 13 + 9 * axis
+                for k in range(3):
+                    refp[i, b + k] = amax * u[i, o + k]
+                    refp[i, b + 3 + k] = 0.2 + 0.6 * u[i, o + 3 + k]
+                    refp[i, b + 6 + k] = two_pi * u[i, o + 6 + k]
+            for k in range(5):
+                q0[i, k] = 0.5 * dq[k]
+                qd0[i, k] = 0.5 * dqd[k]
+        for k in range(params.shape[0]):
+            P[i, k] = params[k]
+        if scale > 0:
+            for k in range(8):
+                col = _MISMATCH_COLUMNS[k]
+                P[i, col] = P[i, col] * (1.0 + scale * (2.0 * u[i, 31 + k] - 1.0))
+        key[i] = np.uint64(u[i, 46] * 2.0**53) ^ (np.uint64(u[i, 47] * 2.0**53) << np.uint64(11))
 
 
 # --------------------------------------------------------------------------- counter-based noise
@@ -476,8 +510,13 @@ def _vec5(v, c):
 # ----------------------------------------------------------------------------------- observation
 @_jit
 def _wrap(a):
-    """Angle wrapped to [-pi, pi)."""
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
+    """Angle wrapped to [-pi, pi): (a + pi) % 2 pi - pi, Python's float modulo. For a + pi already in
+    [0, 2 pi) the modulo returns it unchanged (fmod is exact), so that case skips the modulo call
+    (bit for bit the same result)."""
+    x = a + math.pi
+    if not (0.0 <= x < 2.0 * math.pi):
+        x = x % (2.0 * math.pi)
+    return x - math.pi
 
 
 @_jit
@@ -503,8 +542,10 @@ def _observe_range(lo, hi, F, key, I, C, obs):
         obs[n, 0] = _clip_obs(F[n, F_QM] - F[n, F_QR])
         obs[n, 1] = _clip_obs(F[n, F_QM + 1] - F[n, F_QR + 1])
         obs[n, 2] = _clip_obs(_wrap(F[n, F_QM + 2] - F[n, F_QR + 2]))
-        obs[n, 3] = _clip_obs(math.sin(F[n, F_QM + 2]))
-        obs[n, 4] = _clip_obs(math.cos(F[n, F_QM + 2]))
+        th = F[n, F_QM + 2]
+        s_th, c_th = math.sin(th), math.cos(th)  # side by side: one sincos call
+        obs[n, 3] = _clip_obs(s_th)
+        obs[n, 4] = _clip_obs(c_th)
         obs[n, 5] = _clip_obs(F[n, F_QM + 3])
         obs[n, 6] = _clip_obs(F[n, F_QM + 4])
         for i in range(5):

@@ -15,6 +15,14 @@ from .core import EnvConfig
 from .soft_pvtol import make_spaces
 
 
+_SATURATION_COLUMNS = [core.D_THRUST_SAT, core.D_TORQUE_SAT]
+_REASON_NAMES = np.array(core.REASONS, dtype=object)
+#: the "_"-prefixed mask keys of the info dict (gymnasium's vector-env convention)
+_MASK_KEYS = tuple("_" + k for k in ("reward_terms", "total_energy", "storage_function", "curvature_violation",
+                                      "allocation_residual", "thrust_saturated", "arm_torque_saturated",
+                                      "action_clipped", "termination_reason", "time"))
+
+
 class SoftPVTOLVectorEnv(VectorEnv):
     """``num_envs`` SoftPVTOL envs in one set of arrays (see :class:`SoftPVTOLEnv` for the env).
 
@@ -88,7 +96,7 @@ class SoftPVTOLVectorEnv(VectorEnv):
         u = np.empty((idx.size, core.N_UNIFORMS))
         rngs = self._rngs
         for j, i in enumerate(idx.tolist()):
-            u[j] = rngs[i].random(core.N_UNIFORMS)
+            rngs[i].random(out=u[j])  # = rngs[i].random(core.N_UNIFORMS), without a temporary
         return u
 
     def reset(self, *, seed: int | list | None = None, options: dict | None = None):
@@ -130,9 +138,8 @@ class SoftPVTOLVectorEnv(VectorEnv):
         reasons = None
         done = terminated | truncated
         if done.any():
-            reasons = np.full(self.num_envs, None, dtype=object)
-            r_names = np.array(core.REASONS, dtype=object)
-            reasons[terminated] = r_names[reason[terminated]]
+            reasons = np.empty(self.num_envs, dtype=object)  # None-filled
+            reasons[terminated] = _REASON_NAMES[reason[terminated]]
             reasons[truncated] = "time_limit"
         if mode == AutoresetMode.NEXT_STEP:
             if pending is not None:
@@ -169,22 +176,21 @@ class SoftPVTOLVectorEnv(VectorEnv):
         d = sim.diag.copy()  # one private copy each; the info arrays are its columns
         t = sim.terms.copy()
         m = self._true
-        terms = {name: t[:, i] for i, name in enumerate(core.REWARD_TERMS)}
+        sat = d[:, _SATURATION_COLUMNS] > 0.5
         info = {
-            "reward_terms": terms,
+            "reward_terms": dict(zip(core.REWARD_TERMS, t.T)),
             "total_energy": d[:, core.D_ENERGY],
             "storage_function": d[:, core.D_STORAGE],
             "curvature_violation": d[:, core.D_CURV_VIOL],
             "allocation_residual": d[:, core.D_ALLOC_RES],
-            "thrust_saturated": d[:, core.D_THRUST_SAT] > 0.5,
-            "arm_torque_saturated": d[:, core.D_TORQUE_SAT] > 0.5,
+            "thrust_saturated": sat[:, 0],
+            "arm_torque_saturated": sat[:, 1],
             "action_clipped": sim.clipped != 0,
-            "termination_reason": (np.full(self.num_envs, None, dtype=object) if reasons is None else reasons),
+            # (np.empty of dtype object is None-filled)
+            "termination_reason": np.empty(self.num_envs, dtype=object) if reasons is None else reasons,
             "time": sim.t.copy(),
         }
-        for k in list(info):
-            info["_" + k] = m
-        info["_reward_terms"] = m
+        info.update(dict.fromkeys(_MASK_KEYS, m))
         return info
 
     # --------------------------------------------------------------------------------- access
