@@ -50,21 +50,21 @@ def policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_
         CK.controller_lanes(m, B, A, False, True, cfg, p, lam, kg)
         for j in range(m):
             n = n0 + j
-            err[n] = int(B[CK.CB_ERR, j])
+            err[n] = int(B[CK.lane_index(CK.CB_ERR, j)])
             CK.put_lane_memory(B, j, S_new, n)
             if kind == ACTION_VIRTUAL:
-                t = CK.CB_TAU
-                out[n, 0] = _clip1((B[t, j] - offset[0]) / scale[0])
-                out[n, 1] = _clip1((B[t + 1, j] - offset[1]) / scale[1])
-                out[n, 2] = _clip1((B[t + 2, j] - offset[2]) / scale[2])
-                out[n, 3] = _clip1((B[t + 3, j] - offset[3]) / scale[3])
-                out[n, 4] = _clip1((B[t + 4, j] - offset[4]) / scale[4])
+                tau = CK.lane5(B, CK.CB_TAU, j)
+                out[n, 0] = _clip1((tau[0] - offset[0]) / scale[0])
+                out[n, 1] = _clip1((tau[1] - offset[1]) / scale[1])
+                out[n, 2] = _clip1((tau[2] - offset[2]) / scale[2])
+                out[n, 3] = _clip1((tau[3] - offset[3]) / scale[3])
+                out[n, 4] = _clip1((tau[4] - offset[4]) / scale[4])
             else:
-                a = CK.CB_ACT
-                out[n, 0] = _clip1(2.0 * B[a, j] / tmax - 1.0)
-                out[n, 1] = _clip1(2.0 * B[a + 1, j] / tmax - 1.0)
-                out[n, 2] = _clip1(B[a + 2, j] / taumax)
-                out[n, 3] = _clip1(B[a + 3, j] / taumax)
+                act = CK.lane4(B, CK.CB_ACT, j)
+                out[n, 0] = _clip1(2.0 * act[0] / tmax - 1.0)
+                out[n, 1] = _clip1(2.0 * act[1] / tmax - 1.0)
+                out[n, 2] = _clip1(act[2] / taumax)
+                out[n, 3] = _clip1(act[3] / taumax)
 
 
 @njit(cache=True, nogil=True)

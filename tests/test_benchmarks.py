@@ -324,8 +324,11 @@ def test_lane_allocation_equals_scalar_allocation_bit_for_bit(imap, m):
         warm = np.where(rng.random(L) < 0.5, rng.standard_cauchy((4, L)) * 100, np.nan)
         active = (rng.random(L) < 0.8).astype(float)
         qmax = math.pi if trial % 2 else 0.5
-        out, info = np.full((4, L), -7.0), np.full((CK.N_INFO, L), -7.0)
-        CK.allocate_exact_lanes(m, tau, theta, warm, True, p, imap, qmax, active, out, info, np.zeros((CK.N_AW, L)))
+        # the flat lane block: rows tau (0-2), theta (3), warm start (4-7), active (8), out (9-12), info (13-15)
+        X = np.concatenate([tau, theta[None], warm, active[None], np.full((4 + CK.N_INFO, L), -7.0)]).ravel()
+        CK.allocate_exact_lanes(m, X, 0, 3, 4, 8, 9, 13, np.zeros(CK.N_AW * L), True, p, imap, qmax)
+        X = X.reshape(-1, L)
+        out, info = X[9:13], X[13:16]
         for j in range(L):
             if j < m and active[j]:
                 o, i = CK.allocate_exact(tau[0, j], tau[1, j], tau[2, j], theta[j], p, imap, warm[0, j], warm[2, j],

@@ -322,67 +322,75 @@ N_AW = 21
 
 
 @_jit
-def allocate_exact_lanes(m, tau, theta, warm, use_warm, p, input_map, qmax, active, out, info, A):
+def allocate_exact_lanes(m, X, r_tau, r_theta, r_warm, r_active, r_out, r_info, A, use_warm, p, input_map, qmax):
     """:func:`allocate_exact` for the m problems of a lane block at once, every lane's arithmetic
     that of allocate_exact, bit for bit.
 
-    tau (3, L): body rows of the force; theta (L); warm (4, L): (T_l, T_r, q_l^d, q_r^d) of the warm
-    start (may be ``out`` itself); active (L, nonzero): lanes to solve (the others are left alone); results
-    into out (4, L) and info (N_INFO, L); A (N_AW, L): work. The Newton iterations of the lanes are
-    interleaved: one lane's iteration is a chain of dependent libm calls and polynomials, so lanes
-    side by side keep the CPU busy (and the polynomials run in SIMD).
+    X is a flat lane block (row r, lane j at ``X[r * CTRL_LANES + j]``) holding the inputs and
+    receiving the results in its rows: r_tau (3): body rows of the force; r_theta: theta; r_warm (4):
+    (T_l, T_r, q_l^d, q_r^d) of the warm start (may be r_out itself); r_active: lanes to solve
+    (nonzero; the others are left alone); r_out (4), r_info (N_INFO): the results. A (N_AW lane rows):
+    work. The Newton iterations of the lanes are interleaved: one lane's iteration is a chain of
+    dependent libm calls and polynomials, so lanes side by side keep the CPU busy, and the
+    polynomials of all lanes run as one SIMD loop.
     """
+    L = _CL
     ll, lr, eps = p[6], p[7], p[9]
+    tau0, tau1, tau2, th_, act_ = r_tau * L, (r_tau + 1) * L, (r_tau + 2) * L, r_theta * L, r_active * L
+    x_, lo_, hi_, lor_, hir_, uz_, h_, tt_ = AW_X * L, AW_LO * L, AW_HI * L, AW_LO_RAW * L, AW_HI_RAW * L, AW_UZ * L, \
+        AW_H * L, AW_TT * L
+    sc_, st_, ct_, ql_, tl_, qr_, tr_ = AW_SCALE * L, AW_ST * L, AW_CT * L, AW_QL * L, AW_TL * L, AW_QR * L, AW_TR * L
+    gl_, dgl_, gr_, dgr_, live_, it_ = AW_GL * L, AW_DGL * L, AW_GR * L, AW_DGR * L, AW_LIVE * L, AW_IT * L
     live = 0
     for j in range(m):
-        if active[j] != 0.0:
+        if X[act_ + j] != 0.0:
             (x, lo, hi, lo_raw, hi_raw), (uz, h, tt, scale, st, ct) = _exact_setup(
-                tau[0, j], tau[1, j], tau[2, j], theta[j], p, input_map, warm[0, j], warm[2, j], use_warm)
-            A[AW_X, j], A[AW_LO, j], A[AW_HI, j] = x, lo, hi
-            A[AW_LO_RAW, j], A[AW_HI_RAW, j] = 1.0 if lo_raw else 0.0, 1.0 if hi_raw else 0.0
-            A[AW_UZ, j], A[AW_H, j], A[AW_TT, j], A[AW_SCALE, j], A[AW_ST, j], A[AW_CT, j] = uz, h, tt, scale, st, ct
-            A[AW_LIVE, j] = 1.0
+                X[tau0 + j], X[tau1 + j], X[tau2 + j], X[th_ + j], p, input_map, X[r_warm * L + j],
+                X[(r_warm + 2) * L + j], use_warm)
+            A[x_ + j], A[lo_ + j], A[hi_ + j] = x, lo, hi
+            A[lor_ + j], A[hir_ + j] = 1.0 if lo_raw else 0.0, 1.0 if hi_raw else 0.0
+            A[uz_ + j], A[h_ + j], A[tt_ + j], A[sc_ + j], A[st_ + j], A[ct_ + j] = uz, h, tt, scale, st, ct
+            A[live_ + j] = 1.0
             live += 1
         else:
-            A[AW_X, j], A[AW_UZ, j], A[AW_H, j] = 0.0, 0.0, 0.0
-            A[AW_LIVE, j] = 0.0
+            A[x_ + j], A[uz_ + j], A[h_ + j] = 0.0, 0.0, 0.0
+            A[live_ + j] = 0.0
     for it in range(1, 101):
         if live == 0:
             break
         for j in range(m):  # libm (atan2, hypot): independent lanes, overlapped by the CPU
-            if A[AW_LIVE, j] == 1.0:
-                x, h = A[AW_X, j], A[AW_H, j]
-                vr = A[AW_UZ, j] - x
-                A[AW_QL, j] = math.atan2(h, x)
-                A[AW_TL, j] = math.hypot(h, x)
-                A[AW_QR, j] = math.atan2(-h, vr)
-                A[AW_TR, j] = math.hypot(-h, vr)
-        for j in range(m):  # polynomials of every lane (finished ones too: branch-free, SIMD)
-            x, h = A[AW_X, j], A[AW_H, j]
-            A[AW_GL, j], A[AW_DGL, j] = _lever_poly(x, h, A[AW_QL, j], A[AW_TL, j], ll, eps, input_map)
-            A[AW_GR, j], A[AW_DGR, j] = _lever_poly(A[AW_UZ, j] - x, -h, A[AW_QR, j], A[AW_TR, j], lr, eps,
-                                                    input_map)
+            if A[live_ + j] == 1.0:
+                x, h = A[x_ + j], A[h_ + j]
+                vr = A[uz_ + j] - x
+                A[ql_ + j] = math.atan2(h, x)
+                A[tl_ + j] = math.hypot(h, x)
+                A[qr_ + j] = math.atan2(-h, vr)
+                A[tr_ + j] = math.hypot(-h, vr)
+        for j in range(L):  # polynomials of every lane (finished and unused ones too: SIMD)
+            x, h = A[x_ + j], A[h_ + j]
+            A[gl_ + j], A[dgl_ + j] = _lever_poly(x, h, A[ql_ + j], A[tl_ + j], ll, eps, input_map)
+            A[gr_ + j], A[dgr_ + j] = _lever_poly(A[uz_ + j] - x, -h, A[qr_ + j], A[tr_ + j], lr, eps, input_map)
         for j in range(m):
-            if A[AW_LIVE, j] != 1.0:
+            if A[live_ + j] != 1.0:
                 continue
             status, x, lo, hi, lo_raw, hi_raw = _exact_newton(
-                A[AW_X, j], A[AW_LO, j], A[AW_HI, j], A[AW_LO_RAW, j] != 0.0, A[AW_HI_RAW, j] != 0.0, A[AW_GL, j],
-                A[AW_DGL, j], A[AW_GR, j], A[AW_DGR, j], A[AW_UZ, j], A[AW_H, j], A[AW_TT, j], A[AW_SCALE, j], p,
-                input_map)
-            A[AW_X, j], A[AW_LO, j], A[AW_HI, j] = x, lo, hi
-            A[AW_LO_RAW, j], A[AW_HI_RAW, j] = 1.0 if lo_raw else 0.0, 1.0 if hi_raw else 0.0
+                A[x_ + j], A[lo_ + j], A[hi_ + j], A[lor_ + j] != 0.0, A[hir_ + j] != 0.0, A[gl_ + j], A[dgl_ + j],
+                A[gr_ + j], A[dgr_ + j], A[uz_ + j], A[h_ + j], A[tt_ + j], A[sc_ + j], p, input_map)
+            A[x_ + j], A[lo_ + j], A[hi_ + j] = x, lo, hi
+            A[lor_ + j], A[hir_ + j] = 1.0 if lo_raw else 0.0, 1.0 if hi_raw else 0.0
             if status != 0:
-                A[AW_LIVE, j] = 1.0 + status  # done: 2 (converged at x) or 3 (at the new x)
-                A[AW_IT, j] = it
+                A[live_ + j] = 1.0 + status  # done: 2 (converged at x) or 3 (at the new x)
+                A[it_ + j] = it
                 live -= 1
     # (a lane not converged in 100 iterations ends at its last iterate, not evaluated)
     for j in range(m):
-        if active[j] != 0.0:
-            o, inf = _exact_result(A[AW_X, j], A[AW_LIVE, j] == 2.0, A[AW_QL, j], A[AW_TL, j], A[AW_QR, j], A[AW_TR, j],
-                                   A[AW_UZ, j], A[AW_H, j], A[AW_ST, j], A[AW_CT, j], tau[0, j], tau[1, j], tau[2, j],
-                                   p, input_map, qmax, 100 if A[AW_LIVE, j] == 1.0 else int(A[AW_IT, j]))
-            out[0, j], out[1, j], out[2, j], out[3, j] = o
-            info[0, j], info[1, j], info[2, j] = inf
+        if X[act_ + j] != 0.0:
+            o, inf = _exact_result(A[x_ + j], A[live_ + j] == 2.0, A[ql_ + j], A[tl_ + j], A[qr_ + j], A[tr_ + j],
+                                   A[uz_ + j], A[h_ + j], A[st_ + j], A[ct_ + j], X[tau0 + j], X[tau1 + j],
+                                   X[tau2 + j], p, input_map, qmax,
+                                   100 if A[live_ + j] == 1.0 else int(A[it_ + j]))
+            X[r_out * L + j], X[(r_out + 1) * L + j], X[(r_out + 2) * L + j], X[(r_out + 3) * L + j] = o
+            X[r_info * L + j], X[(r_info + 1) * L + j], X[(r_info + 2) * L + j] = inf
 
 
 @_jit
@@ -511,8 +519,19 @@ def _arm_derivatives(h0, h1, h2, h3, dt, vmax, amax):
     return vel, acc
 
 
-#: lanes of a controller block: B[row, lane] holds CB_LEN values per batch row (structure of arrays)
+#: lanes of a controller block: B[row * CTRL_LANES + lane] holds CB_LEN values per batch row
+#: (structure of arrays, flat with constant row offsets: LLVM then vectorises the branch-free lane loops)
 CTRL_LANES = 16
+_CL = CTRL_LANES
+
+
+@MK._inline
+def lane_index(row, lane):
+    """Index of (row, lane) in a flat lane block."""
+    return row * CTRL_LANES + lane
+
+
+_at = lane_index
 #: inputs: q, qdot, body reference (arm entries ignored), its velocity and acceleration, tau residual
 CB_Q, CB_QD, CB_QR, CB_QDR, CB_QDDR, CB_RES = 0, 5, 10, 15, 20, 25
 #: the row's memory before (``ST_*``) and after the step
@@ -535,18 +554,50 @@ CB_LEN = CB_ACTIVE + 1
 @_jit
 def controller_work():
     """(B, A): the work arrays of :func:`controller_lanes` (one pair per thread)."""
-    return np.zeros((CB_LEN, CTRL_LANES)), np.zeros((N_AW, CTRL_LANES))
+    return np.zeros(CB_LEN * CTRL_LANES), np.zeros(N_AW * CTRL_LANES)
+
+
+@MK._inline
+def lane3(B, c, j):
+    """Rows c .. c + 2 of lane j as a tuple (lane4 ... lane8 likewise)."""
+    return B[_at(c, j)], B[_at(c + 1, j)], B[_at(c + 2, j)]
+
+
+@MK._inline
+def lane4(B, c, j):
+    return lane3(B, c, j) + (B[_at(c + 3, j)],)
 
 
 @MK._inline
 def lane5(B, c, j):
-    """(B[c, j], ..., B[c + 4, j])."""
-    return (B[c, j], B[c + 1, j], B[c + 2, j], B[c + 3, j], B[c + 4, j])
+    return lane4(B, c, j) + (B[_at(c + 4, j)],)
+
+
+@MK._inline
+def lane6(B, c, j):
+    return lane3(B, c, j) + lane3(B, c + 3, j)
+
+
+@MK._inline
+def lane8(B, c, j):
+    return lane4(B, c, j) + lane4(B, c + 4, j)
+
+
+@MK._inline
+def put_lane3(B, c, j, t):
+    """Rows c .. c + 2 of lane j from a tuple (put_lane4, put_lane5 likewise)."""
+    B[_at(c, j)], B[_at(c + 1, j)], B[_at(c + 2, j)] = t[0], t[1], t[2]
+
+
+@MK._inline
+def put_lane4(B, c, j, t):
+    B[_at(c, j)], B[_at(c + 1, j)], B[_at(c + 2, j)], B[_at(c + 3, j)] = t[0], t[1], t[2], t[3]
 
 
 @MK._inline
 def put_lane5(B, c, j, t):
-    B[c, j], B[c + 1, j], B[c + 2, j], B[c + 3, j], B[c + 4, j] = t
+    put_lane4(B, c, j, t)
+    B[_at(c + 4, j)] = t[4]
 
 
 @MK._inline
@@ -558,20 +609,18 @@ def put_lane_inputs(B, j, q, qd, qr, qdr, qddr, res, S, n):
     put_lane5(B, CB_QDR, j, qdr)
     put_lane5(B, CB_QDDR, j, qddr)
     put_lane5(B, CB_RES, j, res)
-    c = CB_ST  # written out: a loop here would keep the arrays' reference counting in the row loop
-    B[c, j], B[c + 1, j], B[c + 2, j], B[c + 3, j], B[c + 4, j] = S[n, 0], S[n, 1], S[n, 2], S[n, 3], S[n, 4]
-    B[c + 5, j], B[c + 6, j], B[c + 7, j], B[c + 8, j] = S[n, 5], S[n, 6], S[n, 7], S[n, 8]
-    B[c + 9, j], B[c + 10, j], B[c + 11, j], B[c + 12, j] = S[n, 9], S[n, 10], S[n, 11], S[n, 12]
+    # written out: a loop here would keep the arrays' reference counting in the row loop
+    put_lane5(B, CB_ST, j, (S[n, 0], S[n, 1], S[n, 2], S[n, 3], S[n, 4]))
+    put_lane4(B, CB_ST + 5, j, (S[n, 5], S[n, 6], S[n, 7], S[n, 8]))
+    put_lane4(B, CB_ST + 9, j, (S[n, 9], S[n, 10], S[n, 11], S[n, 12]))
 
 
 @MK._inline
 def put_lane_memory(B, j, S_new, n):
     """The memory of lane j after the step into S_new[n]."""
-    c = CB_STN
-    S_new[n, 0], S_new[n, 1], S_new[n, 2], S_new[n, 3], S_new[n, 4] = B[c, j], B[c + 1, j], B[c + 2, j], B[
-        c + 3, j], B[c + 4, j]
-    S_new[n, 5], S_new[n, 6], S_new[n, 7], S_new[n, 8] = B[c + 5, j], B[c + 6, j], B[c + 7, j], B[c + 8, j]
-    S_new[n, 9], S_new[n, 10], S_new[n, 11], S_new[n, 12] = B[c + 9, j], B[c + 10, j], B[c + 11, j], B[c + 12, j]
+    S_new[n, 0], S_new[n, 1], S_new[n, 2], S_new[n, 3], S_new[n, 4] = lane5(B, CB_STN, j)
+    S_new[n, 5], S_new[n, 6], S_new[n, 7], S_new[n, 8] = lane4(B, CB_STN + 5, j)
+    S_new[n, 9], S_new[n, 10], S_new[n, 11], S_new[n, 12] = lane4(B, CB_STN + 9, j)
 
 
 @MK._inline
@@ -579,14 +628,9 @@ def _lane_inputs(B, j):
     """(D, C, g entries, q, qdot, body reference rows (3 each of qr, qdr, qddr), arm references with
     their derivatives (6), residual) of lane j. (Helpers that take the block array stay branch-free:
     a branch would keep numba's reference counting of the array in the row loops.)"""
-    c = CB_ENTS
-    ents = ((B[c, j], B[c + 1, j], B[c + 2, j], B[c + 3, j], B[c + 4, j], B[c + 5, j], B[c + 6, j], B[c + 7, j]),
-            (B[c + 8, j], B[c + 9, j], B[c + 10, j], B[c + 11, j], B[c + 12, j], B[c + 13, j]),
-            (B[c + 14, j], B[c + 15, j], B[c + 16, j]))
-    body_ref = (B[CB_QR, j], B[CB_QR + 1, j], B[CB_QR + 2, j], B[CB_QDR, j], B[CB_QDR + 1, j], B[CB_QDR + 2, j],
-                B[CB_QDDR, j], B[CB_QDDR + 1, j], B[CB_QDDR + 2, j])
-    refs = (B[CB_REF, j], B[CB_REF + 1, j], B[CB_REF + 2, j], B[CB_REF + 3, j], B[CB_REF + 4, j], B[CB_REF + 5, j])
-    return ents, lane5(B, CB_Q, j), lane5(B, CB_QD, j), body_ref, refs, lane5(B, CB_RES, j)
+    ents = (lane8(B, CB_ENTS, j), lane6(B, CB_ENTS + 8, j), lane3(B, CB_ENTS + 14, j))
+    body_ref = lane3(B, CB_QR, j) + lane3(B, CB_QDR, j) + lane3(B, CB_QDDR, j)
+    return ents, lane5(B, CB_Q, j), lane5(B, CB_QD, j), body_ref, lane6(B, CB_REF, j), lane5(B, CB_RES, j)
 
 
 @MK._inline
@@ -613,84 +657,84 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
     tau_l, tau_r), arm references (2) and allocation info (N_INFO).
     """
     method, imap, iters, ff, dt, vmax, amax, qmax = cfg
-    c = CB_ENTS
-    for j in range(m):  # D, C, g of every lane: polynomials only (SIMD)
-        (M, inertia, d03, d13, d04, d14, d33, d44), (c03, c13, c04, c14, c33, c44), (g1, g3, g4) = model_entries(
-            lane5(B, CB_Q, j), lane5(B, CB_QD, j), p)
-        B[c, j], B[c + 1, j], B[c + 2, j], B[c + 3, j], B[c + 4, j], B[c + 5, j] = M, inertia, d03, d13, d04, d14
-        B[c + 6, j], B[c + 7, j], B[c + 8, j], B[c + 9, j], B[c + 10, j], B[c + 11, j] = d33, d44, c03, c13, c04, c14
-        B[c + 12, j], B[c + 13, j], B[c + 14, j], B[c + 15, j], B[c + 16, j] = c33, c44, g1, g3, g4
+    for j in range(CTRL_LANES):  # D, C, g of every lane (unused ones too): polynomials only, SIMD
+        d, cor, g = model_entries(lane5(B, CB_Q, j), lane5(B, CB_QD, j), p)
+        put_lane4(B, CB_ENTS, j, d[:4])
+        put_lane4(B, CB_ENTS + 4, j, d[4:])
+        put_lane3(B, CB_ENTS + 8, j, cor[:3])
+        put_lane3(B, CB_ENTS + 11, j, cor[3:])
+        put_lane3(B, CB_ENTS + 14, j, g)
     for j in range(m):
         # arm references of the body rows: the last allocated curvatures with their feedforward
         # derivatives, or (no history yet / just reset) the measured curvatures at rest
         vl = vr = al = ar = 0.0
-        if B[CB_ST + ST_FRESH, j] > 0.5:
-            arm_l, arm_r = B[CB_Q + 3, j], B[CB_Q + 4, j]
+        if B[_at(CB_ST + ST_FRESH, j)] > 0.5:
+            arm_l, arm_r = B[_at(CB_Q + 3, j)], B[_at(CB_Q + 4, j)]
         else:
             h = CB_ST + ST_HIST
-            arm_l, arm_r = B[h + 6, j], B[h + 7, j]
+            arm_l, arm_r = B[_at(h + 6, j)], B[_at(h + 7, j)]
             if ff:
-                vl, al = _arm_derivatives(B[h, j], B[h + 2, j], B[h + 4, j], B[h + 6, j], dt, vmax, amax)
-                vr, ar = _arm_derivatives(B[h + 1, j], B[h + 3, j], B[h + 5, j], B[h + 7, j], dt, vmax, amax)
-        B[CB_REF, j], B[CB_REF + 1, j], B[CB_REF + 2, j] = arm_l, arm_r, vl
-        B[CB_REF + 3, j], B[CB_REF + 4, j], B[CB_REF + 5, j] = vr, al, ar
+                hist = lane8(B, h, j)
+                vl, al = _arm_derivatives(hist[0], hist[2], hist[4], hist[6], dt, vmax, amax)
+                vr, ar = _arm_derivatives(hist[1], hist[3], hist[5], hist[7], dt, vmax, amax)
+        put_lane3(B, CB_REF, j, (arm_l, arm_r, vl))
+        put_lane3(B, CB_REF + 3, j, (vr, al, ar))
         for k in range(4):  # warm start (NaN: cold)
-            B[CB_ALLOC + k, j] = B[CB_ST + ST_WARM + k, j]
-        B[CB_INFO, j], B[CB_INFO + 1, j], B[CB_INFO + 2, j] = 0.0, 0.0, 0.0
-        B[CB_ERR, j] = ERR_NONE
+            B[_at(CB_ALLOC + k, j)] = B[_at(CB_ST + ST_WARM + k, j)]
+        put_lane3(B, CB_INFO, j, (0.0, 0.0, 0.0))
+        B[_at(CB_ERR, j)] = ERR_NONE
     for _ in range(iters):
         for j in range(m):
-            active = B[CB_ERR, j] == ERR_NONE
+            active = B[_at(CB_ERR, j)] == ERR_NONE
             if active:
                 ents, q, qd, br, refs, res = _lane_inputs(B, j)
                 tau = _lane_tau(ents, q, qd, br, refs, res, lam, kg, has_res)
-                B[CB_TAU, j], B[CB_TAU + 1, j], B[CB_TAU + 2, j] = tau[0], tau[1], tau[2]
+                put_lane3(B, CB_TAU, j, tau)
                 if not (math.isfinite(tau[0]) and math.isfinite(tau[1]) and math.isfinite(tau[2])):
-                    B[CB_ERR, j] = ERR_TAU
+                    B[_at(CB_ERR, j)] = ERR_TAU
                     active = False
-            B[CB_ACTIVE, j] = 1.0 if active else 0.0
+            B[_at(CB_ACTIVE, j)] = 1.0 if active else 0.0
         if method == ALLOC_PAPER:
             for j in range(m):
-                if B[CB_ACTIVE, j] != 0.0:
-                    alloc, info = allocate_paper(B[CB_TAU, j], B[CB_TAU + 1, j], B[CB_TAU + 2, j], B[CB_Q + 2, j], p,
-                                                 B[CB_ALLOC + 2, j], B[CB_ALLOC + 3, j], True)
-                    B[CB_ALLOC, j], B[CB_ALLOC + 1, j], B[CB_ALLOC + 2, j], B[CB_ALLOC + 3, j] = alloc
-                    B[CB_INFO, j], B[CB_INFO + 1, j], B[CB_INFO + 2, j] = info
+                if B[_at(CB_ACTIVE, j)] != 0.0:
+                    t0, t1, t2 = lane3(B, CB_TAU, j)
+                    alloc, info = allocate_paper(t0, t1, t2, B[_at(CB_Q + 2, j)], p, B[_at(CB_ALLOC + 2, j)],
+                                                 B[_at(CB_ALLOC + 3, j)], True)
+                    put_lane4(B, CB_ALLOC, j, alloc)
+                    put_lane3(B, CB_INFO, j, info)
         else:
-            alloc = B[CB_ALLOC:CB_ALLOC + 4]
-            allocate_exact_lanes(m, B[CB_TAU:CB_TAU + 3], B[CB_Q + 2], alloc, True, p, imap, qmax, B[CB_ACTIVE],
-                                 alloc, B[CB_INFO:CB_INFO + N_INFO], A)
+            allocate_exact_lanes(m, B, CB_TAU, CB_Q + 2, CB_ALLOC, CB_ACTIVE, CB_ALLOC, CB_INFO, A, True, p, imap,
+                                 qmax)
         for j in range(m):
-            if B[CB_ACTIVE, j] != 0.0:
-                B[CB_REF, j], B[CB_REF + 1, j] = B[CB_ALLOC + 2, j], B[CB_ALLOC + 3, j]
+            if B[_at(CB_ACTIVE, j)] != 0.0:
+                B[_at(CB_REF, j)], B[_at(CB_REF + 1, j)] = B[_at(CB_ALLOC + 2, j)], B[_at(CB_ALLOC + 3, j)]
     for j in range(m):
         ents, q, qd, br, refs, res = _lane_inputs(B, j)
-        err = B[CB_ERR, j]
+        err = B[_at(CB_ERR, j)]
         if err == ERR_NONE and imap == MK.INPUT_MAP_EXACT and not (abs(q[3]) <= MAX_CURVATURE
                                                                    and abs(q[4]) <= MAX_CURVATURE):
             err = ERR_CURVATURE
         for k in range(ST_LEN):
-            B[CB_STN + k, j] = B[CB_ST + k, j]
+            B[_at(CB_STN + k, j)] = B[_at(CB_ST + k, j)]
         if err != ERR_NONE:  # zero outputs, memory unchanged
-            B[CB_ERR, j] = err
+            B[_at(CB_ERR, j)] = err
             for k in range(CB_INFO + N_INFO - CB_TAU):
-                B[CB_TAU + k, j] = 0.0
+                B[_at(CB_TAU + k, j)] = 0.0
             continue
         arm_l, arm_r, vl, vr, al, ar = refs
-        Tl, Tr = B[CB_ALLOC, j], B[CB_ALLOC + 1, j]
+        Tl, Tr = B[_at(CB_ALLOC, j)], B[_at(CB_ALLOC + 1, j)]
         if commit:
             # push the allocated curvatures; a fresh row gets a flat history (no jump for the differences)
             h = CB_ST + ST_HIST
-            if B[CB_ST + ST_FRESH, j] > 0.5:
+            if B[_at(CB_ST + ST_FRESH, j)] > 0.5:
                 hist = (arm_l, arm_r, arm_l, arm_r, arm_l, arm_r, arm_l, arm_r)
             else:
-                hist = (B[h + 2, j], B[h + 3, j], B[h + 4, j], B[h + 5, j], B[h + 6, j], B[h + 7, j], arm_l, arm_r)
+                hist = lane6(B, h + 2, j) + (arm_l, arm_r)
             for k in range(4):
-                B[CB_STN + ST_WARM + k, j] = B[CB_ALLOC + k, j]
-            n = CB_STN + ST_HIST
-            B[n, j], B[n + 1, j], B[n + 2, j], B[n + 3, j] = hist[0], hist[1], hist[2], hist[3]
-            B[n + 4, j], B[n + 5, j], B[n + 6, j], B[n + 7, j] = hist[4], hist[5], hist[6], hist[7]
-            B[CB_STN + ST_FRESH, j] = 0.0
+                B[_at(CB_STN + ST_WARM + k, j)] = B[_at(CB_ALLOC + k, j)]
+            put_lane4(B, CB_STN + ST_HIST, j, hist[:4])
+            put_lane4(B, CB_STN + ST_HIST + 4, j, hist[4:])
+            B[_at(CB_STN + ST_FRESH, j)] = 0.0
             vl = vr = al = ar = 0.0
             if ff:
                 vl, al = _arm_derivatives(hist[0], hist[2], hist[4], hist[6], dt, vmax, amax)
@@ -703,9 +747,9 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
             gf = MK.generalized_forces(q, (Tl, Tr, 0.0, 0.0), p, MK.INPUT_MAP_EXACT)
             a2 -= gf[3]
             a3 -= gf[4]
-        B[CB_TAU + 3, j], B[CB_TAU + 4, j] = tau_l, tau_r
-        B[CB_ACT, j], B[CB_ACT + 1, j], B[CB_ACT + 2, j], B[CB_ACT + 3, j] = Tl, Tr, a2, a3
-        B[CB_ARM, j], B[CB_ARM + 1, j] = arm_l, arm_r
+        B[_at(CB_TAU + 3, j)], B[_at(CB_TAU + 4, j)] = tau_l, tau_r
+        B[_at(CB_ACT, j)], B[_at(CB_ACT + 1, j)], B[_at(CB_ACT + 2, j)], B[_at(CB_ACT + 3, j)] = Tl, Tr, a2, a3
+        B[_at(CB_ARM, j)], B[_at(CB_ARM + 1, j)] = arm_l, arm_r
 
 
 @_jit
@@ -768,9 +812,9 @@ def batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, o
         controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg)
         for j in range(m):
             n = n0 + j
-            err[n] = int(B[CB_ERR, j])
+            err[n] = int(B[_at(CB_ERR, j)])
             for k in range(OUT_LEN):
-                out[n, k] = B[CB_TAU + k, j]
+                out[n, k] = B[_at(CB_TAU + k, j)]
             put_lane_memory(B, j, S_new, n)
 
 
@@ -797,11 +841,11 @@ def single_controller_commit(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, 
     B, A = controller_work()
     put_lane_inputs(B, 0, row5_1d(q), row5_1d(qd), row5_1d(qr), row5_1d(qdr), row5_1d(qddr), row5_1d(res), S, 0)
     controller_lanes(1, B, A, has_res, commit, cfg, p, lam, kg)
-    e = int(B[CB_ERR, 0])
+    e = int(B[_at(CB_ERR, 0)])
     if e != ERR_NONE:
         return e
     for k in range(OUT_LEN):
-        out[k] = B[CB_TAU + k, 0]
+        out[k] = B[_at(CB_TAU + k, 0)]
     if commit:
         put_lane_memory(B, 0, S, 0)
     return ERR_NONE

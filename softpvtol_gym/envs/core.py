@@ -966,7 +966,7 @@ def _controller_rows(lo, hi, F, C, has_res, cc, S, S_new, ctl, err):
         for j in range(m):
             n = n0 + j
             err[n] = CK.ERR_NONE
-            if B[CK.CB_ERR, j] != CK.ERR_NONE:
+            if B[CK.lane_index(CK.CB_ERR, j)] != CK.ERR_NONE:
                 # a non-finite or out-of-model measured state (a diverged env: one that terminated and
                 # is stepped once more before its autoreset, or stepped past termination): NaN
                 # actuators, so that the physics ends the episode as "non_finite" instead of the step
@@ -974,10 +974,9 @@ def _controller_rows(lo, hi, F, C, has_res, cc, S, S_new, ctl, err):
                 for k in range(CTL_LEN):
                     ctl[n, k] = math.nan
             else:
-                a = CK.CB_ACT
-                ctl[n, 0], ctl[n, 1], ctl[n, 2], ctl[n, 3] = B[a, j], B[a + 1, j], B[a + 2, j], B[a + 3, j]
-                ctl[n, 4] = B[CK.CB_INFO + CK.INFO_RESIDUAL, j]
-                ctl[n, 5], ctl[n, 6] = B[CK.CB_ARM, j], B[CK.CB_ARM + 1, j]
+                ctl[n, 0], ctl[n, 1], ctl[n, 2], ctl[n, 3] = CK.lane4(B, CK.CB_ACT, j)
+                ctl[n, 4] = B[CK.lane_index(CK.CB_INFO + CK.INFO_RESIDUAL, j)]
+                ctl[n, 5], ctl[n, 6] = B[CK.lane_index(CK.CB_ARM, j)], B[CK.lane_index(CK.CB_ARM + 1, j)]
             CK.put_lane_memory(B, j, S_new, n)
 
 
