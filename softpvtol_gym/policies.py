@@ -73,12 +73,17 @@ def policy_step(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_
 
 
 @njit(cache=True, nogil=True)
-def policy_all(obs, theta, kind, scale, offset, tmax, taumax, cc, S, out, err):
-    """:func:`policy_rows` over all rows and the commit of the memory in one call; returns whether
-    every row succeeded."""
+def policy_all(obs, theta, kind, scale, offset, tmax, taumax, cc, S, out):
+    """:func:`policy_rows` over all rows and the commit of the memory in one call; returns the first
+    failed row's error code, or ERR_NONE (every row succeeded, the memory advanced)."""
     S_new = S.copy()
+    err = np.zeros(obs.shape[0], dtype=np.int64)
     policy_rows(0, obs.shape[0], obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, out, err)
-    return CK._commit_rows(S, S_new, err)
+    for n in range(err.shape[0]):
+        if err[n] != CK.ERR_NONE:
+            return err[n]
+    CK._commit_rows(S, S_new, err)
+    return CK.ERR_NONE
 
 
 @njit(cache=True, nogil=True)
@@ -171,12 +176,14 @@ class PassivityPolicy:
         ctrl = self.controller
         S = ctrl.state_rows(n)
         out = np.empty((n, self.config.action_dim), dtype=np.float32)
-        err = np.zeros(n, dtype=np.int64)
         ranges = row_ranges(n)
         if len(ranges) == 1:
-            ok = policy_all(obs, theta, self._kind, self._scale, self._offset, self._tmax, self._taumax,
-                            ctrl.kernel_constants, S, out, err)
+            code = policy_all(obs, theta, self._kind, self._scale, self._offset, self._tmax, self._taumax,
+                              ctrl.kernel_constants, S, out)
+            err = np.array([code])
+            ok = code == CK.ERR_NONE
         else:
+            err = np.zeros(n, dtype=np.int64)
             S_new = S.copy()
             args = (obs, theta, self._kind, self._scale, self._offset, self._tmax, self._taumax,
                     ctrl.kernel_constants, S, S_new, out, err)
