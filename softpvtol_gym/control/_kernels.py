@@ -334,7 +334,7 @@ def allocate_exact_lanes(m, X, r_tau, r_theta, r_warm, r_active, r_out, r_info, 
     dependent libm calls and polynomials, so lanes side by side keep the CPU busy, and the
     polynomials of all lanes run as one SIMD loop.
     """
-    L = _CL
+    L = CTRL_LANES
     ll, lr, eps = p[6], p[7], p[9]
     tau0, tau1, tau2, th_, act_ = r_tau * L, (r_tau + 1) * L, (r_tau + 2) * L, r_theta * L, r_active * L
     x_, lo_, hi_, lor_, hir_, uz_, h_, tt_ = AW_X * L, AW_LO * L, AW_HI * L, AW_LO_RAW * L, AW_HI_RAW * L, AW_UZ * L, \
@@ -522,7 +522,6 @@ def _arm_derivatives(h0, h1, h2, h3, dt, vmax, amax):
 #: lanes of a controller block: B[row * CTRL_LANES + lane] holds CB_LEN values per batch row
 #: (structure of arrays, flat with constant row offsets: LLVM then vectorises the branch-free lane loops)
 CTRL_LANES = 16
-_CL = CTRL_LANES
 
 
 @MK._inline
@@ -530,8 +529,6 @@ def lane_index(row, lane):
     """Index of (row, lane) in a flat lane block."""
     return row * CTRL_LANES + lane
 
-
-_at = lane_index
 #: inputs: q, qdot, body reference (arm entries ignored), its velocity and acceleration, tau residual
 CB_Q, CB_QD, CB_QR, CB_QDR, CB_QDDR, CB_RES = 0, 5, 10, 15, 20, 25
 #: the row's memory before (``ST_*``) and after the step
@@ -560,17 +557,17 @@ def controller_work():
 @MK._inline
 def lane3(B, c, j):
     """Rows c .. c + 2 of lane j as a tuple (lane4 ... lane8 likewise)."""
-    return B[_at(c, j)], B[_at(c + 1, j)], B[_at(c + 2, j)]
+    return B[lane_index(c, j)], B[lane_index(c + 1, j)], B[lane_index(c + 2, j)]
 
 
 @MK._inline
 def lane4(B, c, j):
-    return lane3(B, c, j) + (B[_at(c + 3, j)],)
+    return lane3(B, c, j) + (B[lane_index(c + 3, j)],)
 
 
 @MK._inline
 def lane5(B, c, j):
-    return lane4(B, c, j) + (B[_at(c + 4, j)],)
+    return lane4(B, c, j) + (B[lane_index(c + 4, j)],)
 
 
 @MK._inline
@@ -586,18 +583,19 @@ def lane8(B, c, j):
 @MK._inline
 def put_lane3(B, c, j, t):
     """Rows c .. c + 2 of lane j from a tuple (put_lane4, put_lane5 likewise)."""
-    B[_at(c, j)], B[_at(c + 1, j)], B[_at(c + 2, j)] = t[0], t[1], t[2]
+    B[lane_index(c, j)], B[lane_index(c + 1, j)], B[lane_index(c + 2, j)] = t[0], t[1], t[2]
 
 
 @MK._inline
 def put_lane4(B, c, j, t):
-    B[_at(c, j)], B[_at(c + 1, j)], B[_at(c + 2, j)], B[_at(c + 3, j)] = t[0], t[1], t[2], t[3]
+    put_lane3(B, c, j, t)
+    B[lane_index(c + 3, j)] = t[3]
 
 
 @MK._inline
 def put_lane5(B, c, j, t):
     put_lane4(B, c, j, t)
-    B[_at(c + 4, j)] = t[4]
+    B[lane_index(c + 4, j)] = t[4]
 
 
 @MK._inline
@@ -668,11 +666,11 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
         # arm references of the body rows: the last allocated curvatures with their feedforward
         # derivatives, or (no history yet / just reset) the measured curvatures at rest
         vl = vr = al = ar = 0.0
-        if B[_at(CB_ST + ST_FRESH, j)] > 0.5:
-            arm_l, arm_r = B[_at(CB_Q + 3, j)], B[_at(CB_Q + 4, j)]
+        if B[lane_index(CB_ST + ST_FRESH, j)] > 0.5:
+            arm_l, arm_r = B[lane_index(CB_Q + 3, j)], B[lane_index(CB_Q + 4, j)]
         else:
             h = CB_ST + ST_HIST
-            arm_l, arm_r = B[_at(h + 6, j)], B[_at(h + 7, j)]
+            arm_l, arm_r = B[lane_index(h + 6, j)], B[lane_index(h + 7, j)]
             if ff:
                 hist = lane8(B, h, j)
                 vl, al = _arm_derivatives(hist[0], hist[2], hist[4], hist[6], dt, vmax, amax)
@@ -680,61 +678,62 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
         put_lane3(B, CB_REF, j, (arm_l, arm_r, vl))
         put_lane3(B, CB_REF + 3, j, (vr, al, ar))
         for k in range(4):  # warm start (NaN: cold)
-            B[_at(CB_ALLOC + k, j)] = B[_at(CB_ST + ST_WARM + k, j)]
+            B[lane_index(CB_ALLOC + k, j)] = B[lane_index(CB_ST + ST_WARM + k, j)]
         put_lane3(B, CB_INFO, j, (0.0, 0.0, 0.0))
-        B[_at(CB_ERR, j)] = ERR_NONE
+        B[lane_index(CB_ERR, j)] = ERR_NONE
     for _ in range(iters):
         for j in range(m):
-            active = B[_at(CB_ERR, j)] == ERR_NONE
+            active = B[lane_index(CB_ERR, j)] == ERR_NONE
             if active:
                 ents, q, qd, br, refs, res = _lane_inputs(B, j)
                 tau = _lane_tau(ents, q, qd, br, refs, res, lam, kg, has_res)
                 put_lane3(B, CB_TAU, j, tau)
                 if not (math.isfinite(tau[0]) and math.isfinite(tau[1]) and math.isfinite(tau[2])):
-                    B[_at(CB_ERR, j)] = ERR_TAU
+                    B[lane_index(CB_ERR, j)] = ERR_TAU
                     active = False
-            B[_at(CB_ACTIVE, j)] = 1.0 if active else 0.0
+            B[lane_index(CB_ACTIVE, j)] = 1.0 if active else 0.0
         if method == ALLOC_PAPER:
             for j in range(m):
-                if B[_at(CB_ACTIVE, j)] != 0.0:
+                if B[lane_index(CB_ACTIVE, j)] != 0.0:
                     t0, t1, t2 = lane3(B, CB_TAU, j)
-                    alloc, info = allocate_paper(t0, t1, t2, B[_at(CB_Q + 2, j)], p, B[_at(CB_ALLOC + 2, j)],
-                                                 B[_at(CB_ALLOC + 3, j)], True)
+                    warm = lane4(B, CB_ALLOC, j)
+                    alloc, info = allocate_paper(t0, t1, t2, B[lane_index(CB_Q + 2, j)], p, warm[2], warm[3], True)
                     put_lane4(B, CB_ALLOC, j, alloc)
                     put_lane3(B, CB_INFO, j, info)
         else:
             allocate_exact_lanes(m, B, CB_TAU, CB_Q + 2, CB_ALLOC, CB_ACTIVE, CB_ALLOC, CB_INFO, A, True, p, imap,
                                  qmax)
         for j in range(m):
-            if B[_at(CB_ACTIVE, j)] != 0.0:
-                B[_at(CB_REF, j)], B[_at(CB_REF + 1, j)] = B[_at(CB_ALLOC + 2, j)], B[_at(CB_ALLOC + 3, j)]
+            if B[lane_index(CB_ACTIVE, j)] != 0.0:
+                B[lane_index(CB_REF, j)] = B[lane_index(CB_ALLOC + 2, j)]
+                B[lane_index(CB_REF + 1, j)] = B[lane_index(CB_ALLOC + 3, j)]
     for j in range(m):
         ents, q, qd, br, refs, res = _lane_inputs(B, j)
-        err = B[_at(CB_ERR, j)]
+        err = B[lane_index(CB_ERR, j)]
         if err == ERR_NONE and imap == MK.INPUT_MAP_EXACT and not (abs(q[3]) <= MAX_CURVATURE
                                                                    and abs(q[4]) <= MAX_CURVATURE):
             err = ERR_CURVATURE
         for k in range(ST_LEN):
-            B[_at(CB_STN + k, j)] = B[_at(CB_ST + k, j)]
+            B[lane_index(CB_STN + k, j)] = B[lane_index(CB_ST + k, j)]
         if err != ERR_NONE:  # zero outputs, memory unchanged
-            B[_at(CB_ERR, j)] = err
+            B[lane_index(CB_ERR, j)] = err
             for k in range(CB_INFO + N_INFO - CB_TAU):
-                B[_at(CB_TAU + k, j)] = 0.0
+                B[lane_index(CB_TAU + k, j)] = 0.0
             continue
         arm_l, arm_r, vl, vr, al, ar = refs
-        Tl, Tr = B[_at(CB_ALLOC, j)], B[_at(CB_ALLOC + 1, j)]
+        Tl, Tr = B[lane_index(CB_ALLOC, j)], B[lane_index(CB_ALLOC + 1, j)]
         if commit:
             # push the allocated curvatures; a fresh row gets a flat history (no jump for the differences)
             h = CB_ST + ST_HIST
-            if B[_at(CB_ST + ST_FRESH, j)] > 0.5:
+            if B[lane_index(CB_ST + ST_FRESH, j)] > 0.5:
                 hist = (arm_l, arm_r, arm_l, arm_r, arm_l, arm_r, arm_l, arm_r)
             else:
                 hist = lane6(B, h + 2, j) + (arm_l, arm_r)
             for k in range(4):
-                B[_at(CB_STN + ST_WARM + k, j)] = B[_at(CB_ALLOC + k, j)]
+                B[lane_index(CB_STN + ST_WARM + k, j)] = B[lane_index(CB_ALLOC + k, j)]
             put_lane4(B, CB_STN + ST_HIST, j, hist[:4])
             put_lane4(B, CB_STN + ST_HIST + 4, j, hist[4:])
-            B[_at(CB_STN + ST_FRESH, j)] = 0.0
+            B[lane_index(CB_STN + ST_FRESH, j)] = 0.0
             vl = vr = al = ar = 0.0
             if ff:
                 vl, al = _arm_derivatives(hist[0], hist[2], hist[4], hist[6], dt, vmax, amax)
@@ -747,9 +746,9 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
             gf = MK.generalized_forces(q, (Tl, Tr, 0.0, 0.0), p, MK.INPUT_MAP_EXACT)
             a2 -= gf[3]
             a3 -= gf[4]
-        B[_at(CB_TAU + 3, j)], B[_at(CB_TAU + 4, j)] = tau_l, tau_r
-        B[_at(CB_ACT, j)], B[_at(CB_ACT + 1, j)], B[_at(CB_ACT + 2, j)], B[_at(CB_ACT + 3, j)] = Tl, Tr, a2, a3
-        B[_at(CB_ARM, j)], B[_at(CB_ARM + 1, j)] = arm_l, arm_r
+        B[lane_index(CB_TAU + 3, j)], B[lane_index(CB_TAU + 4, j)] = tau_l, tau_r
+        put_lane4(B, CB_ACT, j, (Tl, Tr, a2, a3))
+        B[lane_index(CB_ARM, j)], B[lane_index(CB_ARM + 1, j)] = arm_l, arm_r
 
 
 @_jit
@@ -776,19 +775,6 @@ def row5_1d(a):
     return (a[0], a[1], a[2], a[3], a[4])
 
 
-@MK._inline
-def state_row(S, n):
-    """Row n of a memory array as a tuple (``ST_LEN``)."""
-    return (S[n, 0], S[n, 1], S[n, 2], S[n, 3], S[n, 4], S[n, 5], S[n, 6], S[n, 7], S[n, 8], S[n, 9], S[n, 10],
-            S[n, 11], S[n, 12])
-
-
-@MK._inline
-def put_state_row(S, n, st):
-    S[n, 0], S[n, 1], S[n, 2], S[n, 3], S[n, 4], S[n, 5], S[n, 6] = st[0], st[1], st[2], st[3], st[4], st[5], st[6]
-    S[n, 7], S[n, 8], S[n, 9], S[n, 10], S[n, 11], S[n, 12] = st[7], st[8], st[9], st[10], st[11], st[12]
-
-
 #: columns of the output of :func:`batch_controller`: tau (5), actuators (4), arm references (2),
 #: allocation info (residual, iterations, feasible), in the order of the block's output rows
 OUT_TAU, OUT_ACT, OUT_ARM, OUT_INFO, OUT_LEN = 0, 5, 9, 11, 14
@@ -812,9 +798,9 @@ def batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, o
         controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg)
         for j in range(m):
             n = n0 + j
-            err[n] = int(B[_at(CB_ERR, j)])
+            err[n] = int(B[lane_index(CB_ERR, j)])
             for k in range(OUT_LEN):
-                out[n, k] = B[_at(CB_TAU + k, j)]
+                out[n, k] = B[lane_index(CB_TAU + k, j)]
             put_lane_memory(B, j, S_new, n)
 
 
@@ -841,11 +827,11 @@ def single_controller_commit(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, 
     B, A = controller_work()
     put_lane_inputs(B, 0, row5_1d(q), row5_1d(qd), row5_1d(qr), row5_1d(qdr), row5_1d(qddr), row5_1d(res), S, 0)
     controller_lanes(1, B, A, has_res, commit, cfg, p, lam, kg)
-    e = int(B[_at(CB_ERR, 0)])
+    e = int(B[lane_index(CB_ERR, 0)])
     if e != ERR_NONE:
         return e
     for k in range(OUT_LEN):
-        out[k] = B[_at(CB_TAU + k, 0)]
+        out[k] = B[lane_index(CB_TAU + k, 0)]
     if commit:
         put_lane_memory(B, 0, S, 0)
     return ERR_NONE

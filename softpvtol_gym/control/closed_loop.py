@@ -241,7 +241,6 @@ class PassivityController:
         return ControlOutput(tau=out[..., :5], actuators=out[..., 5:9], arm_reference=out[..., 9:11],
                              allocation=allocation)
 
-
     def _call_single(self, ins, has_res: bool, commit: bool) -> ControlOutput:
         """__call__ for one state given as contiguous float64 arrays (5,) (the fast path)."""
         out = np.empty(CK.OUT_LEN)
