@@ -7,11 +7,8 @@ Thin CLI; the logic lives in ``baselines/`` (``baselines/train_agent.py``, ``bas
 """
 
 import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from baselines.train_agent import main  # noqa: E402
+from baselines.train_agent import main
 
 if __name__ == "__main__":
     sys.exit(main())

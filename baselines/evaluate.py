@@ -22,11 +22,8 @@ import json
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from softpvtol_gym.envs.core import ACTION_MODES, TASKS, TIERS  # noqa: E402
-
-from baselines.evaluation import EVAL_SEED_OFFSET, evaluate  # noqa: E402
+from baselines.evaluation import EVAL_SEED_OFFSET, evaluate
+from softpvtol_gym.envs.core import ACTION_MODES, TASKS, TIERS
 
 
 def build_parser() -> argparse.ArgumentParser:

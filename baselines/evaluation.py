@@ -33,7 +33,7 @@ def run_episodes(policy, action_mode: str, task: str, tier: str, episodes: int, 
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode=action_mode, task=task, tier=tier, **(env_kwargs or {}))
-    sim = env._sim
+    sim = env.sim
     obs, _ = env.reset(seed=seed)
     n = episodes
     ret, sq_pos, sq_att, effort, length = (np.zeros(n) for _ in range(5))

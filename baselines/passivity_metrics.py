@@ -10,23 +10,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from softpvtol_gym import PassivityPolicy  # noqa: E402
-from softpvtol_gym.envs.core import TASKS, TIERS  # noqa: E402
-from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv  # noqa: E402
-
-from baselines.evaluation import evaluate  # noqa: E402
+from baselines.evaluation import evaluate
+from softpvtol_gym import PassivityPolicy
+from softpvtol_gym.envs.core import TASKS, TIERS
+from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
 
 def run_cell(task: str, tier: str, episodes: int, seed: int) -> dict:
     env = SoftPVTOLVectorEnv(num_envs=1, task=task, tier=tier, action_mode="actuators")
     m = evaluate(PassivityPolicy.from_env(env), "actuators", task, tier, episodes, seed)["summary"]
-    return {"rms_position_error_m": m["mean_rms_position_error"], "crash_rate": m["crash_rate"], "episodes": m["episodes"]}
+    return {"rms_position_error_m": m["mean_rms_position_error"], "crash_rate": m["crash_rate"],
+            "episodes": m["episodes"]}
 
 
 def main(argv=None) -> int:
@@ -41,10 +38,12 @@ def main(argv=None) -> int:
     for task in TASKS:
         for tier in TIERS:
             cells[f"{task}/{tier}"] = m = run_cell(task, tier, args.episodes, args.seed)
-            print(f"{task:13s} {tier:9s} rms {m['rms_position_error_m']:.3f} m  crash {m['crash_rate']:.2f}", flush=True)
+            print(f"{task:13s} {tier:9s} rms {m['rms_position_error_m']:.3f} m  crash {m['crash_rate']:.2f}",
+                  flush=True)
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    report = {"command": "python baselines/passivity_metrics.py" + (f" --episodes {args.episodes}" if args.episodes != 10 else ""),
-              "seed": args.seed, "action_mode": "actuators", "cells": cells, "wall_time_s": round(time.perf_counter() - t0, 1)}
+    command = "python baselines/passivity_metrics.py" + (f" --episodes {args.episodes}" if args.episodes != 10 else "")
+    report = {"command": command, "seed": args.seed, "action_mode": "actuators", "cells": cells,
+              "wall_time_s": round(time.perf_counter() - t0, 1)}
     args.json.write_text(json.dumps(report, indent=2))
     return 0
 

@@ -15,16 +15,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from softpvtol_gym import SoftPVTOLParams  # noqa: E402
-from softpvtol_gym.control import PassivityGains, simulate_closed_loop  # noqa: E402
+from softpvtol_gym import SoftPVTOLParams
+from softpvtol_gym.control import PassivityGains, simulate_closed_loop
 
 LOOP_NAMES = ("ideal", "paper", "improved")
 WINDOWS = ((0.0, 5.0), (5.0, 20.0), (20.0, 40.0))

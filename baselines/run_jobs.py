@@ -18,9 +18,7 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from baselines.jobs import RUNS_DIR, SPEC_FILE, load_jobs, pending, run_jobs  # noqa: E402
+from baselines.jobs import RUNS_DIR, SPEC_FILE, load_jobs, pending, run_jobs
 
 
 def main(argv=None) -> int:

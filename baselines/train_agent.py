@@ -39,7 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--timesteps", type=int, default=None, help="default: n_timesteps of the YAML entry")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--n-envs", type=int, default=None, help="default: n_envs of the YAML entry")
-    ap.add_argument("--out", type=Path, default=None, help="run directory (default runs/<algo>_<mode>_<task>_<tier>_s<seed>)")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="run directory (default runs/<algo>_<mode>_<task>_<tier>_s<seed>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out from its newest checkpoint")
     ap.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE", help="override a YAML hyperparameter")
     ap.add_argument("--checkpoint-freq", type=int, default=100_000, help="env steps between checkpoints")
@@ -57,7 +58,8 @@ def make_config(args: argparse.Namespace, ap: argparse.ArgumentParser) -> RunCon
     if args.eval_episodes < 0:
         ap.error(f"--eval-episodes must be >= 0, got {args.eval_episodes}")
     if args.seed < 0 or args.seed >= EVAL_SEED_OFFSET // 2:
-        ap.error(f"--seed must be in [0, {EVAL_SEED_OFFSET // 2}) (evaluation seeds start at {EVAL_SEED_OFFSET}), got {args.seed}")
+        ap.error(f"--seed must be in [0, {EVAL_SEED_OFFSET // 2}) (evaluation seeds start at {EVAL_SEED_OFFSET}), "
+                 f"got {args.seed}")
     try:
         hp = apply_overrides(load_hyperparams(args.algo, args.action_mode), args.hp)
     except ConfigError as exc:
@@ -68,9 +70,10 @@ def make_config(args: argparse.Namespace, ap: argparse.ArgumentParser) -> RunCon
         hp["n_envs"] = args.n_envs
     if args.timesteps is not None:
         overrides.append(f"n_timesteps={args.timesteps}")
+    timesteps = int(args.timesteps if args.timesteps is not None else hp.get("n_timesteps", 1_000_000))
     try:
         return RunConfig(algo=args.algo, action_mode=args.action_mode, task=args.task, tier=args.tier,
-                         timesteps=int(args.timesteps if args.timesteps is not None else hp.get("n_timesteps", 1_000_000)),
+                         timesteps=timesteps,
                          seed=args.seed, n_envs=int(hp.get("n_envs", 16)), hyperparams=hp, overrides=overrides,
                          checkpoint_freq=args.checkpoint_freq, eval_freq=args.eval_freq,
                          eval_episodes=args.eval_episodes)

@@ -18,8 +18,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .checkpoints import (CONFIG_FILE, MODEL_FILE, REPLAY_FILE, VECNORM_FILE, latest_checkpoint, load_resume_state, restore_rng,
-                          save_checkpoint)
+from .checkpoints import (
+    CONFIG_FILE,
+    MODEL_FILE,
+    REPLAY_FILE,
+    VECNORM_FILE,
+    latest_checkpoint,
+    load_resume_state,
+    restore_rng,
+    save_checkpoint,
+)
 from .config import ConfigError, RunConfig, algo_kwargs
 from .evaluation import EVAL_SEED_OFFSET, run_episodes, summarize
 
@@ -40,7 +48,7 @@ class LearnedPolicy:
         return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
 
     @classmethod
-    def load(cls, path: Path) -> tuple["LearnedPolicy", RunConfig]:
+    def load(cls, path: Path) -> tuple[LearnedPolicy, RunConfig]:
         """Load from a run directory, a checkpoint directory or a ``model.zip`` next to its
         ``vecnormalize.pkl`` and ``config.yaml``."""
         path = Path(path)

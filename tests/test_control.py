@@ -222,7 +222,9 @@ def test_controller_batched_equals_single_and_reset_mask():
         np.testing.assert_array_equal(ob.actuators[i], c(q[i], np.zeros(5), *refs).actuators)
 
 
-@pytest.mark.parametrize("kwargs", [dict(allocation="pinv"), dict(input_map="x"), dict(dt=0.0), dict(algebraic_iterations=0)])
+@pytest.mark.parametrize(
+    "kwargs", [dict(allocation="pinv"), dict(input_map="x"), dict(dt=0.0), dict(algebraic_iterations=0)]
+)
 def test_controller_bad_arguments(kwargs):
     with pytest.raises(ValueError):
         PassivityController(**kwargs)

@@ -32,7 +32,9 @@ NONDEFAULT = SoftPVTOLParams(m=3.0, m_l=0.7, m_r=1.3, I=0.8, I_l=0.05, I_r=0.15,
 PARAM_CASES = {
     "default": SoftPVTOLParams(),
     "nondefault": NONDEFAULT,
-    "light_arms": SoftPVTOLParams(m=1.5, m_l=0.05, m_r=2.5, I=0.3, I_l=0.01, I_r=0.4, l_l=1.2, l_r=0.2, g=3.7, epsilon=0.25),
+    "light_arms": SoftPVTOLParams(
+        m=1.5, m_l=0.05, m_r=2.5, I=0.3, I_l=0.01, I_r=0.4, l_l=1.2, l_r=0.2, g=3.7, epsilon=0.25
+    ),
 }
 
 
@@ -209,7 +211,9 @@ def test_hover_equilibrium():
     q = np.array([1.0, 2.0, 0.0, 0.0, 0.0])
     tau = dynamics.gravity_vector(q, p)
     np.testing.assert_allclose(dynamics.forward_dynamics(q, np.zeros(5), tau, p), 0.0, atol=1e-13)
-    np.testing.assert_allclose(tau, [0, 9.8 * (3.0 + 0.7 + 1.3), 0, 9.8 * 0.7 * 0.6 / 2, 9.8 * 1.3 * 0.4 / 2], rtol=1e-15)
+    np.testing.assert_allclose(
+        tau, [0, 9.8 * (3.0 + 0.7 + 1.3), 0, 9.8 * 0.7 * 0.6 / 2, 9.8 * 1.3 * 0.4 / 2], rtol=1e-15
+    )
 
 
 # ------------------------------------------------------------------------------------ RK4 step
@@ -263,7 +267,9 @@ TRAJECTORIES = {
 }
 
 
-def _dop853(p, q0, qd0, T, tau=np.zeros(5)):
+def _dop853(p, q0, qd0, T, tau=None):
+    tau = np.zeros(5) if tau is None else tau
+
     def f(t, y):
         return np.concatenate([y[5:], dynamics.forward_dynamics(y[:5], y[5:], tau, p)])
 
@@ -315,8 +321,9 @@ def test_rk4_energy_drift_is_fourth_order(name):
 
 
 def _grad_energy(q, qd, p, h=1e-6):
-    dq = np.array([(dynamics.total_energy(q + h * e, qd, p) - dynamics.total_energy(q - h * e, qd, p)) / (2 * h) for e in np.eye(5)])
-    dv = np.array([(dynamics.total_energy(q, qd + h * e, p) - dynamics.total_energy(q, qd - h * e, p)) / (2 * h) for e in np.eye(5)])
+    E = dynamics.total_energy
+    dq = np.array([(E(q + h * e, qd, p) - E(q - h * e, qd, p)) / (2 * h) for e in np.eye(5)])
+    dv = np.array([(E(q, qd + h * e, p) - E(q, qd - h * e, p)) / (2 * h) for e in np.eye(5)])
     return dq, dv
 
 
@@ -368,7 +375,8 @@ def exact_map_fd(q, a, p, h=1e-5):
     """Virtual work of the thrusts at the physical tips: Q_j = sum_i F_i . dp_i/dq_j (central FD)."""
     _, _, th, ql, qr = q
     Tl, Tr, tl, tr = a
-    F = np.array([rot(th) @ (Tl * np.array([np.sin(ql), np.cos(ql)])), rot(th) @ (Tr * np.array([-np.sin(qr), np.cos(qr)]))])
+    F = np.array([rot(th) @ (Tl * np.array([np.sin(ql), np.cos(ql)])),
+                  rot(th) @ (Tr * np.array([-np.sin(qr), np.cos(qr)]))])
     Q = np.zeros(5)
     for j, e in enumerate(np.eye(5)):
         dtips = (dynamics.arm_tip_positions(q + h * e, p) - dynamics.arm_tip_positions(q - h * e, p)) / (2 * h)
@@ -507,7 +515,9 @@ def test_batched_equals_loop_bit_for_bit(fn):
         assert np.array_equal(out[idx], single), (fn, idx)
 
 
-@pytest.mark.parametrize("fn", ["coriolis_matrix", "forward_dynamics", "kinetic_energy", "total_energy", "rk4_step_q", "rk4_step_qdot"])
+@pytest.mark.parametrize(
+    "fn", ["coriolis_matrix", "forward_dynamics", "kinetic_energy", "total_energy", "rk4_step_q", "rk4_step_qdot"]
+)
 def test_broadcast_batch_of_q_against_single_qdot(fn):
     rng = np.random.default_rng(12)
     call = _batched_calls(NONDEFAULT)[fn]

@@ -54,7 +54,7 @@ def _one_numba_thread():
 _MAX_POLE = 6  # the closed forms have poles of order <= 5 in each curvature
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def limit_at_zero(expr, var):
     """Exact lim_{var -> 0} of an expression polynomial in (var, 1/var, sin var, cos var).
 
@@ -73,7 +73,7 @@ def limit_at_zero(expr, var):
     return coeffs.get(_MAX_POLE, sp.Integer(0))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _symbolic_model():
     """Derive everything symbolically once; return mpmath-lambdified evaluators per q = 0 pattern."""
     x, z, th, ql, qr = sp.symbols("x z theta q_l q_r", real=True)
@@ -110,7 +110,9 @@ def _symbolic_model():
         for j in range(5):
             C[k, j] = sp.expand(
                 sum(
-                    sp.Rational(1, 2) * (sp.diff(D[k, j], q[i]) + sp.diff(D[k, i], q[j]) - sp.diff(D[i, j], q[k])) * qd[i]
+                    sp.Rational(1, 2)
+                    * (sp.diff(D[k, j], q[i]) + sp.diff(D[k, i], q[j]) - sp.diff(D[i, j], q[k]))
+                    * qd[i]
                     for i in range(5)
                 )
             )
@@ -237,7 +239,8 @@ def random_params(rng) -> SoftPVTOLParams:
 
 def random_state(rng):
     q = np.array(
-        [rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(-np.pi, np.pi), rng.uniform(-np.pi, np.pi), rng.uniform(-np.pi, np.pi)]
+        [rng.uniform(-3, 3), rng.uniform(-3, 3),
+         rng.uniform(-np.pi, np.pi), rng.uniform(-np.pi, np.pi), rng.uniform(-np.pi, np.pi)]
     )
     qd = rng.uniform(-3.0, 3.0, size=5)
     a = np.array([rng.uniform(0, 40), rng.uniform(0, 40), rng.uniform(-5, 5), rng.uniform(-5, 5)])

@@ -60,10 +60,13 @@ def test_statistics_match_the_per_episode_data():
         lo, hi = row["rms_position_error_ci"]
         assert lo <= row["rms_position_error_iqm"] <= hi
         if "prob_improvement" in row:
-            assert 0.0 <= row["prob_improvement_ci"][0] <= row["prob_improvement"] <= row["prob_improvement_ci"][1] <= 1.0
+            lo, hi = row["prob_improvement_ci"]
+            assert 0.0 <= lo <= row["prob_improvement"] <= hi <= 1.0
 
 
-@pytest.mark.parametrize("checkpoint, train_tier, task", LEARNED, ids=[c[0].split("leaderboard_runs/")[-1] for c in LEARNED])
+@pytest.mark.parametrize(
+    "checkpoint, train_tier, task", LEARNED, ids=[c[0].split("leaderboard_runs/")[-1] for c in LEARNED]
+)
 def test_committed_checkpoint_reproduces_its_leaderboard_episodes(checkpoint, train_tier, task):
     from baselines.training import LearnedPolicy
 
@@ -90,7 +93,8 @@ def test_jobs_run_with_any_executor_and_reevaluate_identically(tmp_path):
 
     spec = tmp_path / "spec.yml"
     spec.write_text("evaluation: {episodes: 2, seed: 1000000, tiers: [nominal, wind]}\n"
-                    "passivity: [{name: passivity-exact, allocation: exact}, {name: passivity-paper, allocation: paper}]\n"
+                    "passivity: [{name: passivity-exact, allocation: exact}, "
+                    "{name: passivity-paper, allocation: paper}]\n"
                     "tasks: [hover]\ntrained: []\nseeds: [0]\n")
     jobs = load_jobs(spec)
     assert [j.name for j in jobs] == ["passivity-exact_hover", "passivity-paper_hover"]

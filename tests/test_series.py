@@ -37,7 +37,7 @@ LIMITS_AT_ZERO = {"S0": 1, "C1": sp.Rational(1, 2), "A": sp.Rational(1, 3), "D1p
                   "D2": sp.Rational(1, 2), "D2pq": sp.Rational(-1, 4)}  # fmt: skip
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _evaluator(name):
     return sp.lambdify(_q, BASIS[name], modules="mpmath"), sp.limit(BASIS[name], _q, 0)
 

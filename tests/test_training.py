@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
+from baselines.config import ConfigError, RunConfig, _parse_dict_call, algo_kwargs, apply_overrides, load_hyperparams
 from baselines.evaluate import main as evaluate_main
 from baselines.train_agent import main as train_main
-from baselines.config import ConfigError, RunConfig, _parse_dict_call, algo_kwargs, apply_overrides, load_hyperparams
 
 ROOT = Path(__file__).resolve().parents[1]
 # a short configuration: 4 envs x 64 steps per rollout, checkpoints every rollout
