@@ -306,6 +306,32 @@ def tip_positions_into(q, p, out):
         out[i, 1] = q[1] + st * rx + ct * rz
 
 
+#: ``input_map`` code of :func:`held_force`: the held command is the generalized force tau itself
+HELD_TAU = -1
+
+
+@_inline
+def held_force(q, u, ext, p, input_map):
+    """Generalized force at the configuration q under a held command u, plus an external force
+    ext = (f_x, f_z) on the body, as a 5-tuple.
+
+    ``input_map`` ``INPUT_MAP_PAPER`` / ``INPUT_MAP_EXACT``: u = (T_l, T_r, tau_l, tau_r[, unused]) are
+    the actuators and tau = B(q) u (:func:`generalized_forces`), so B is evaluated at q; ``HELD_TAU``:
+    u is the generalized force (5) itself.
+    """
+    if input_map == HELD_TAU:
+        t = (u[0], u[1], u[2], u[3], u[4])
+    else:
+        t = generalized_forces(q, u, p, input_map)
+    return (t[0] + ext[0], t[1] + ext[1], t[2], t[3], t[4])
+
+
+@_inline
+def _axpy5(x, c, v):
+    """x + c v for 5-tuples."""
+    return (x[0] + c * v[0], x[1] + c * v[1], x[2] + c * v[2], x[3] + c * v[3], x[4] + c * v[4])
+
+
 @_inline
 def _rk4_combine(x, v, a1, a2, a3, a4, h, dt, c):
     """RK4 update of one coordinate from its four stage accelerations."""
@@ -316,58 +342,51 @@ def _rk4_combine(x, v, a1, a2, a3, a4, h, dt, c):
 
 
 @_inline
-def rk4_step(q, qd, tau, p, dt):
-    """One classical RK4 step of (q, qdot) with the generalized force tau held over the step.
+def rk4_step(q, qd, u, ext, p, dt, input_map):
+    """One classical RK4 step of (q, qdot) with the command u and the external force ext held
+    (zero-order hold): at every stage the generalized force is :func:`held_force` at that stage's
+    configuration, so held actuators see B(q) move with the state; with ``HELD_TAU`` the
+    generalized force itself is held.
 
-    q, qd, tau (5) and p (10) are arrays or tuples; returns (q_next, qdot_next) as two 5-tuples.
+    q, qd, u (5), ext (2) and p (10) are arrays or tuples; returns (q_next, qdot_next) as 5-tuples.
+    Stages: (q, v), (q + h v, v + h k1), (q + h v2, v + h k2), (q + dt v3, v + dt k3), h = dt / 2.
     """
     h = 0.5 * dt
-    k1 = qddot(q[3], q[4], qd[3], qd[4], tau, p)
-    # stage 2 at t + dt/2: positions q + h*v, velocities v + h*k1 (only the arm entries enter qddot)
-    k2 = qddot(q[3] + h * qd[3], q[4] + h * qd[4], qd[3] + h * k1[3], qd[4] + h * k1[4], tau, p)
-    # stage 3: positions q + h*(v + h*k1), velocities v + h*k2
-    k3 = qddot(
-        q[3] + h * (qd[3] + h * k1[3]),
-        q[4] + h * (qd[4] + h * k1[4]),
-        qd[3] + h * k2[3],
-        qd[4] + h * k2[4],
-        tau,
-        p,
-    )
-    # stage 4: positions q + dt*(v + h*k2), velocities v + dt*k3
-    k4 = qddot(
-        q[3] + dt * (qd[3] + h * k2[3]),
-        q[4] + dt * (qd[4] + h * k2[4]),
-        qd[3] + dt * k3[3],
-        qd[4] + dt * k3[4],
-        tau,
-        p,
-    )
+    v1 = (qd[0], qd[1], qd[2], qd[3], qd[4])
+    k1 = qddot(q[3], q[4], v1[3], v1[4], held_force(q, u, ext, p, input_map), p)
+    q2, v2 = _axpy5(q, h, v1), _axpy5(v1, h, k1)
+    k2 = qddot(q2[3], q2[4], v2[3], v2[4], held_force(q2, u, ext, p, input_map), p)
+    q3, v3 = _axpy5(q, h, v2), _axpy5(v1, h, k2)
+    k3 = qddot(q3[3], q3[4], v3[3], v3[4], held_force(q3, u, ext, p, input_map), p)
+    q4, v4 = _axpy5(q, dt, v3), _axpy5(v1, dt, k3)
+    k4 = qddot(q4[3], q4[4], v4[3], v4[4], held_force(q4, u, ext, p, input_map), p)
     c = dt / 6.0
-    x0, v0 = _rk4_combine(q[0], qd[0], k1[0], k2[0], k3[0], k4[0], h, dt, c)
-    x1, v1 = _rk4_combine(q[1], qd[1], k1[1], k2[1], k3[1], k4[1], h, dt, c)
-    x2, v2 = _rk4_combine(q[2], qd[2], k1[2], k2[2], k3[2], k4[2], h, dt, c)
-    x3, v3 = _rk4_combine(q[3], qd[3], k1[3], k2[3], k3[3], k4[3], h, dt, c)
-    x4, v4 = _rk4_combine(q[4], qd[4], k1[4], k2[4], k3[4], k4[4], h, dt, c)
-    return (x0, x1, x2, x3, x4), (v0, v1, v2, v3, v4)
+    x0, w0 = _rk4_combine(q[0], qd[0], k1[0], k2[0], k3[0], k4[0], h, dt, c)
+    x1, w1 = _rk4_combine(q[1], qd[1], k1[1], k2[1], k3[1], k4[1], h, dt, c)
+    x2, w2 = _rk4_combine(q[2], qd[2], k1[2], k2[2], k3[2], k4[2], h, dt, c)
+    x3, w3 = _rk4_combine(q[3], qd[3], k1[3], k2[3], k3[3], k4[3], h, dt, c)
+    x4, w4 = _rk4_combine(q[4], qd[4], k1[4], k2[4], k3[4], k4[4], h, dt, c)
+    return (x0, x1, x2, x3, x4), (w0, w1, w2, w3, w4)
 
 
 @_jit
-def rk4_step_tuple(q, qd, tau, p, dt):
+def rk4_step_tuple(q, qd, u, ext, p, dt, input_map):
     """:func:`rk4_step` as a compiled call (tuples in and out): the one non-inlined copy of the step,
     shared by the array wrapper and partial lane blocks (inlining costs compile time)."""
-    return rk4_step(q, qd, tau, p, dt)
+    return rk4_step(q, qd, u, ext, p, dt, input_map)
 
 
 @_jit
-def rk4_step_into(q, qd, tau, p, dt, q_out, qd_out):
+def rk4_step_into(q, qd, u, ext, p, dt, input_map, q_out, qd_out):
     """:func:`rk4_step` on arrays. Allocation-free; ``q_out``/``qd_out`` may alias ``q``/``qd``."""
     qn, vn = rk4_step_tuple(
         (q[0], q[1], q[2], q[3], q[4]),
         (qd[0], qd[1], qd[2], qd[3], qd[4]),
-        (tau[0], tau[1], tau[2], tau[3], tau[4]),
+        (u[0], u[1], u[2], u[3], u[4]),
+        (ext[0], ext[1]),
         (p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9]),
         dt,
+        input_map,
     )
     q_out[0], q_out[1], q_out[2], q_out[3], q_out[4] = qn
     qd_out[0], qd_out[1], qd_out[2], qd_out[3], qd_out[4] = vn
@@ -376,9 +395,9 @@ def rk4_step_into(q, qd, tau, p, dt, q_out, qd_out):
 # ------------------------------------------------------------------------------------ SIMD lanes
 #: width of a lane block: W holds LANES states structure-of-arrays, W[row * LANES + lane]
 LANES = 64
-#: lane rows of :func:`rk4_lanes`: q (5), qdot (5), tau (5), p (10)
-LANE_Q, LANE_QD, LANE_TAU, LANE_P = 0, 5, 10, 15
-LANE_ROWS_RK4 = 25
+#: lane rows of :func:`rk4_lanes`: q (5), qdot (5), held command u (5), external force (2), p (10)
+LANE_Q, LANE_QD, LANE_U, LANE_EXT, LANE_P = 0, 5, 10, 15, 17
+LANE_ROWS_RK4 = 27
 
 
 @_inline
@@ -387,12 +406,14 @@ def _lane_load(W, j):
     q = (W[j], W[L + j], W[2 * L + j], W[3 * L + j], W[4 * L + j])
     o = LANE_QD * L + j
     qd = (W[o], W[o + L], W[o + 2 * L], W[o + 3 * L], W[o + 4 * L])
-    o = LANE_TAU * L + j
-    tau = (W[o], W[o + L], W[o + 2 * L], W[o + 3 * L], W[o + 4 * L])
+    o = LANE_U * L + j
+    u = (W[o], W[o + L], W[o + 2 * L], W[o + 3 * L], W[o + 4 * L])
+    o = LANE_EXT * L + j
+    ext = (W[o], W[o + L])
     o = LANE_P * L + j
     p = (W[o], W[o + L], W[o + 2 * L], W[o + 3 * L], W[o + 4 * L],
          W[o + 5 * L], W[o + 6 * L], W[o + 7 * L], W[o + 8 * L], W[o + 9 * L])
-    return q, qd, tau, p
+    return q, qd, u, ext, p
 
 
 @_inline
@@ -404,7 +425,7 @@ def _lane_store(W, j, qn, vn):
 
 
 @_jit
-def rk4_lanes(W, dt, m):
+def rk4_lanes(W, dt, m, input_map):
     """:func:`rk4_step` in place on the first m lanes of a lane block W (rows ``LANE_*``).
 
     A full block (m == LANES) runs a loop of constant trip count over the inlined step, which LLVM
@@ -412,13 +433,13 @@ def rk4_lanes(W, dt, m):
     """
     if m == LANES:
         for j in range(LANES):
-            q, qd, tau, p = _lane_load(W, j)
-            qn, vn = rk4_step(q, qd, tau, p, dt)
+            q, qd, u, ext, p = _lane_load(W, j)
+            qn, vn = rk4_step(q, qd, u, ext, p, dt, input_map)
             _lane_store(W, j, qn, vn)
     else:
         for j in range(m):
-            q, qd, tau, p = _lane_load(W, j)
-            qn, vn = rk4_step_tuple(q, qd, tau, p, dt)
+            q, qd, u, ext, p = _lane_load(W, j)
+            qn, vn = rk4_step_tuple(q, qd, u, ext, p, dt, input_map)
             _lane_store(W, j, qn, vn)
 
 
@@ -482,7 +503,9 @@ def batch_tip_positions(q, P, out):
 
 
 @_batch
-def batch_rk4_step(q, qd, tau, P, dt, q_out, qd_out):
+def batch_rk4_step(q, qd, u, ext, P, dt, input_map, q_out, qd_out):
+    """u (N, 5): held commands (actuators padded to 5, or tau with ``HELD_TAU``); ext (N, 2) or (1, 2)."""
     ps = np.int64(P.shape[0] > 1)
+    es = np.int64(ext.shape[0] > 1)
     for n in range(q.shape[0]):
-        rk4_step_into(q[n], qd[n], tau[n], P[n * ps], dt, q_out[n], qd_out[n])
+        rk4_step_into(q[n], qd[n], u[n], ext[n * es], P[n * ps], dt, input_map, q_out[n], qd_out[n])

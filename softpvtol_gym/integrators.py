@@ -9,9 +9,10 @@ import numpy as np
 from . import _kernels as K
 from ._batching import broadcast_batch, check_curvature, param_matrix
 from ._parallel import run_rows
+from .dynamics import input_map_code
 from .params import SoftPVTOLParams
 
-__all__ = ["rk4_step", "rollout"]
+__all__ = ["rk4_step", "rk4_step_actuated", "rollout"]
 
 
 def _check_dt(dt: float) -> float:
@@ -27,10 +28,35 @@ def rk4_step(q, qdot, tau, params: SoftPVTOLParams, dt: float = 0.01) -> tuple[n
     """
     dt = _check_dt(dt)
     lead, (qf, vf, tf) = broadcast_batch(q=(q, 5), qdot=(qdot, 5), tau=(tau, 5))
+    return _step(lead, qf, vf, tf, np.zeros((1, 2)), params, dt, K.HELD_TAU)
+
+
+def rk4_step_actuated(q, qdot, actuators, params: SoftPVTOLParams, dt: float = 0.01, input_map: str = "paper",
+                      external_force=None) -> tuple[np.ndarray, np.ndarray]:
+    """Classical RK4 step of (q, qdot) over ``dt`` seconds with the actuators held (zero-order hold).
+
+    The actuators a = (T_l, T_r, tau_l, tau_r) are held, not the generalized force: at every RK4 stage
+    tau = B(q_stage) a (:func:`~softpvtol_gym.dynamics.generalized_forces` with ``input_map``), plus the
+    held ``external_force`` (f_x, f_z) [N] on the body (default none). This is the env's physics step.
+
+    Shapes: q, qdot (..., 5), actuators (..., 4), external_force (..., 2), broadcast together.
+    Returns (q_next, qdot_next), each (..., 5).
+    """
+    dt = _check_dt(dt)
+    code = input_map_code(input_map)
+    ext = np.zeros(2) if external_force is None else external_force
+    lead, (qf, vf, af, ef) = broadcast_batch(q=(q, 5), qdot=(qdot, 5), actuators=(actuators, 4),
+                                             external_force=(ext, 2))
+    u = np.zeros((af.shape[0], 5))
+    u[:, :4] = af
+    return _step(lead, qf, vf, u, ef, params, dt, code)
+
+
+def _step(lead, qf, vf, u, ef, params, dt, code):
     check_curvature(qf)
     q_out = np.empty_like(qf)
     v_out = np.empty_like(vf)
-    run_rows(K.batch_rk4_step, qf.shape[0], qf, vf, tf, param_matrix(params), dt, q_out, v_out)
+    run_rows(K.batch_rk4_step, qf.shape[0], qf, vf, u, ef, param_matrix(params), dt, code, q_out, v_out)
     return q_out.reshape(lead + (5,)), v_out.reshape(lead + (5,))
 
 

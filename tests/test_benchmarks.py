@@ -156,12 +156,19 @@ def test_residual_env_and_policy_run_the_fused_controller():
 
 
 # ---------------------------------------------------------------------------------- physics
+@pytest.mark.parametrize("held", ["tau", "paper", "exact"])
 @pytest.mark.parametrize("n", [1, 5, MK.LANES, 2 * MK.LANES + 5])
-def test_rk4_lanes_match_public_rk4(n):
+def test_rk4_lanes_match_public_rk4(n, held):
+    """The lane kernel = the public RK4 step, for a held tau and for held actuators (both input maps)."""
     rng = np.random.default_rng(n)
     q = rng.uniform(-1, 1, (n, 5)) * [5, 5, 3, 2.5, 2.5]
     qd = rng.uniform(-3, 3, (n, 5))
-    tau = rng.uniform(-80, 80, (n, 5))
+    u = rng.uniform(-80, 80, (n, 5))
+    ext = rng.uniform(-5, 5, (n, 2))
+    if held != "tau":
+        u[:, :2] = np.abs(u[:, :2])
+        u[:, 4] = 0.0
+    code = MK.HELD_TAU if held == "tau" else dynamics.input_map_code(held)
     Pm = P.array * rng.uniform(0.8, 1.2, (n, 10))
     L = MK.LANES
     for b in range(0, n, L):
@@ -170,23 +177,29 @@ def test_rk4_lanes_match_public_rk4(n):
         for i in range(5):
             W[(MK.LANE_Q + i) * L:(MK.LANE_Q + i) * L + m] = q[b:b + m, i]
             W[(MK.LANE_QD + i) * L:(MK.LANE_QD + i) * L + m] = qd[b:b + m, i]
-            W[(MK.LANE_TAU + i) * L:(MK.LANE_TAU + i) * L + m] = tau[b:b + m, i]
+            W[(MK.LANE_U + i) * L:(MK.LANE_U + i) * L + m] = u[b:b + m, i]
+        for i in range(2):
+            W[(MK.LANE_EXT + i) * L:(MK.LANE_EXT + i) * L + m] = ext[b:b + m, i]
         for i in range(10):
             W[(MK.LANE_P + i) * L:(MK.LANE_P + i) * L + m] = Pm[b:b + m, i]
-        MK.rk4_lanes(W, 0.01, m)
+        MK.rk4_lanes(W, 0.01, m, code)
         for j in range(m):
-            qn, vn = integrators.rk4_step(q[b + j], qd[b + j], tau[b + j], SoftPVTOLParams.from_array(Pm[b + j]))
+            p = SoftPVTOLParams.from_array(Pm[b + j])
+            if held == "tau":
+                qn, vn = integrators.rk4_step(q[b + j], qd[b + j], u[b + j] + np.r_[ext[b + j], 0, 0, 0], p)
+            else:
+                qn, vn = integrators.rk4_step_actuated(q[b + j], qd[b + j], u[b + j, :4], p, 0.01, held, ext[b + j])
             np.testing.assert_allclose([W[(MK.LANE_Q + i) * L + j] for i in range(5)], qn, **TOL)
             np.testing.assert_allclose([W[(MK.LANE_QD + i) * L + j] for i in range(5)], vn, **TOL)
 
 
 def test_vector_env_physics_matches_public_api():
-    """One step of the compiled env (SIMD blocks + remainder) = generalized_forces + rk4_step of the
-    public API on the applied actuators; energy and storage in info = total_energy, storage_function."""
+    """One step of the compiled env (SIMD blocks + remainder) = rk4_step_actuated of the public API on
+    the applied actuators (held); energy and storage in info = total_energy, storage_function."""
     n = 2 * MK.LANES + 5
     venv = SoftPVTOLVectorEnv(num_envs=n, tier="mismatch", task="setpoint")
     venv.reset(seed=3)
-    sim = venv._sim
+    sim = venv.sim
     rng = np.random.default_rng(0)
     for _ in range(3):
         q0, qd0, Pm = sim.q.copy(), sim.qd.copy(), sim.P.copy()
@@ -194,8 +207,7 @@ def test_vector_env_physics_matches_public_api():
         a = sim.applied[:, :4]
         for i in range(n):
             p = SoftPVTOLParams.from_array(Pm[i])
-            tau = dynamics.generalized_forces(q0[i], a[i], p)
-            q1, v1 = integrators.rk4_step(q0[i], qd0[i], tau, p, 0.01)
+            q1, v1 = integrators.rk4_step_actuated(q0[i], qd0[i], a[i], p, 0.01)
             np.testing.assert_allclose(sim.q[i], q1, **TOL)
             np.testing.assert_allclose(sim.qd[i], v1, **TOL)
             np.testing.assert_allclose(info["total_energy"][i], dynamics.total_energy(q1, v1, p), **TOL)

@@ -7,9 +7,8 @@ import pytest
 import softpvtol_gym  # noqa: F401
 from softpvtol_gym import PassivityPolicy, SoftPVTOLEnv, SoftPVTOLVectorEnv
 from softpvtol_gym.control import PassivityController, paper_reference
-from softpvtol_gym.dynamics import generalized_forces
 from softpvtol_gym.envs.core import PAPER_Q0
-from softpvtol_gym.integrators import rk4_step
+from softpvtol_gym.integrators import rk4_step_actuated
 
 # The paper's controller asks for arm torques of up to ~600 N m in transients; with the default
 # tau_max (9.8 N m) it saturates and falls. Its reproduction and error bounds use these limits.
@@ -29,8 +28,7 @@ def test_residual_zero_is_passivity_controller_bit_for_bit(allocation, input_map
     v = np.zeros((1, 5))
     for k in range(n):
         out = ctrl(q, v, *paper_reference(np.array([k * 0.01])))
-        tau = generalized_forces(q, out.actuators, p, input_map)
-        q, v = rk4_step(q, v, tau, p, 0.01)
+        q, v = rk4_step_actuated(q, v, out.actuators, p, 0.01, input_map)
         env.step(np.zeros(5, np.float32))
         qe, ve = env.state
         np.testing.assert_array_equal(qe, q[0])
@@ -57,7 +55,7 @@ def test_nonzero_residual_is_applied_once_in_its_own_space(space):
             act = ctrl(q, v, *ref).actuators + u * cfg.residual_actuator_scale
         act[:, :2] = np.clip(act[:, :2], 0.0, cfg.thrust_max)
         act[:, 2:] = np.clip(act[:, 2:], -cfg.arm_torque_max, cfg.arm_torque_max)
-        q, v = rk4_step(q, v, generalized_forces(q, act, p, cfg.input_map), p, 0.01)
+        q, v = rk4_step_actuated(q, v, act, p, 0.01, cfg.input_map)
         terminated = env.step(u.astype(np.float32))[2]
         assert not terminated
         # equal up to rounding (the env adds the residual inside its compiled controller step);

@@ -29,7 +29,7 @@ import numpy as np
 from .._batching import broadcast_batch, check_curvature
 from .._parallel import MIN_ROWS, run_rows
 from ..dynamics import forward_dynamics, generalized_forces, input_map_code
-from ..integrators import rk4_step
+from ..integrators import rk4_step, rk4_step_actuated
 from ..params import SoftPVTOLParams
 from . import _kernels as CK
 from .allocation import ALLOCATION_METHODS, AllocationInfo, _allocation_info
@@ -279,7 +279,8 @@ def simulate_closed_loop(
     closed loop as the paper's Simulink model does, and solves the algebraic loop with 3 fixed-point
     passes; the controller's memory (warm start, arm-reference history for the feedforward) advances
     once per step. ``hold="step"`` holds the control over each step (zero-order hold), as the
-    Gymnasium env does.
+    Gymnasium env does: the actuated loops hold the actuators (B(q) re-evaluated at every RK4 stage),
+    the ideal loop holds tau.
 
     Returns time series: ``t`` (T+1,), ``q``, ``qdot``, ``q_ref``, ``qdot_ref`` (T+1, 5); per step, at
     its start: ``tau`` (commanded, T x 5), ``tau_applied`` (through the input map, T x 5),
@@ -319,8 +320,11 @@ def simulate_closed_loop(
             act[k] = out.actuators
             resid[k] = out.allocation.residual
         tau_cmd[k], tau_app[k], arm_ref[k] = out.tau, tau, out.arm_reference
-        if hold == "step":
-            q, v = rk4_step(q, v, tau, plant, dt)
+        if hold == "step":  # zero-order hold of the command: the actuators (B(q) at every stage), or tau
+            if out.actuators is None:
+                q, v = rk4_step(q, v, tau, plant, dt)
+            else:
+                q, v = rk4_step_actuated(q, v, out.actuators, plant, dt, input_map)
         else:
             h = 0.5 * dt
             a2 = closed_loop(tk + h, q + h * v, v + h * a1, False)[0]

@@ -766,7 +766,7 @@ def _lane5(W, row, j):
 
 @MK._inline
 def _diag_lane_in(W, j):
-    q, qd, _tau, p = MK._lane_load(W, j)
+    q, qd, _u, _ext, p = MK._lane_load(W, j)
     L = MK.LANES
     qr = (W[L_QR * L + j], W[(L_QR + 1) * L + j], W[(L_QR + 2) * L + j])
     qdr = (W[L_QDR * L + j], W[(L_QDR + 1) * L + j], W[(L_QDR + 2) * L + j])
@@ -789,27 +789,19 @@ def _diag_lanes(W, m, pnom, lam, kg):
 
 @_jit
 def _physics_range(lo, hi, F, C, K, W):
-    """frame_skip RK4 steps of envs lo .. hi - 1 in the lanes of W, the command held (B(q)
-    re-evaluated at each step)."""
-    mode, imap = K[K_MODE], K[K_IMAP]
-    dt = C[CF_DT]
-    wind_on = C[CF_FLAGS + 1] > 0.0
+    """frame_skip RK4 steps of envs lo .. hi - 1 in the lanes of W with the applied command and the
+    wind held (zero-order hold): held actuators go through B(q) at every RK4 stage; in ideal mode the
+    generalized force itself is held."""
+    L = MK.LANES
+    held = MK.HELD_TAU if K[K_MODE] == MODE_IDEAL else K[K_IMAP]
+    for n in range(lo, hi):
+        j = n - lo
+        for i in range(5):  # (a 4-entry actuator command has NaN in F's fifth entry: pad with 0)
+            W[(MK.LANE_U + i) * L + j] = F[n, F_APPLIED + i] if (i < 4 or held == MK.HELD_TAU) else 0.0
+        W[MK.LANE_EXT * L + j] = F[n, F_WIND]  # (0 unless the wind is on)
+        W[(MK.LANE_EXT + 1) * L + j] = F[n, F_WIND + 1]
     for _ in range(int(C[CF_FS])):
-        for n in range(lo, hi):
-            j = n - lo
-            if mode == MODE_IDEAL:
-                t0, t1, t2, t3, t4 = _row5(F, n, F_APPLIED)
-            else:
-                t0, t1, t2, t3, t4 = MK.generalized_forces(
-                    _lane5(W, MK.LANE_Q, j),
-                    (F[n, F_APPLIED], F[n, F_APPLIED + 1], F[n, F_APPLIED + 2], F[n, F_APPLIED + 3]),
-                    _row10(F, n, F_P), imap,
-                )
-            if wind_on:
-                t0 += F[n, F_WIND]
-                t1 += F[n, F_WIND + 1]
-            _lane_put5(W, MK.LANE_TAU, j, (t0, t1, t2, t3, t4))
-        MK.rk4_lanes(W, dt, hi - lo)
+        MK.rk4_lanes(W, C[CF_DT], hi - lo, held)
 
 
 @_jit

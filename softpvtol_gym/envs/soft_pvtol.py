@@ -223,6 +223,12 @@ class SoftPVTOLEnv(gym.Env):
 
     # --------------------------------------------------------------------------------- access
     @property
+    def sim(self) -> core.BatchSim:
+        """The batched simulator behind this env (N = 1): named views of its state (``q``, ``qd``,
+        ``qr``, ``qdr``, ``qddr``, ``P``, ``wind``, ``lag``, ``applied``, ...). Read them; do not write."""
+        return self._sim
+
+    @property
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """True (q, qdot) of the plant (copies)."""
         return self._sim.q[0].copy(), self._sim.qd[0].copy()

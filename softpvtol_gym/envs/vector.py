@@ -195,6 +195,13 @@ class SoftPVTOLVectorEnv(VectorEnv):
 
     # --------------------------------------------------------------------------------- access
     @property
+    def sim(self) -> core.BatchSim:
+        """The batched simulator behind this env: named (num_envs, ...) views of its state (``q``,
+        ``qd``, ``qr``, ``qdr``, ``qddr``, ``P``, ``wind``, ``lag``, ``applied``, ...). Read them; do not
+        write."""
+        return self._sim
+
+    @property
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         return self._sim.q.copy(), self._sim.qd.copy()
 
