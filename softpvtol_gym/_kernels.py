@@ -30,6 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
+from ._layout import Layout
 from ._series import COEFFICIENTS
 
 _S0 = COEFFICIENTS["S0"]
@@ -395,9 +396,10 @@ def rk4_step_into(q, qd, u, ext, p, dt, input_map, q_out, qd_out):
 # ------------------------------------------------------------------------------------ SIMD lanes
 #: width of a lane block: W holds LANES states structure-of-arrays, W[row * LANES + lane]
 LANES = 64
-#: lane rows of :func:`rk4_lanes`: q (5), qdot (5), held command u (5), external force (2), p (10)
-LANE_Q, LANE_QD, LANE_U, LANE_EXT, LANE_P = 0, 5, 10, 15, 17
-LANE_ROWS_RK4 = 27
+#: lane rows of :func:`rk4_lanes`: q, qdot, held command u, external force (f_x, f_z), params
+RK4_LANES = Layout("rk4_lanes", [("q", 5), ("qd", 5), ("u", 5), ("ext", 2), ("p", 10)])
+LANE_Q, LANE_QD, LANE_U, LANE_EXT, LANE_P = RK4_LANES.at
+LANE_ROWS_RK4 = RK4_LANES.size
 
 
 @_inline

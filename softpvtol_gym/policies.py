@@ -9,7 +9,8 @@ from .control import PassivityController
 from .control import _kernels as CK
 from .control.passivity import PassivityGains
 from ._parallel import row_ranges, run_split
-from .envs.core import OBS_DIM, EnvConfig
+from .envs.config import EnvConfig
+from .envs.observation import OBS_DIM
 
 __all__ = ["PassivityPolicy"]
 

@@ -428,7 +428,12 @@ def _numpy_sample_episodes(cfg, u):
             refp[:, b:b + 3] = amax * u[:, 13 + 9 * axis:16 + 9 * axis]
             refp[:, b + 3:b + 6] = 0.2 + 0.6 * u[:, 16 + 9 * axis:19 + 9 * axis]
             refp[:, b + 6:b + 9] = 2.0 * math.pi * u[:, 19 + 9 * axis:22 + 9 * axis]
-        r0, rd0, _ = core.reference(task, np.zeros(n), refp)
+        # the reference at t = 0: x = 0, z = z0, rates sum_k A_k w_k cos(phi_k)
+        r0, rd0 = np.zeros((n, 5)), np.zeros((n, 5))
+        r0[:, 1] = refp[:, 1]
+        for axis in range(2):
+            b = 3 + 9 * axis
+            rd0[:, axis] = (refp[:, b:b + 3] * refp[:, b + 3:b + 6] * np.cos(refp[:, b + 6:b + 9])).sum(axis=1)
         q0 = r0 + 0.5 * dq
         qd0 = rd0 + 0.5 * dqd
     P = np.repeat(cfg.params.array[None, :], n, axis=0)
@@ -455,6 +460,7 @@ def test_compiled_episode_sampling_equals_numpy_version(task, tier):
 
 
 # ------------------------------------------------------------------------- benchmark script
+@pytest.mark.slow  # benchmarks/run.py --quick in a subprocess
 def test_benchmark_script_runs_end_to_end_quick(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "run.py"), "--quick", "--out", str(tmp_path)],

@@ -144,6 +144,7 @@ class PassivityController:
         """Forget the warm start and arm-reference history (all, or the batch entries where mask)."""
         if mask is None or self._state is None:
             self._state: np.ndarray | None = None
+            self._spare: np.ndarray | None = None
             return
         # entries being reset restart from "no history" (re-seeded from the state on the next call)
         # and solve the allocation from the cold start (NaN warm start)
@@ -158,6 +159,7 @@ class PassivityController:
             self._state[rows, CK.ST_WARM:CK.ST_WARM + 4] = np.nan
 
     _state = None
+    _spare = None
 
     def state_rows(self, n: int) -> np.ndarray:
         """The memory (n, ``ST_LEN``) of a batch of n entries, created fresh at the first call."""
@@ -172,6 +174,19 @@ class PassivityController:
                 "call reset() before changing the batch size"
             )
         return self._state
+
+    def memory_pair(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(memory, spare) of a batch of n entries: a kernel reads the memory and writes every row's
+        memory after the step into the spare; :meth:`swap_memory` then makes the spare the memory (a
+        failed step swaps nothing, so it changes no memory)."""
+        S = self.state_rows(n)
+        if self._spare is None or self._spare.shape != S.shape:
+            self._spare = np.empty_like(S)
+        return S, self._spare
+
+    def swap_memory(self) -> None:
+        """Make the spare of :meth:`memory_pair` (written by a successful step) the memory."""
+        self._state, self._spare = self._spare, self._state
 
     @staticmethod
     def raise_for(err: np.ndarray, q: np.ndarray) -> None:

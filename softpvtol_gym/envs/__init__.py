@@ -1,12 +1,17 @@
 """Gymnasium environments: SoftPVTOL-v0 (single), its native vector env and the SB3 adapter."""
 
-from .core import ACTION_MODES, OBS_NAMES, REWARD_TERMS, TASKS, TIERS, EnvConfig
+from .actions import ACTION_MODES
+from .config import EnvConfig
+from .observation import OBS_NAMES
+from .reward import REWARD_TERMS
 from .soft_pvtol import SoftPVTOLEnv
+from .tiers import TIERS, TierSpec, register_tier
 from .vector import SoftPVTOLVectorEnv
+from ..tasks import TASKS
 
 __all__ = [
     "SoftPVTOLEnv", "SoftPVTOLVectorEnv", "EnvConfig", "ACTION_MODES", "TASKS", "TIERS", "OBS_NAMES",
-    "REWARD_TERMS", "register_envs",
+    "REWARD_TERMS", "TierSpec", "register_tier", "register_envs",
 ]
 
 

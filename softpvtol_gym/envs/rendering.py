@@ -8,13 +8,25 @@ from collections import deque
 import numpy as np
 
 from .. import _kernels as MK
-from .core import GROUND_Z, EnvConfig
+from .config import EnvConfig
+from .termination import GROUND_Z
 
 WIDTH, HEIGHT = 600, 450
 _ARC_POINTS = 16
-# world window (x_min, x_max, z_min) per task; z_max follows from the aspect ratio
-_VIEW = {"hover": (-4.0, 4.0, -1.5), "setpoint": (-5.0, 5.0, -1.5),
-         "track_paper": (-7.5, 7.5, -1.5), "track_random": (-5.0, 5.0, -1.0)}
+MIN_VIEW_WIDTH = 8.0  # m
+
+
+def task_view(spec) -> tuple[float, float, float]:
+    """World window (x_min, x_max, z_min) of a task (z_max follows from the aspect ratio): its
+    ``view``, or one fitted to its reference's x range over the episode (2.5 m margins, >= 8 m wide)."""
+    if spec.view is not None:
+        return spec.view
+    pos = spec.evaluate(np.linspace(0.0, spec.episode_seconds, 201))[0]
+    x0, x1 = float(pos[:, 0].min()) - 2.5, float(pos[:, 0].max()) + 2.5
+    if x1 - x0 < MIN_VIEW_WIDTH:
+        c = 0.5 * (x0 + x1)
+        x0, x1 = c - 0.5 * MIN_VIEW_WIDTH, c + 0.5 * MIN_VIEW_WIDTH
+    return x0, x1, min(GROUND_Z - 0.5, float(pos[:, 1].min()) - 2.0)
 
 
 class Renderer:
@@ -27,7 +39,7 @@ class Renderer:
         self.cfg = cfg
         self.mode = mode
         self.fps = fps
-        x0, x1, z0 = _VIEW[cfg.task]
+        x0, x1, z0 = task_view(cfg.task_spec)
         self.scale = WIDTH / (x1 - x0)
         self.x0, self.z0 = x0, z0
         self.trail: deque = deque(maxlen=300)

@@ -2,21 +2,23 @@
 
 from __future__ import annotations
 
-import math
-from typing import Any
-
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from ..params import SoftPVTOLParams
-from . import core
-from .core import EnvConfig
+from ._validation import choice
+from .batch_sim import BatchSim
+from .config import RENDER_MODES, EnvConfig
+from .episodes import N_UNIFORMS
+from .info import single_info
+from .observation import OBS_CLIP, OBS_DIM
+from .termination import R_NONE, REASONS
 
 
 def make_spaces(cfg: EnvConfig) -> tuple[spaces.Box, spaces.Box]:
     """(observation_space, action_space) of one env."""
-    obs = spaces.Box(-core.OBS_CLIP, core.OBS_CLIP, shape=(core.OBS_DIM,), dtype=np.float32)
+    obs = spaces.Box(-OBS_CLIP, OBS_CLIP, shape=(OBS_DIM,), dtype=np.float32)
     act = spaces.Box(-1.0, 1.0, shape=(cfg.action_dim,), dtype=np.float32)
     return obs, act
 
@@ -149,81 +151,43 @@ class SoftPVTOLEnv(gym.Env):
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 100}  # per instance: 1 / control period
 
-    def __init__(
-        self,
-        action_mode: str = "actuators",
-        task: str = "hover",
-        tier: str = "nominal",
-        params: SoftPVTOLParams | None = None,
-        input_map: str = "paper",
-        allocation: str | None = None,
-        residual_space: str = "virtual",
-        residual_scale: float = 0.2,
-        render_mode: str | None = None,
-        frame_skip: int = 1,
-        max_episode_seconds: float | None = None,
-        tier_options: dict | None = None,
-        actuator_limits: tuple | None = None,
-    ) -> None:
-        if params is None:
-            params = SoftPVTOLParams()
-        self.config = EnvConfig(
-            action_mode=action_mode, task=task, tier=tier, params=params, input_map=input_map,
-            allocation=allocation, residual_space=residual_space, frame_skip=frame_skip,
-            max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
-            actuator_limits=actuator_limits,
-        )
-        core._choice("render_mode", render_mode, core.RENDER_MODES)
+    def __init__(self, render_mode: str | None = None, **config) -> None:
+        # the arguments of EnvConfig (see Arguments above), validated there: one signature for the
+        # single and the vector env
+        self.config = EnvConfig.from_kwargs(**config)
+        choice("render_mode", render_mode, RENDER_MODES)
         self.render_mode = render_mode
         self.observation_space, self.action_space = make_spaces(self.config)
-        self._sim = core.BatchSim(self.config, 1)
+        self._sim = BatchSim(self.config, 1)
         self.dt = self.config.dt
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.dt)))
         self._renderer = None
-        self._has_reset = False
 
     # ------------------------------------------------------------------------------------ api
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        u = self.np_random.random(core.N_UNIFORMS)[None, :]
+        u = self.np_random.random(N_UNIFORMS)[None, :]
         self._sim.reset_entries(np.array([0]), u, options)
-        self._has_reset = True
         if self._renderer is not None:
             self._renderer.clear_trail()
         if self.render_mode == "human":
             self.render()
-        return self._sim.obs[0].copy(), self._info(reset=True)
+        return self._sim.obs[0].copy(), single_info(self._sim, None)
 
     def step(self, action):
         sim = self._sim
         sim.step(action, batched=False)
         code = int(sim.reason[0])
-        terminated = code != core.R_NONE
+        terminated = code != R_NONE
         truncated = bool(sim.steps[0] >= sim.max_steps) and not terminated
-        info = self._info(reason=core.REASONS[code] if terminated else ("time_limit" if truncated else None))
+        info = single_info(sim, REASONS[code] if terminated else ("time_limit" if truncated else None))
         if self.render_mode == "human":
             self.render()
-        return sim.obs[0].copy(), float(sim.rew[0]), terminated, truncated, info
-
-    def _info(self, reset: bool = False, reason: str | None = None) -> dict[str, Any]:
-        sim = self._sim
-        d = sim.diag[0].tolist()
-        return {
-            "reward_terms": dict(zip(core.REWARD_TERMS, sim.terms[0].tolist())),
-            "total_energy": d[core.D_ENERGY],
-            "storage_function": d[core.D_STORAGE],
-            "curvature_violation": d[core.D_CURV_VIOL],
-            "allocation_residual": d[core.D_ALLOC_RES],
-            "thrust_saturated": bool(d[core.D_THRUST_SAT]),
-            "arm_torque_saturated": bool(d[core.D_TORQUE_SAT]),
-            "action_clipped": bool(sim.clipped[0]),
-            "termination_reason": reason,
-            "time": float(sim.t[0]),
-        }
+        return sim.obs[0].copy(), float(sim.reward[0]), terminated, truncated, info
 
     # --------------------------------------------------------------------------------- access
     @property
-    def sim(self) -> core.BatchSim:
+    def sim(self) -> BatchSim:
         """The batched simulator behind this env (N = 1): named views of its state (``q``, ``qd``,
         ``qr``, ``qdr``, ``qddr``, ``P``, ``wind``, ``lag``, ``applied``, ...). Read them; do not write."""
         return self._sim

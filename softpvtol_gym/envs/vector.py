@@ -9,18 +9,15 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ..params import SoftPVTOLParams
-from . import core
-from .core import EnvConfig
+from ._validation import choice
+from .batch_sim import BatchSim
+from .config import EnvConfig
+from .episodes import N_UNIFORMS
+from .info import batch_info
 from .soft_pvtol import make_spaces
+from .termination import R_NONE, REASONS
 
-
-_SATURATION_COLUMNS = [core.D_THRUST_SAT, core.D_TORQUE_SAT]
-_REASON_NAMES = np.array(core.REASONS, dtype=object)
-#: the "_"-prefixed mask keys of the info dict (gymnasium's vector-env convention)
-_MASK_KEYS = tuple("_" + k for k in ("reward_terms", "total_energy", "storage_function", "curvature_violation",
-                                      "allocation_residual", "thrust_saturated", "arm_torque_saturated",
-                                      "action_clipped", "termination_reason", "time"))
+_REASON_NAMES = np.array(REASONS, dtype=object)
 
 
 class SoftPVTOLVectorEnv(VectorEnv):
@@ -42,35 +39,13 @@ class SoftPVTOLVectorEnv(VectorEnv):
 
     metadata = {"render_modes": ["rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP, "render_fps": 100}
 
-    def __init__(
-        self,
-        num_envs: int = 1,
-        action_mode: str = "actuators",
-        task: str = "hover",
-        tier: str = "nominal",
-        params: SoftPVTOLParams | None = None,
-        input_map: str = "paper",
-        allocation: str | None = None,
-        residual_space: str = "virtual",
-        residual_scale: float = 0.2,
-        render_mode: str | None = None,
-        frame_skip: int = 1,
-        max_episode_seconds: float | None = None,
-        tier_options: dict | None = None,
-        actuator_limits: tuple | None = None,
-        autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
-    ) -> None:
+    def __init__(self, num_envs: int = 1, render_mode: str | None = None,
+                 autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP, **config) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an int >= 1, got {num_envs!r}")
-        if params is None:
-            params = SoftPVTOLParams()
-        self.config = EnvConfig(
-            action_mode=action_mode, task=task, tier=tier, params=params, input_map=input_map,
-            allocation=allocation, residual_space=residual_space, frame_skip=frame_skip,
-            max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
-            actuator_limits=actuator_limits,
-        )
-        core._choice("render_mode", render_mode, (None, "rgb_array"))
+        # the arguments of EnvConfig, as SoftPVTOLEnv (one signature for both)
+        self.config = EnvConfig.from_kwargs(**config)
+        choice("render_mode", render_mode, (None, "rgb_array"))
         try:
             self.autoreset_mode = AutoresetMode(autoreset_mode)
         except ValueError:
@@ -84,19 +59,18 @@ class SoftPVTOLVectorEnv(VectorEnv):
         self.single_observation_space, self.single_action_space = make_spaces(self.config)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self._sim = core.BatchSim(self.config, self.num_envs)
+        self._sim = BatchSim(self.config, self.num_envs)
         self._rngs: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(self.num_envs)]
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._all = np.arange(self.num_envs)
-        self._true = np.ones(self.num_envs, dtype=bool)
         self._renderer = None
 
     # ------------------------------------------------------------------------------ seeding
     def _draw(self, idx: np.ndarray) -> np.ndarray:
-        u = np.empty((idx.size, core.N_UNIFORMS))
+        u = np.empty((idx.size, N_UNIFORMS))
         rngs = self._rngs
         for j, i in enumerate(idx.tolist()):
-            rngs[i].random(out=u[j])  # = rngs[i].random(core.N_UNIFORMS), without a temporary
+            rngs[i].random(out=u[j])  # = rngs[i].random(N_UNIFORMS), without a temporary
         return u
 
     def reset(self, *, seed: int | list | None = None, options: dict | None = None):
@@ -113,7 +87,7 @@ class SoftPVTOLVectorEnv(VectorEnv):
         self._autoreset[:] = False
         if self._renderer is not None:
             self._renderer.clear_trail()
-        return self._sim.obs.copy(), self._infos(None)
+        return self._sim.obs.copy(), batch_info(self._sim, None)
 
     def step(self, actions):
         sim = self._sim
@@ -132,9 +106,9 @@ class SoftPVTOLVectorEnv(VectorEnv):
         else:
             sim.step(actions, batched=True)
         reason = sim.reason
-        terminated = reason != core.R_NONE
+        terminated = reason != R_NONE
         truncated = (sim.steps >= sim.max_steps) & ~terminated
-        rewards = sim.rew.copy()
+        rewards = sim.reward.copy()
         reasons = None
         done = terminated | truncated
         if done.any():
@@ -149,11 +123,11 @@ class SoftPVTOLVectorEnv(VectorEnv):
                 truncated[idx] = False
                 if reasons is not None:
                     reasons[idx] = None
-            infos = self._infos(reasons)
+            infos = batch_info(sim, reasons)
             obs = sim.obs.copy()
             self._autoreset = terminated | truncated
         elif mode == AutoresetMode.SAME_STEP:
-            infos = self._infos(reasons)
+            infos = batch_info(sim, reasons)
             obs = sim.obs.copy()
             idx = np.flatnonzero(done)
             if idx.size:
@@ -162,40 +136,18 @@ class SoftPVTOLVectorEnv(VectorEnv):
                     final_obs[i] = obs[i].copy()
                 infos["final_obs"] = final_obs
                 infos["_final_obs"] = done.copy()
-                infos["final_info"] = self._infos(reasons)
+                infos["final_info"] = batch_info(sim, reasons)
                 infos["_final_info"] = done.copy()
                 sim.reset_entries(idx, self._draw(idx))
                 obs[idx] = sim.obs[idx]
         else:
-            infos = self._infos(reasons)
+            infos = batch_info(sim, reasons)
             obs = sim.obs.copy()
         return obs, rewards, terminated, truncated, infos
 
-    def _infos(self, reasons) -> dict[str, Any]:
-        sim = self._sim
-        d = sim.diag.copy()  # one private copy each; the info arrays are its columns
-        t = sim.terms.copy()
-        m = self._true
-        sat = d[:, _SATURATION_COLUMNS] > 0.5
-        info = {
-            "reward_terms": dict(zip(core.REWARD_TERMS, t.T)),
-            "total_energy": d[:, core.D_ENERGY],
-            "storage_function": d[:, core.D_STORAGE],
-            "curvature_violation": d[:, core.D_CURV_VIOL],
-            "allocation_residual": d[:, core.D_ALLOC_RES],
-            "thrust_saturated": sat[:, 0],
-            "arm_torque_saturated": sat[:, 1],
-            "action_clipped": sim.clipped != 0,
-            # (np.empty of dtype object is None-filled)
-            "termination_reason": np.empty(self.num_envs, dtype=object) if reasons is None else reasons,
-            "time": sim.t.copy(),
-        }
-        info.update(dict.fromkeys(_MASK_KEYS, m))
-        return info
-
     # --------------------------------------------------------------------------------- access
     @property
-    def sim(self) -> core.BatchSim:
+    def sim(self) -> BatchSim:
         """The batched simulator behind this env: named (num_envs, ...) views of its state (``q``,
         ``qd``, ``qr``, ``qdr``, ``qddr``, ``P``, ``wind``, ``lag``, ``applied``, ...). Read them; do not
         write."""

@@ -1,0 +1,38 @@
+"""Action modes, declared once: each names its kernel branch and its action dimension.
+
+The kernel branches (``MODE_*``) live in :func:`softpvtol_gym.envs.step._command`; a new mode is one
+:class:`ActionModeSpec` here plus its branch there.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+#: kernel codes of the applied-command path
+MODE_ACT, MODE_VIRTUAL, MODE_IDEAL, MODE_RES_ACT = 0, 1, 2, 3
+
+
+@dataclasses.dataclass(frozen=True)
+class ActionModeSpec:
+    """``kernel_mode(cfg)`` and ``action_dim(cfg)`` of an :class:`~softpvtol_gym.envs.config.EnvConfig`."""
+
+    name: str
+    description: str
+    kernel_mode: Callable
+    action_dim: Callable
+
+
+ACTION_MODE_SPECS = {
+    s.name: s
+    for s in (
+        ActionModeSpec("actuators", "thrusts and arm torques (T_l, T_r, tau_l, tau_r), normalised",
+                       lambda cfg: MODE_ACT, lambda cfg: 4),
+        ActionModeSpec("virtual", "generalized force tau (5), through the allocation or applied ('ideal')",
+                       lambda cfg: MODE_IDEAL if cfg.resolved_allocation == "ideal" else MODE_VIRTUAL,
+                       lambda cfg: 5),
+        ActionModeSpec("residual", "correction on top of the passivity controller (tau, or actuators)",
+                       lambda cfg: MODE_RES_ACT, lambda cfg: 5 if cfg.residual_space == "virtual" else 4),
+    )
+}
+ACTION_MODES = tuple(ACTION_MODE_SPECS)

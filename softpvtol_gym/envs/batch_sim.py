@@ -1,0 +1,152 @@
+"""BatchSim: the state of N envs as packed arrays and their reset and step, shared by the single env
+(N = 1) and the vector env."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import _kernels as MK
+from .._batching import check_curvature
+from .._parallel import row_ranges, run_split
+from .config import EnvConfig
+from .episodes import apply_options, sample_episodes
+from .layout import ISTATE, STATE, S
+from .observation import OBS_DIM
+from .step import (CTL_LEN, STEP_BAD_ACTION, STEP_CONTROLLER_TAU, STEP_OK, controller_error, reset_rows,
+                   step_check_actions, step_controller_rows, step_physics_rows, step_serial)
+
+
+class BatchSim:
+    """State of N envs as arrays and their step/reset.
+
+    The state is ``F`` (N, STATE.size) float64, ``I`` (N, ISTATE.size) int64, ``key`` (N,) uint64 and
+    ``obs`` (N, 18) float32 (layouts: :mod:`softpvtol_gym.envs.layout`); every field of STATE and
+    ISTATE is also an attribute, a view into them (``q``, ``qd``, ``qm``, ``qdm``, ``qr``, ``qdr``,
+    ``qddr``, ``refp``, ``lag``, ``applied``, ``wind``, ``u`` (the clipped action), ``reward``,
+    ``terms``, ``P``, ``t``, the diagnostics, ``counter``, ``steps``, ``reason``, ``clipped``, ...).
+    """
+
+    def __init__(self, cfg: EnvConfig, n: int):
+        from ..control import PassivityController
+
+        self.cfg = cfg
+        self.n = n
+        self.task = cfg.task_spec  # resolved once: the registry may change later
+        self.action_dim = cfg.action_dim
+        self.max_steps = cfg.max_steps
+        self.dt = cfg.dt
+        self.C = cfg.constants()
+        self.K = cfg.codes()
+        self.F = np.zeros((n, STATE.size))
+        self.I = np.zeros((n, ISTATE.size), dtype=np.int64)
+        self.key = np.zeros(n, dtype=np.uint64)
+        self.obs = np.zeros((n, OBS_DIM), dtype=np.float32)
+        self._make_views()
+        self.P[:] = cfg.params.array
+        self.lag_init[:] = 1
+        self._ctl = np.empty((n, CTL_LEN))  # the residual mode's base-controller outputs
+        self._ranges = row_ranges(n, align=MK.LANES)  # one per thread, whole lane blocks
+        self._shape = {True: (n, self.action_dim), False: (self.action_dim,)}
+        self.controller = None
+        if cfg.action_mode == "residual":
+            self.controller = PassivityController.from_loop(
+                cfg.controller_loop, params=cfg.params, input_map=cfg.input_map, dt=cfg.dt
+            )
+            self.controller.state_rows(n)
+
+    def _make_views(self) -> None:
+        self.__dict__.update(STATE.views(self.F))
+        self.__dict__.update(ISTATE.views(self.I))
+        self.u = self.F[:, S.u:S.u + self.action_dim]
+
+    _VIEWS = tuple(f for f, _ in STATE.fields + ISTATE.fields)
+
+    def __getstate__(self) -> dict:
+        # the views are rebuilt on unpickling (pickle would turn them into independent copies)
+        state = {k: v for k, v in self.__dict__.items() if k not in self._VIEWS}
+        state["layouts"] = (STATE.signature, ISTATE.signature)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        layouts = state.pop("layouts", (("env_state", 1, None), None))
+        STATE.check(layouts[0])
+        ISTATE.check(layouts[1])
+        self.__dict__.update(state)
+        self._make_views()
+
+    # -------------------------------------------------------------------------------- reset
+    def reset_entries(self, idx: np.ndarray, u: np.ndarray, options: dict | None = None) -> None:
+        """Start new episodes in entries ``idx`` from uniforms ``u`` (len(idx), N_UNIFORMS)."""
+        self.apply_reset(idx, self.prepare_reset(u, options))
+
+    def prepare_reset(self, u: np.ndarray, options: dict | None = None) -> dict:
+        """The new episodes of :meth:`reset_entries` (changes nothing yet)."""
+        ep = sample_episodes(self.cfg, u)
+        if options:
+            ep = apply_options(self.cfg, ep, options)
+        ep["ref"] = np.ascontiguousarray(np.concatenate(self.task.evaluate(np.zeros(u.shape[0]), ep["refp"]), axis=1))
+        return ep
+
+    def apply_reset(self, idx: np.ndarray, ep: dict) -> None:
+        """Write episodes from :meth:`prepare_reset` into entries ``idx``."""
+        rows = np.ascontiguousarray(np.atleast_1d(np.arange(self.n)[idx]), dtype=np.int64)
+        reset_rows(self.F, self.obs, self.key, self.I, self.C, rows, ep["q0"], ep["qd0"], ep["P"], ep["key"],
+                   ep["refp"], ep["ref"])
+        if self.controller is not None:
+            self.controller.reset_rows(rows)
+
+    # --------------------------------------------------------------------------------- step
+    def step(self, action, batched: bool, side=None) -> None:
+        """Validate the action (shape, finite), clip it and advance every entry by one control step.
+
+        ``side()``, if given, runs in this thread once the step cannot fail any more, beside the
+        kernel threads of a large batch (Python work that overlaps the physics)."""
+        expected = self._shape[batched]
+        try:
+            a = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"action must be a real array of shape {expected} in [-1, 1], got {action!r}") from None
+        if a.shape != expected:
+            raise ValueError(
+                f"action must have shape {expected} (action_mode={self.cfg.action_mode!r}), got shape {a.shape}"
+            )
+        if not batched:
+            a = a.reshape(1, self.action_dim)
+        if not self.task.is_compiled:  # a registered task: its reference at the end of the step, from Python
+            self.qr_custom[:] = np.concatenate(self.task.evaluate((self.steps + 1) * self.dt, self.refp), axis=1)
+        ctrl = self.controller
+        if ctrl is not None:
+            cc, (S_mem, S_new) = ctrl.kernel_constants, ctrl.memory_pair(self.n)
+        else:
+            cc, S_mem, S_new = self.C, self.F, self.F  # unused (same types: no second compilation)
+        if len(self._ranges) == 1:
+            code = step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, cc, S_mem, S_new, self._ctl)
+        else:
+            code = self._step_split(a, cc, S_mem, S_new, side)
+        if code != STEP_OK:
+            if code == STEP_BAD_ACTION:
+                raise ValueError(f"action must be finite (in [-1, 1]), got {action!r}")
+            if code == STEP_CONTROLLER_TAU:
+                raise ValueError("tau contains NaN or inf; allocation needs a finite body force")
+            check_curvature(self.qm)
+            raise RuntimeError(f"step kernel failed with code {code}")  # pragma: no cover
+        if ctrl is not None:
+            ctrl.swap_memory()
+        if len(self._ranges) == 1 and side is not None:
+            side()
+
+    def _step_split(self, a, cc, S_mem, S_new, side=None) -> int:
+        """The step of a large batch with its rows split over threads (same result as step_serial)."""
+        F, obs, key, I, C, K, ctl = self.F, self.obs, self.key, self.I, self.C, self.K, self._ctl
+        ok, has_res = step_check_actions(a, K)
+        if not ok:
+            return STEP_BAD_ACTION
+        if self.controller is not None:
+            err = np.zeros(self.n, dtype=np.int64)
+            run_split(lambda lo, hi: step_controller_rows(lo, hi, a, F, I, C, K, has_res, cc, S_mem, S_new, ctl, err),
+                      self._ranges)
+            code = controller_error(err)
+            if code != STEP_OK:
+                return code
+        run_split(lambda lo, hi: step_physics_rows(lo, hi, a, F, obs, key, I, C, K, ctl), self._ranges, side)
+        return STEP_OK

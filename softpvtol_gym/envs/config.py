@@ -1,0 +1,217 @@
+"""EnvConfig: the validated configuration shared by the single env, the vector env and PassivityPolicy.
+
+Every derived number (limits, scales, the kernels' constant vector) is a property or method of the
+frozen config, computed from its fields; nothing is stored twice.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import numpy as np
+
+from .. import _kernels as MK
+from ..control import _kernels as CK
+from ..control.passivity import PassivityGains
+from ..params import SoftPVTOLParams
+from ..tasks import TaskSpec, get_task
+from . import tiers as _tiers
+from ._validation import choice, positive_number
+from .actions import ACTION_MODE_SPECS, ACTION_MODES
+from .layout import CODES, CONST, SC, SK
+
+PHYSICS_DT = 0.01  # s, the paper's RK4 step
+INPUT_MAPS = ("paper", "exact")
+ALLOCATIONS = ("paper", "exact", "ideal")
+RESIDUAL_SPACES = ("virtual", "actuators")
+RENDER_MODES = (None, "rgb_array", "human")
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """Validated configuration (see :class:`~softpvtol_gym.envs.soft_pvtol.SoftPVTOLEnv` for every argument)."""
+
+    action_mode: str = "actuators"
+    task: str = "hover"
+    tier: str = "nominal"
+    params: SoftPVTOLParams | None = dataclasses.field(default_factory=SoftPVTOLParams)
+    input_map: str = "paper"
+    allocation: str | None = None
+    residual_space: str = "virtual"
+    frame_skip: int = 1
+    max_episode_seconds: float | None = None
+    tier_options: dict | None = None
+    residual_scale: float = 0.2
+    actuator_limits: tuple | None = None
+
+    def __post_init__(self) -> None:
+        if self.actuator_limits is not None:
+            lim = self.actuator_limits
+            if not isinstance(lim, (tuple, list)) or len(lim) != 2:
+                raise ValueError(f"actuator_limits must be (thrust_max [N], arm_torque_max [N m]), got {lim!r}")
+            positive_number("actuator_limits[0] (thrust_max)", lim[0])
+            positive_number("actuator_limits[1] (arm_torque_max)", lim[1])
+        choice("action_mode", self.action_mode, ACTION_MODES)
+        get_task(self.task)
+        _tiers.get_tier(self.tier)
+        choice("input_map", self.input_map, INPUT_MAPS)
+        if self.params is None:  # the default, as for the env's other arguments
+            object.__setattr__(self, "params", SoftPVTOLParams())
+        if not isinstance(self.params, SoftPVTOLParams):
+            raise ValueError(f"params must be a SoftPVTOLParams, got {self.params!r} of type {type(self.params).__name__}")
+        if self.allocation is not None:
+            choice("allocation", self.allocation, ALLOCATIONS)
+            if self.allocation == "ideal" and self.action_mode != "virtual":
+                raise ValueError(
+                    f"allocation='ideal' (tau applied directly) is only valid with action_mode='virtual', "
+                    f"got action_mode={self.action_mode!r}; use one of ['exact', 'paper']"
+                )
+        choice("residual_space", self.residual_space, RESIDUAL_SPACES)
+        if isinstance(self.frame_skip, bool) or not isinstance(self.frame_skip, (int, np.integer)) or self.frame_skip < 1:
+            raise ValueError(f"frame_skip must be an int >= 1, got {self.frame_skip!r}")
+        if self.max_episode_seconds is not None:
+            positive_number("max_episode_seconds", self.max_episode_seconds)
+        positive_number("residual_scale", self.residual_scale)
+        _tiers.check_tier_options(self.tier_options)
+
+    @classmethod
+    def from_kwargs(cls, **kwargs) -> EnvConfig:
+        """EnvConfig(**kwargs) with a clear error for an argument it does not have."""
+        names = [f.name for f in dataclasses.fields(cls)]
+        unknown = [k for k in kwargs if k not in names]
+        if unknown:
+            raise TypeError(f"unknown SoftPVTOL argument(s) {unknown}; valid ones are {names} "
+                            "(plus render_mode, and num_envs/autoreset_mode for the vector env)")
+        return cls(**kwargs)
+
+    # ---------------------------------------------------------------------------- derived values
+    @property
+    def task_spec(self) -> TaskSpec:
+        """The registered :class:`~softpvtol_gym.tasks.TaskSpec` of ``task``."""
+        return get_task(self.task)
+
+    @property
+    def resolved_allocation(self) -> str:
+        """The allocation actually used: the argument, or "exact" by default."""
+        return "exact" if self.allocation is None else self.allocation
+
+    @property
+    def controller_loop(self) -> str:
+        """PassivityController loop of the residual base controller and of PassivityPolicy."""
+        return self.resolved_allocation  # "exact" -> "exact", "paper" -> "paper", "ideal" -> "ideal"
+
+    @property
+    def dt(self) -> float:
+        """Control period [s] = 0.01 s x frame_skip."""
+        return PHYSICS_DT * int(self.frame_skip)
+
+    @property
+    def episode_seconds(self) -> float:
+        if self.max_episode_seconds is None:
+            return self.task_spec.episode_seconds
+        return float(self.max_episode_seconds)
+
+    @property
+    def max_steps(self) -> int:
+        return max(1, int(round(self.episode_seconds / self.dt)))
+
+    @functools.cached_property
+    def tier_values(self) -> dict:
+        """Tier numbers in effect: options of disabled effects are reported as 0 (off)."""
+        return _tiers.tier_values(self.tier, self.tier_options)
+
+    @property
+    def mismatch_scale(self) -> float:
+        """Plant parameter mismatch scale in effect (0: off)."""
+        return self.tier_values["mismatch_scale"]
+
+    @property
+    def thrust_max(self) -> float:
+        """T_max = 3 x the nominal hover thrust per rotor [N] (102.9 N with defaults)."""
+        if self.actuator_limits is not None:
+            return float(self.actuator_limits[0])
+        return 3.0 * self.params.hover_thrust
+
+    @property
+    def arm_torque_max(self) -> float:
+        """tau_max = 4 x the larger nominal arm gravity load [N m] (9.8 N m with defaults)."""
+        if self.actuator_limits is not None:
+            return float(self.actuator_limits[1])
+        return 4.0 * max(self.params.arm_gravity_torques)
+
+    @property
+    def virtual_scale(self) -> np.ndarray:
+        """Per-unit scales of the virtual action: (2 M g, 2 M g, 20 N m, tau_max, tau_max)."""
+        w = 2.0 * self.params.total_mass * self.params.g if self.params.g > 0 else 2.0 * self.params.total_mass * 9.8
+        return np.array([w, w, 20.0, self.arm_torque_max, self.arm_torque_max])
+
+    @property
+    def virtual_offset(self) -> np.ndarray:
+        """Virtual force at action 0: (0, M g, 0, 0, 0) (the nominal weight)."""
+        return np.array([0.0, self.params.total_mass * self.params.g, 0.0, 0.0, 0.0])
+
+    @property
+    def residual_tau_scale(self) -> np.ndarray:
+        return self.residual_scale * self.virtual_scale
+
+    @property
+    def residual_actuator_scale(self) -> np.ndarray:
+        t, a = self.thrust_max, self.arm_torque_max
+        return self.residual_scale * np.array([0.5 * t, 0.5 * t, a, a])
+
+    @property
+    def kernel_mode(self) -> int:
+        return ACTION_MODE_SPECS[self.action_mode].kernel_mode(self)
+
+    @property
+    def action_dim(self) -> int:
+        return ACTION_MODE_SPECS[self.action_mode].action_dim(self)
+
+    # ------------------------------------------------------------------------- kernel constants
+    def constants(self) -> np.ndarray:
+        """The step kernel's constant vector C (layout ``CONST``)."""
+        tv = self.tier_values
+        C = np.zeros(CONST.size)
+        dt = self.dt
+        C[SC.dt_physics] = PHYSICS_DT
+        C[SC.frame_skip] = self.frame_skip
+        C[SC.thrust_max] = self.thrust_max
+        C[SC.arm_torque_max] = self.arm_torque_max
+        tc = tv["actuator_time_constant"]
+        C[SC.lag_a] = 1.0 - math.exp(-dt / tc) if tc > 0 else 1.0
+        a = math.exp(-dt / tv["wind_correlation_time"])
+        C[SC.wind_a] = a
+        C[SC.wind_b] = tv["wind_std"] * math.sqrt(1.0 - a * a)
+        C[SC.wind_std] = tv["wind_std"]
+        s = tv["obs_noise_scale"]
+        C[SC.noise_q:SC.noise_q + 5] = np.asarray(_tiers.OBS_NOISE_Q) * s
+        C[SC.noise_qd:SC.noise_qd + 5] = np.asarray(_tiers.OBS_NOISE_QD) * s
+        C[SC.virtual_scale:SC.virtual_scale + 5] = self.virtual_scale
+        C[SC.virtual_offset:SC.virtual_offset + 5] = self.virtual_offset
+        # actuator-space residuals only: a virtual residual enters through the controller's tau alone
+        if self.action_mode == "residual" and self.residual_space == "actuators":
+            C[SC.residual_actuator_scale:SC.residual_actuator_scale + 4] = self.residual_actuator_scale
+        C[SC.residual_tau_scale:SC.residual_tau_scale + 5] = self.residual_tau_scale
+        C[SC.hover_thrust] = self.params.hover_thrust
+        C[SC.lag_on] = 1.0 if tc > 0 else 0.0
+        C[SC.wind_on] = 1.0 if tv["wind_std"] > 0 else 0.0
+        C[SC.noise_on] = 1.0 if s > 0 else 0.0
+        C[SC.p_nominal:SC.p_nominal + 10] = self.params.array
+        gains = PassivityGains()
+        C[SC.lam:SC.lam + 5] = gains.lam_array
+        C[SC.kg:SC.kg + 5] = gains.k_array
+        C[SC.dt_control] = dt
+        return C
+
+    def codes(self) -> np.ndarray:
+        """The step kernel's integer codes K (layout ``CODES``)."""
+        K = np.zeros(CODES.size, dtype=np.int64)
+        K[SK.mode] = self.kernel_mode
+        K[SK.alloc] = CK.ALLOC_PAPER if self.resolved_allocation == "paper" else CK.ALLOC_EXACT
+        K[SK.imap] = MK.INPUT_MAP_PAPER if self.input_map == "paper" else MK.INPUT_MAP_EXACT
+        K[SK.res_virtual] = 1 if self.residual_space == "virtual" else 0
+        K[SK.ref] = self.task_spec.compiled_reference
+        K[SK.action_dim] = self.action_dim
+        return K

@@ -1,0 +1,143 @@
+"""New episodes: initial state, reference parameters, plant parameters and noise key from a block of
+uniforms that each env draws from its own RNG (one ``random(N_UNIFORMS)`` call per reset), so that an
+env's episode depends only on its own generator."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..params import PARAM_FIELDS
+from ..tasks import HOVER_SETPOINT, PAPER_Q0, SAMPLE_CUSTOM, SAMPLE_HOVER, SAMPLE_PAPER, SAMPLE_SETPOINT
+from .references import N_REF_PARAMS
+
+#: fixed number of uniforms each env draws from its RNG at every reset
+N_UNIFORMS = 48
+#: uniforms of the initial-state perturbation (u[:, :10]; a custom task's initial_state gets them)
+N_STATE_UNIFORMS = 10
+_MISMATCH_COLUMNS = tuple(PARAM_FIELDS.index(f) for f in ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r"))
+
+
+def sample_episodes(cfg, u: np.ndarray) -> dict[str, np.ndarray]:
+    """Initial state q0, qd0 (N, 5), reference parameters refp (N, 21), plant parameters P (N, 10)
+    and noise keys (N,) of len(u) new episodes, from uniforms u (N, N_UNIFORMS) in [0, 1).
+
+    Layout of u: 0-9 initial state, 10-12 setpoint, 13-30 track_random reference, 31-38 plant
+    mismatch, 46-47 noise key. With c = 2 u - 1 in [-1, 1): the hover perturbation is
+    dq = (c0, c1, 0.3 c2, 0.3 c3, 0.3 c4), dqd = (0.5 c5, 0.5 c6, 0.2 c7, 0.2 c8, 0.2 c9); hover starts
+    at the setpoint + dq, setpoint at x = 3 c0, z = 2 + 2 c1 (setpoint x = 3 c10, z = 2 + 2 c11,
+    theta = 0.3 c12), track_paper at the paper's q0 at rest, track_random at its reference + dq/2 (the
+    reference: z0 = 3, amplitudes u*(1.0 | 0.5), rates 0.2 + 0.6 u, phases 2 pi u), a registered task
+    at its reference at t = 0 + dq (or its own ``initial_state(u[:, :10])``); plant mismatch scales
+    the masses, inertias and lengths by 1 + s c31..c38.
+    """
+    n = u.shape[0]
+    spec = cfg.task_spec
+    refp = np.empty((n, N_REF_PARAMS))
+    q0 = np.empty((n, 5))
+    qd0 = np.empty((n, 5))
+    P = np.empty((n, len(PARAM_FIELDS)))
+    key = np.empty(n, dtype=np.uint64)
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    _sample_rows(u, spec.sampler, cfg.params.array, float(cfg.mismatch_scale), refp, q0, qd0, P, key)
+    if spec.sampler == SAMPLE_CUSTOM and spec.initial_state is not None:
+        q0, qd0 = _custom_initial_state(spec, u[:, :N_STATE_UNIFORMS])
+    elif spec.sampler not in (SAMPLE_HOVER, SAMPLE_SETPOINT, SAMPLE_PAPER):
+        # track_random and registered tasks: q0, qd0 hold the perturbation; add the reference at t = 0
+        pos, vel, _ = spec.evaluate(np.zeros(n), refp)
+        q0[:, :3] += pos
+        qd0[:, :3] += vel
+    return dict(q0=q0, qd0=qd0, refp=refp, P=P, key=key)
+
+
+def _custom_initial_state(spec, u):
+    out = spec.initial_state(u.copy())
+    n = u.shape[0]
+    if not (isinstance(out, tuple) and len(out) == 2):
+        raise ValueError(f"task {spec.name!r}: initial_state(u) must return (q0, qdot0), got {type(out)}")
+    res = []
+    for what, a in zip(("q0", "qdot0"), out):
+        a = np.array(a, dtype=np.float64)
+        if a.shape != (n, 5) or not np.isfinite(a).all():
+            raise ValueError(f"task {spec.name!r}: initial_state(u) for u of shape {u.shape} must return a finite "
+                             f"{what} of shape {(n, 5)}, got shape {a.shape}")
+        res.append(a)
+    return tuple(res)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _sample_rows(u, sampler, params, scale, refp, q0, qd0, P, key):
+    """The rows of :func:`sample_episodes` (``sampler``: the task's SAMPLE_* code; track_random:
+    q0, qd0 get the halved perturbation, registered tasks the whole one; the caller adds the reference)."""
+    two_pi = 2.0 * math.pi
+    for i in range(u.shape[0]):
+        c0, c1, c2, c3, c4 = (2.0 * u[i, 0] - 1.0, 2.0 * u[i, 1] - 1.0, 2.0 * u[i, 2] - 1.0, 2.0 * u[i, 3] - 1.0,
+                              2.0 * u[i, 4] - 1.0)
+        c5, c6, c7, c8, c9 = (2.0 * u[i, 5] - 1.0, 2.0 * u[i, 6] - 1.0, 2.0 * u[i, 7] - 1.0, 2.0 * u[i, 8] - 1.0,
+                              2.0 * u[i, 9] - 1.0)
+        dq = (c0 * 1.0, c1 * 1.0, c2 * 0.3, c3 * 0.3, c4 * 0.3)
+        dqd = (c5 * 0.5, c6 * 0.5, c7 * 0.2, c8 * 0.2, c9 * 0.2)
+        for k in range(N_REF_PARAMS):
+            refp[i, k] = 0.0
+        for k in range(5):
+            q0[i, k] = dq[k]
+            qd0[i, k] = dqd[k]
+        if sampler == SAMPLE_HOVER:
+            for k in range(3):
+                refp[i, k] = HOVER_SETPOINT[k]
+                q0[i, k] = HOVER_SETPOINT[k] + dq[k]
+        elif sampler == SAMPLE_SETPOINT:
+            refp[i, 0] = 3.0 * (2.0 * u[i, 10] - 1.0)
+            refp[i, 1] = 2.0 + 2.0 * (2.0 * u[i, 11] - 1.0)
+            refp[i, 2] = 0.3 * (2.0 * u[i, 12] - 1.0)
+            q0[i, 0] = 3.0 * c0
+            q0[i, 1] = 2.0 + 2.0 * c1
+        elif sampler == SAMPLE_PAPER:
+            for k in range(5):
+                q0[i, k] = PAPER_Q0[k]
+                qd0[i, k] = 0.0
+        elif sampler != SAMPLE_CUSTOM:  # track_random
+            refp[i, 1] = 3.0  # z0
+            for axis in range(2):
+                amax = 1.0 if axis == 0 else 0.5
+                b = 3 + 9 * axis
+                o = 13 + 9 * axis
+                for k in range(3):
+                    refp[i, b + k] = amax * u[i, o + k]
+                    refp[i, b + 3 + k] = 0.2 + 0.6 * u[i, o + 3 + k]
+                    refp[i, b + 6 + k] = two_pi * u[i, o + 6 + k]
+            for k in range(5):
+                q0[i, k] = 0.5 * dq[k]
+                qd0[i, k] = 0.5 * dqd[k]
+        for k in range(params.shape[0]):
+            P[i, k] = params[k]
+        if scale > 0:
+            for k in range(8):
+                col = _MISMATCH_COLUMNS[k]
+                P[i, col] = P[i, col] * (1.0 + scale * (2.0 * u[i, 31 + k] - 1.0))
+        key[i] = np.uint64(u[i, 46] * 2.0**53) ^ (np.uint64(u[i, 47] * 2.0**53) << np.uint64(11))
+
+
+def apply_options(cfg, ep: dict, options: dict) -> dict:
+    """reset(options=...): "q0" (5,), "qdot0" (5,), "setpoint" (3,) (tasks with a constant reference)."""
+    valid = ("q0", "qdot0", "setpoint")
+    if not isinstance(options, dict):
+        raise ValueError(f"reset options must be a dict with keys from {list(valid)}, got {options!r}")
+    for k in options:
+        if k not in valid:
+            raise ValueError(f"unknown reset option {k!r}; valid ones are {list(valid)}")
+    for k, key, size in (("q0", "q0", 5), ("qdot0", "qd0", 5), ("setpoint", None, 3)):
+        if k not in options or options[k] is None:
+            continue
+        v = np.asarray(options[k], dtype=np.float64)
+        if v.shape != (size,) or not np.isfinite(v).all():
+            raise ValueError(f"reset option {k!r} must be {size} finite numbers, got {options[k]!r}")
+        if k == "setpoint":
+            if cfg.task_spec.sampler not in (SAMPLE_HOVER, SAMPLE_SETPOINT):
+                raise ValueError(f"reset option 'setpoint' needs task 'hover' or 'setpoint', got {cfg.task!r}")
+            ep["refp"][:, :3] = v
+        else:
+            ep[key][:] = v
+    return ep

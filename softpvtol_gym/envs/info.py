@@ -1,0 +1,52 @@
+"""The info dict of a step, built in one place for the single env (Python scalars) and the vector
+env (arrays with gymnasium's ``_name`` masks)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .layout import S, SI
+from .reward import REWARD_TERMS
+
+#: float diagnostics: (info key, column of the packed state)
+FLOAT_ENTRIES = (("total_energy", S.total_energy), ("storage_function", S.storage_function),
+                 ("curvature_violation", S.curvature_violation), ("allocation_residual", S.allocation_residual))
+#: flags stored as 0.0/1.0
+FLAG_ENTRIES = (("thrust_saturated", S.thrust_saturated), ("arm_torque_saturated", S.arm_torque_saturated))
+INFO_KEYS = ("reward_terms", *(k for k, _ in FLOAT_ENTRIES), *(k for k, _ in FLAG_ENTRIES), "action_clipped",
+             "termination_reason", "time")
+_MASK_KEYS = tuple("_" + k for k in INFO_KEYS)
+
+
+def single_info(sim, reason: str | None) -> dict[str, Any]:
+    """The info of entry 0 as Python scalars; ``reason``: the termination/truncation reason or None."""
+    f = sim.F[0].tolist()
+    info: dict[str, Any] = {"reward_terms": dict(zip(REWARD_TERMS, f[S.terms:S.terms + len(REWARD_TERMS)]))}
+    for k, c in FLOAT_ENTRIES:
+        info[k] = f[c]
+    for k, c in FLAG_ENTRIES:
+        info[k] = f[c] > 0.5
+    info["action_clipped"] = bool(sim.I[0, SI.clipped])
+    info["termination_reason"] = reason
+    info["time"] = f[S.t]
+    return info
+
+
+def batch_info(sim, reasons: np.ndarray | None) -> dict[str, Any]:
+    """The infos of every entry as arrays (one private copy of the state; each array a column of it);
+    ``reasons``: an object array of reasons (None where not done), or None when no entry is done."""
+    F = sim.F.copy()
+    n = F.shape[0]
+    info: dict[str, Any] = {"reward_terms": {k: F[:, S.terms + i] for i, k in enumerate(REWARD_TERMS)}}
+    for k, c in FLOAT_ENTRIES:
+        info[k] = F[:, c]
+    for k, c in FLAG_ENTRIES:
+        info[k] = F[:, c] > 0.5
+    info["action_clipped"] = sim.I[:, SI.clipped] != 0
+    # (np.empty of dtype object is None-filled)
+    info["termination_reason"] = np.empty(n, dtype=object) if reasons is None else reasons
+    info["time"] = F[:, S.t]
+    info.update(dict.fromkeys(_MASK_KEYS, np.ones(n, dtype=bool)))
+    return info

@@ -1,0 +1,67 @@
+"""The observation: measured state (with noise in the noise tiers) relative to the reference."""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from .layout import S, SC, SI
+from .noise import STREAM_Q, STREAM_QD, counter_normal
+
+_jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
+
+OBS_CLIP = 1.0e6
+OBS_DIM = 18
+OBS_NAMES = (
+    "x - x_ref", "z - z_ref", "theta - theta_ref", "sin theta", "cos theta", "q_l", "q_r",
+    "xdot", "zdot", "thetadot", "q_l dot", "q_r dot",
+    "xdot_ref", "zdot_ref", "thetadot_ref", "xddot_ref", "zddot_ref", "thetaddot_ref",
+)
+
+
+@_jit
+def wrap(a):
+    """Angle wrapped to [-pi, pi): (a + pi) % 2 pi - pi, Python's float modulo. For a + pi already in
+    [0, 2 pi) the modulo returns it unchanged (fmod is exact), so that case skips the modulo call
+    (bit for bit the same result)."""
+    x = a + math.pi
+    if not (0.0 <= x < 2.0 * math.pi):
+        x = x % (2.0 * math.pi)
+    return x - math.pi
+
+
+@_jit
+def _clip(v):
+    return min(max(v, -OBS_CLIP), OBS_CLIP)
+
+
+@_jit
+def observe_range(lo, hi, F, key, I, C, obs):
+    """Measured state (noise tiers: + Gaussian noise) into F's qm/qdm and the observation obs[n] of
+    envs lo .. hi - 1."""
+    noise = C[SC.noise_on] > 0.0
+    for n in range(lo, hi):
+        counter = I[n, SI.counter]
+        for i in range(5):
+            a = F[n, S.q + i]
+            b = F[n, S.qd + i]
+            if noise:
+                a = a + C[SC.noise_q + i] * counter_normal(key[n], counter, STREAM_Q + i)
+                b = b + C[SC.noise_qd + i] * counter_normal(key[n], counter, STREAM_QD + i)
+            F[n, S.qm + i] = a
+            F[n, S.qdm + i] = b
+        obs[n, 0] = _clip(F[n, S.qm] - F[n, S.qr])
+        obs[n, 1] = _clip(F[n, S.qm + 1] - F[n, S.qr + 1])
+        obs[n, 2] = _clip(wrap(F[n, S.qm + 2] - F[n, S.qr + 2]))
+        th = F[n, S.qm + 2]
+        s_th, c_th = math.sin(th), math.cos(th)  # side by side: one sincos call
+        obs[n, 3] = _clip(s_th)
+        obs[n, 4] = _clip(c_th)
+        obs[n, 5] = _clip(F[n, S.qm + 3])
+        obs[n, 6] = _clip(F[n, S.qm + 4])
+        for i in range(5):
+            obs[n, 7 + i] = _clip(F[n, S.qdm + i])
+        for i in range(3):
+            obs[n, 12 + i] = _clip(F[n, S.qdr + i])
+            obs[n, 15 + i] = _clip(F[n, S.qddr + i])

@@ -1,0 +1,74 @@
+"""Compiled references of the built-in tasks, evaluated inside the step kernel (no NumPy round-trip).
+
+A reference is (position, velocity, acceleration) of the body coordinates (x, z, theta) at episode
+time t; its per-episode parameters are a row of ``N_REF_PARAMS`` numbers (the ``refp`` field of the
+packed state): constant set-point (x, z, theta) in columns 0-2; track_random: z0 in column 1 and
+three sinusoids (A, w, phi) x 3 for x in columns 3-11 and for z in columns 12-20. A task registered
+from user code has no compiled reference (``REF_CUSTOM``): its Python ``reference(t)`` is called
+once per step for the whole batch.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+_jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
+
+N_REF_PARAMS = 21
+REF_CUSTOM, REF_CONSTANT, REF_PAPER, REF_SINUSOIDS = -1, 0, 1, 2
+
+
+@_jit
+def _sinusoids(A, n, c, t):
+    """sum_k a_k (sin(w_k t + phi_k) - sin phi_k) and its two time derivatives; (a, w, phi) x 3 in
+    A[n, c:c + 9] as (a1, a2, a3, w1, w2, w3, phi1, phi2, phi3)."""
+    p = v = a = 0.0
+    for k in range(3):
+        amp, w, ph = A[n, c + k], A[n, c + 3 + k], A[n, c + 6 + k]
+        arg = w * t + ph
+        s, co = math.sin(arg), math.cos(arg)
+        p += amp * (s - math.sin(ph))
+        v += amp * w * co
+        a -= amp * w * w * s
+    return p, v, a
+
+
+@_jit
+def reference_row(code, t, A, n, c):
+    """((x, z, theta), their rates, their accelerations) at time t of a built-in reference ``code``
+    whose parameters are A[n, c:c + N_REF_PARAMS]."""
+    zero = (0.0, 0.0, 0.0)
+    if code == REF_PAPER:
+        # the paper's eq. (traj_des): x = 4 sin(t/2), z = 3 cos(-t/10) + 4, theta = 0 (derivatives
+        # computed correctly, see docs/model.md)
+        s, co = math.sin(0.5 * t), math.cos(0.5 * t)
+        sz, cz = math.sin(0.1 * t), math.cos(0.1 * t)
+        return (4.0 * s, 3.0 * math.cos(-0.1 * t) + 4.0, 0.0), (2.0 * co, -0.3 * sz, 0.0), (-s, -0.03 * cz, 0.0)
+    if code == REF_SINUSOIDS:
+        x, xd, xdd = _sinusoids(A, n, c + 3, t)
+        z, zd, zdd = _sinusoids(A, n, c + 12, t)
+        return (x, A[n, c + 1] + z, 0.0), (xd, zd, 0.0), (xdd, zdd, 0.0)
+    return (A[n, c], A[n, c + 1], A[n, c + 2]), zero, zero
+
+
+@njit(cache=True, nogil=True)
+def batch_reference(code, t, refp, out):
+    """out[n] = (position (3), velocity (3), acceleration (3)) of row n at time t[n]."""
+    for n in range(t.shape[0]):
+        pos, vel, acc = reference_row(code, t[n], refp, n, 0)
+        for i in range(3):
+            out[n, i] = pos[i]
+            out[n, 3 + i] = vel[i]
+            out[n, 6 + i] = acc[i]
+
+
+def evaluate(code: int, t, refp) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(pos, vel, acc), each (N, 3), of a compiled reference at times t (N,) with parameters refp (N, 21)."""
+    t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
+    refp = np.ascontiguousarray(np.broadcast_to(refp, (t.shape[0], N_REF_PARAMS)), dtype=np.float64)
+    out = np.empty((t.shape[0], 9))
+    batch_reference(code, t, refp, out)
+    return out[:, 0:3], out[:, 3:6], out[:, 6:9]
