@@ -31,8 +31,8 @@ class SoftPVTOLEnv(gym.Env):
     soft, actively bent arms (constant-curvature model). Generalized coordinates
     q = (x, z, theta, q_l, q_r): body position [m], pitch [rad], arm curvatures (bending angles)
     [rad]. Physics: the package's compiled Euler-Lagrange model, integrated with classical RK4 at the
-    paper's 0.01 s step; one env step = ``frame_skip`` (default 1) RK4 steps with the command held
-    (zero-order hold). The control period is therefore 0.01 s: the arm loop of the passivity
+    paper's 0.01 s step; one env step = ``frame_skip`` (default 1) RK4 steps with the actuators held
+    (zero-order hold: B(q) re-evaluated at every RK4 stage; the wind force held too). The control period is therefore 0.01 s: the arm loop of the passivity
     controller is only stable with zero-order hold at dt <= ~0.01 s.
 
     ## Action Space
@@ -122,8 +122,9 @@ class SoftPVTOLEnv(gym.Env):
     ## Arguments
 
     * ``action_mode``: "actuators" | "virtual" | "residual".
-    * ``task``: "hover" | "setpoint" | "track_paper" | "track_random".
-    * ``tier``: "nominal" | "mismatch" (plant m, m_l, m_r, I, I_l, I_r, l_l, l_r each x U(0.8, 1.2)
+    * ``task``: "hover" | "setpoint" | "track_paper" | "track_random", or a task registered with
+      :func:`softpvtol_gym.tasks.register_task` (a :class:`~softpvtol_gym.tasks.TaskSpec`).
+    * ``tier``: a registered tier (:func:`softpvtol_gym.envs.register_tier`); built in: "nominal" | "mismatch" (plant m, m_l, m_r, I, I_l, I_r, l_l, l_r each x U(0.8, 1.2)
       per episode; controller and policy keep the nominal params) | "wind" (Ornstein-Uhlenbeck force
       on x and z, std 3 N, correlation time 1 s) | "noisy" (Gaussian measurement noise of std
       (0.02 m, 0.02 m, 0.01 rad, 0.02 rad, 0.02 rad) on q and (0.05, 0.05, 0.02, 0.05, 0.05) on qdot,
@@ -147,6 +148,12 @@ class SoftPVTOLEnv(gym.Env):
     * v0: initial version. Fixed before any release (2026-11-23): with ``residual_space="virtual"``
       the residual was added to the controller's tau *and* its first four entries to the actuators;
       it is now applied once, through tau, as documented.
+    * v0, physics fix (2026-12-01, a behaviour change; committed figures regenerated): the zero-order
+      hold holds the *actuators* (T_l, T_r, tau_l, tau_r) over the control step, so the generalized
+      force B(q) a is re-evaluated at every RK4 stage (it was B(q_k) a held as a generalized force,
+      an error of up to 1.4e-3 relative per 0.01 s step). ``allocation="ideal"`` holds tau itself.
+      The built-in references are evaluated in compiled code (same formulas; last-bit differences).
+      Tasks come from a registry (:mod:`softpvtol_gym.tasks`): ``task=`` takes any registered name.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 100}  # per instance: 1 / control period
