@@ -1,0 +1,391 @@
+"""The controller block driver: one step of the actuated passivity controller (passivity law ->
+allocation -> arm references -> arm torques) for blocks of CTRL_LANES rows, shared by
+PassivityController, the env's residual mode and PassivityPolicy."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .. import _kernels as MK
+
+_jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
+from .._layout import Layout
+from ._allocation_kernels import (ALLOC_PAPER, CTRL_LANES, INFO_RESIDUAL, N_AW, N_INFO, allocate_exact_lanes,
+                                  allocate_paper)
+from ._passivity_kernels import model_entries, passivity_rows
+
+# ------------------------------------------------------------------------- fused controller step
+# One control step of :class:`~softpvtol_gym.control.PassivityController` (actuated loops) for a block
+# of up to CTRL_LANES batch rows, composed of the kernels above: body rows of the passivity law ->
+# allocation (repeated ``algebraic_iterations`` times) -> arm references -> arm rows -> actuators.
+# The controller's memory per row lives in a float vector (``ST_*``); the constants in ``cc``
+# (``CC_*``). Every row is computed alone (the rows of a block only share the loops), so the result
+# of a row does not depend on the block it is in.
+
+#: controller memory per row: warm start (T_l, T_r, q_l^d, q_r^d), the last four allocated arm
+#: curvatures (oldest first, (q_l^d, q_r^d) each) and a flag "no history" (fresh, 1.0)
+MEMORY = Layout("controller_memory", [("warm", 4), ("hist", 8), ("fresh", 1)])
+ST_WARM, ST_HIST, ST_FRESH = MEMORY.at
+ST_LEN = MEMORY.size
+#: constants: allocation code, input-map code, algebraic iterations, arm feedforward flag, dt, the
+#: feedforward limits (rad/s, rad/s^2), curvature limit, then params (10), Lambda (5), K (5)
+CONSTANTS = Layout("controller_constants", [("method", 1), ("imap", 1), ("iters", 1), ("ff", 1), ("dt", 1),
+                                            ("vmax", 1), ("amax", 1), ("qmax", 1), ("p", 10), ("lam", 5), ("kg", 5)])
+CC_METHOD, CC_IMAP, CC_ITERS, CC_FF, CC_DT, CC_VMAX, CC_AMAX, CC_QMAX, CC_P, CC_LAM, CC_KG = CONSTANTS.at
+CC_LEN = CONSTANTS.size
+#: row error codes: the allocation got a non-finite body force; an arm curvature is beyond 2 pi
+#: (``input_map="exact"``: the thrust-work compensation goes through the checked model API)
+ERR_NONE, ERR_TAU, ERR_CURVATURE = 0, 1, 2
+MAX_CURVATURE = 2.0 * math.pi
+
+
+
+@_jit
+def _clip(x, lo, hi):
+    """np.clip for one value (NaN stays NaN)."""
+    if x < lo:
+        return lo
+    if x > hi:
+        return hi
+    return x
+
+
+@_jit
+def _arm_derivatives(h0, h1, h2, h3, dt, vmax, amax):
+    """Bounded second-order backward differences of an allocated curvature history (h3 newest)."""
+    vel = _clip((3.0 * h3 - 4.0 * h2 + h1) / (2.0 * dt), -vmax, vmax)
+    acc = _clip((2.0 * h3 - 5.0 * h2 + 4.0 * h1 - h0) / (dt * dt), -amax, amax)
+    return vel, acc
+
+
+
+
+@MK._inline
+def lane_index(row, lane):
+    """Index of (row, lane) in a flat lane block."""
+    return row * CTRL_LANES + lane
+
+#: rows of a controller block: B[row * CTRL_LANES + lane] (structure of arrays, flat with constant row
+#: offsets: LLVM then vectorises the branch-free lane loops). Inputs: q, qdot, body reference (arm
+#: entries ignored), its velocity and acceleration, tau residual; the row's memory before and after the
+#: step; outputs: error code (ERR_*), tau (5), actuators (4), arm references (2), allocation info (in
+#: this order: ``batch_controller`` copies them as one run); work: D, C, g entries (17), arm references
+#: with their derivatives (6), allocation (4), active flag
+BLOCK = Layout("controller_block", [
+    ("q", 5), ("qd", 5), ("qr", 5), ("qdr", 5), ("qddr", 5), ("res", 5), ("st", ST_LEN), ("stn", ST_LEN),
+    ("err", 1), ("tau", 5), ("act", 4), ("arm", 2), ("info", N_INFO),
+    ("ents", 17), ("ref", 6), ("alloc", 4), ("active", 1),
+])
+(CB_Q, CB_QD, CB_QR, CB_QDR, CB_QDDR, CB_RES, CB_ST, CB_STN, CB_ERR, CB_TAU, CB_ACT, CB_ARM, CB_INFO, CB_ENTS, CB_REF,
+ CB_ALLOC, CB_ACTIVE) = BLOCK.at
+CB_LEN = BLOCK.size
+
+
+@_jit
+def controller_work():
+    """(B, A): the work arrays of :func:`controller_lanes` (one pair per thread)."""
+    return np.zeros(CB_LEN * CTRL_LANES), np.zeros(N_AW * CTRL_LANES)
+
+
+@MK._inline
+def lane3(B, c, j):
+    """Rows c .. c + 2 of lane j as a tuple (lane4 ... lane8 likewise)."""
+    return B[lane_index(c, j)], B[lane_index(c + 1, j)], B[lane_index(c + 2, j)]
+
+
+@MK._inline
+def lane4(B, c, j):
+    return lane3(B, c, j) + (B[lane_index(c + 3, j)],)
+
+
+@MK._inline
+def lane5(B, c, j):
+    return lane4(B, c, j) + (B[lane_index(c + 4, j)],)
+
+
+@MK._inline
+def lane6(B, c, j):
+    return lane3(B, c, j) + lane3(B, c + 3, j)
+
+
+@MK._inline
+def lane8(B, c, j):
+    return lane4(B, c, j) + lane4(B, c + 4, j)
+
+
+@MK._inline
+def put_lane3(B, c, j, t):
+    """Rows c .. c + 2 of lane j from a tuple (put_lane4, put_lane5 likewise)."""
+    B[lane_index(c, j)], B[lane_index(c + 1, j)], B[lane_index(c + 2, j)] = t[0], t[1], t[2]
+
+
+@MK._inline
+def put_lane4(B, c, j, t):
+    put_lane3(B, c, j, t)
+    B[lane_index(c + 3, j)] = t[3]
+
+
+@MK._inline
+def put_lane5(B, c, j, t):
+    put_lane4(B, c, j, t)
+    B[lane_index(c + 4, j)] = t[4]
+
+
+@MK._inline
+def put_lane_inputs(B, j, q, qd, qr, qdr, qddr, res, S, n):
+    """Inputs of lane j (5-tuples) and its memory S[n] into the block."""
+    put_lane5(B, CB_Q, j, q)
+    put_lane5(B, CB_QD, j, qd)
+    put_lane5(B, CB_QR, j, qr)
+    put_lane5(B, CB_QDR, j, qdr)
+    put_lane5(B, CB_QDDR, j, qddr)
+    put_lane5(B, CB_RES, j, res)
+    # written out: a loop here would keep the arrays' reference counting in the row loop
+    put_lane5(B, CB_ST, j, (S[n, 0], S[n, 1], S[n, 2], S[n, 3], S[n, 4]))
+    put_lane4(B, CB_ST + 5, j, (S[n, 5], S[n, 6], S[n, 7], S[n, 8]))
+    put_lane4(B, CB_ST + 9, j, (S[n, 9], S[n, 10], S[n, 11], S[n, 12]))
+
+
+@MK._inline
+def put_lane_memory(B, j, S_new, n):
+    """The memory of lane j after the step into S_new[n]."""
+    S_new[n, 0], S_new[n, 1], S_new[n, 2], S_new[n, 3], S_new[n, 4] = lane5(B, CB_STN, j)
+    S_new[n, 5], S_new[n, 6], S_new[n, 7], S_new[n, 8] = lane4(B, CB_STN + 5, j)
+    S_new[n, 9], S_new[n, 10], S_new[n, 11], S_new[n, 12] = lane4(B, CB_STN + 9, j)
+
+
+@MK._inline
+def _lane_inputs(B, j):
+    """(D, C, g entries, q, qdot, body reference rows (3 each of qr, qdr, qddr), arm references with
+    their derivatives (6), residual) of lane j. (Helpers that take the block array stay branch-free:
+    a branch would keep numba's reference counting of the array in the row loops.)"""
+    ents = (lane8(B, CB_ENTS, j), lane6(B, CB_ENTS + 8, j), lane3(B, CB_ENTS + 14, j))
+    body_ref = lane3(B, CB_QR, j) + lane3(B, CB_QDR, j) + lane3(B, CB_QDDR, j)
+    return ents, lane5(B, CB_Q, j), lane5(B, CB_QD, j), body_ref, lane6(B, CB_REF, j), lane5(B, CB_RES, j)
+
+
+@MK._inline
+def _lane_tau(ents, q, qd, br, refs, res, lam, kg, has_res):
+    """tau of the passivity law (plus the residual) for the inputs of :func:`_lane_inputs`."""
+    arm_l, arm_r, vl, vr, al, ar = refs
+    tau = passivity_rows(ents, q, qd, (br[0], br[1], br[2], arm_l, arm_r), (br[3], br[4], br[5], vl, vr),
+                         (br[6], br[7], br[8], al, ar), lam, kg)
+    if has_res:
+        tau = (tau[0] + res[0], tau[1] + res[1], tau[2] + res[2], tau[3] + res[3], tau[4] + res[4])
+    return tau
+
+
+@_jit
+def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
+    """One step of the actuated passivity controller for the rows of a block: lanes 0 .. m - 1 of
+    B (``CB_*`` rows, inputs filled, see :func:`put_lane_inputs`); A: the allocation's work.
+
+    cfg: (method, input map, algebraic iterations, arm feedforward, dt, vmax, amax, curvature limit)
+    (see ``CC_*``); p, lam, kg: params and gains (tuples); the tau residual is added when ``has_res``;
+    the memory after the step (into CB_STN) is the one before unless ``commit``. Outputs per lane:
+    the error code (CB_ERR: ERR_NONE, or the row's outputs are zeros and its memory unchanged), tau (5:
+    the commanded generalized force, arm rows: the arm torques asked for), actuators (T_l, T_r,
+    tau_l, tau_r), arm references (2) and allocation info (N_INFO).
+    """
+    method, imap, iters, ff, dt, vmax, amax, qmax = cfg
+    for j in range(CTRL_LANES):  # D, C, g of every lane (unused ones too): polynomials only, SIMD
+        d, cor, g = model_entries(lane5(B, CB_Q, j), lane5(B, CB_QD, j), p)
+        put_lane4(B, CB_ENTS, j, d[:4])
+        put_lane4(B, CB_ENTS + 4, j, d[4:])
+        put_lane3(B, CB_ENTS + 8, j, cor[:3])
+        put_lane3(B, CB_ENTS + 11, j, cor[3:])
+        put_lane3(B, CB_ENTS + 14, j, g)
+    for j in range(m):
+        # arm references of the body rows: the last allocated curvatures with their feedforward
+        # derivatives, or (no history yet / just reset) the measured curvatures at rest
+        vl = vr = al = ar = 0.0
+        if B[lane_index(CB_ST + ST_FRESH, j)] > 0.5:
+            arm_l, arm_r = B[lane_index(CB_Q + 3, j)], B[lane_index(CB_Q + 4, j)]
+        else:
+            h = CB_ST + ST_HIST
+            arm_l, arm_r = B[lane_index(h + 6, j)], B[lane_index(h + 7, j)]
+            if ff:
+                hist = lane8(B, h, j)
+                vl, al = _arm_derivatives(hist[0], hist[2], hist[4], hist[6], dt, vmax, amax)
+                vr, ar = _arm_derivatives(hist[1], hist[3], hist[5], hist[7], dt, vmax, amax)
+        put_lane3(B, CB_REF, j, (arm_l, arm_r, vl))
+        put_lane3(B, CB_REF + 3, j, (vr, al, ar))
+        for k in range(4):  # warm start (NaN: cold)
+            B[lane_index(CB_ALLOC + k, j)] = B[lane_index(CB_ST + ST_WARM + k, j)]
+        put_lane3(B, CB_INFO, j, (0.0, 0.0, 0.0))
+        B[lane_index(CB_ERR, j)] = ERR_NONE
+    for _ in range(iters):
+        for j in range(m):
+            active = B[lane_index(CB_ERR, j)] == ERR_NONE
+            if active:
+                ents, q, qd, br, refs, res = _lane_inputs(B, j)
+                tau = _lane_tau(ents, q, qd, br, refs, res, lam, kg, has_res)
+                put_lane3(B, CB_TAU, j, tau)
+                if not (math.isfinite(tau[0]) and math.isfinite(tau[1]) and math.isfinite(tau[2])):
+                    B[lane_index(CB_ERR, j)] = ERR_TAU
+                    active = False
+            B[lane_index(CB_ACTIVE, j)] = 1.0 if active else 0.0
+        if method == ALLOC_PAPER:
+            for j in range(m):
+                if B[lane_index(CB_ACTIVE, j)] != 0.0:
+                    t0, t1, t2 = lane3(B, CB_TAU, j)
+                    warm = lane4(B, CB_ALLOC, j)
+                    alloc, info = allocate_paper(t0, t1, t2, B[lane_index(CB_Q + 2, j)], p, warm[2], warm[3], True)
+                    put_lane4(B, CB_ALLOC, j, alloc)
+                    put_lane3(B, CB_INFO, j, info)
+        else:
+            allocate_exact_lanes(m, B, CB_TAU, CB_Q + 2, CB_ALLOC, CB_ACTIVE, CB_ALLOC, CB_INFO, A, True, p, imap,
+                                 qmax)
+        for j in range(m):
+            if B[lane_index(CB_ACTIVE, j)] != 0.0:
+                B[lane_index(CB_REF, j)] = B[lane_index(CB_ALLOC + 2, j)]
+                B[lane_index(CB_REF + 1, j)] = B[lane_index(CB_ALLOC + 3, j)]
+    for j in range(m):
+        ents, q, qd, br, refs, res = _lane_inputs(B, j)
+        err = B[lane_index(CB_ERR, j)]
+        if err == ERR_NONE and imap == MK.INPUT_MAP_EXACT and not (abs(q[3]) <= MAX_CURVATURE
+                                                                   and abs(q[4]) <= MAX_CURVATURE):
+            err = ERR_CURVATURE
+        for k in range(ST_LEN):
+            B[lane_index(CB_STN + k, j)] = B[lane_index(CB_ST + k, j)]
+        if err != ERR_NONE:  # zero outputs, memory unchanged
+            B[lane_index(CB_ERR, j)] = err
+            for k in range(CB_INFO + N_INFO - CB_TAU):
+                B[lane_index(CB_TAU + k, j)] = 0.0
+            continue
+        arm_l, arm_r, vl, vr, al, ar = refs
+        Tl, Tr = B[lane_index(CB_ALLOC, j)], B[lane_index(CB_ALLOC + 1, j)]
+        if commit:
+            # push the allocated curvatures; a fresh row gets a flat history (no jump for the differences)
+            h = CB_ST + ST_HIST
+            if B[lane_index(CB_ST + ST_FRESH, j)] > 0.5:
+                hist = (arm_l, arm_r, arm_l, arm_r, arm_l, arm_r, arm_l, arm_r)
+            else:
+                hist = lane6(B, h + 2, j) + (arm_l, arm_r)
+            for k in range(4):
+                B[lane_index(CB_STN + ST_WARM + k, j)] = B[lane_index(CB_ALLOC + k, j)]
+            put_lane4(B, CB_STN + ST_HIST, j, hist[:4])
+            put_lane4(B, CB_STN + ST_HIST + 4, j, hist[4:])
+            B[lane_index(CB_STN + ST_FRESH, j)] = 0.0
+            vl = vr = al = ar = 0.0
+            if ff:
+                vl, al = _arm_derivatives(hist[0], hist[2], hist[4], hist[6], dt, vmax, amax)
+                vr, ar = _arm_derivatives(hist[1], hist[3], hist[5], hist[7], dt, vmax, amax)
+        # arm rows with the new arm references
+        t_arm = _lane_tau(ents, q, qd, br, (arm_l, arm_r, vl, vr, al, ar), res, lam, kg, has_res)
+        tau_l, tau_r = t_arm[3], t_arm[4]
+        a2, a3 = tau_l, tau_r
+        if imap == MK.INPUT_MAP_EXACT:  # cancel the thrusts' own work on the curvatures
+            gf = MK.generalized_forces(q, (Tl, Tr, 0.0, 0.0), p, MK.INPUT_MAP_EXACT)
+            a2 -= gf[3]
+            a3 -= gf[4]
+        B[lane_index(CB_TAU + 3, j)], B[lane_index(CB_TAU + 4, j)] = tau_l, tau_r
+        put_lane4(B, CB_ACT, j, (Tl, Tr, a2, a3))
+        B[lane_index(CB_ARM, j)], B[lane_index(CB_ARM + 1, j)] = arm_l, arm_r
+
+
+@_jit
+def config_tuples(cc):
+    """(cfg, p, lam, kg) tuples of :func:`controller_lanes` from the constant vector ``cc``."""
+    cfg = (int(cc[CC_METHOD]), int(cc[CC_IMAP]), int(cc[CC_ITERS]), cc[CC_FF] > 0.0, cc[CC_DT], cc[CC_VMAX],
+           cc[CC_AMAX], cc[CC_QMAX])
+    o = CC_P
+    p = (cc[o], cc[o + 1], cc[o + 2], cc[o + 3], cc[o + 4], cc[o + 5], cc[o + 6], cc[o + 7], cc[o + 8], cc[o + 9])
+    lam = (cc[CC_LAM], cc[CC_LAM + 1], cc[CC_LAM + 2], cc[CC_LAM + 3], cc[CC_LAM + 4])
+    kg = (cc[CC_KG], cc[CC_KG + 1], cc[CC_KG + 2], cc[CC_KG + 3], cc[CC_KG + 4])
+    return cfg, p, lam, kg
+
+
+@MK._inline
+def row5(A, n, c):
+    """(A[n, c], ..., A[n, c + 4])."""
+    return (A[n, c], A[n, c + 1], A[n, c + 2], A[n, c + 3], A[n, c + 4])
+
+
+@MK._inline
+def row5_1d(a):
+    """(a[0], ..., a[4])."""
+    return (a[0], a[1], a[2], a[3], a[4])
+
+
+#: columns of the output of :func:`batch_controller`: tau (5), actuators (4), arm references (2),
+#: allocation info (residual, iterations, feasible), in the order of the block's output rows
+OUT_TAU, OUT_ACT, OUT_ARM, OUT_INFO, OUT_LEN = 0, 5, 9, 11, 14
+
+
+@njit(cache=True, nogil=True)
+def batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, out, err):
+    """:func:`controller_lanes` over a batch (res: one row, broadcast, or one per row): outputs into
+    out (N, ``OUT_LEN``), error codes into err (N), the memory after the step into S_new (commit it
+    with :func:`commit_rows` once every row is done)."""
+    rs = np.int64(res.shape[0] > 1)
+    cfg, p, lam, kg = config_tuples(cc)
+    B, A = controller_work()
+    N = q.shape[0]
+    for n0 in range(0, N, CTRL_LANES):
+        m = min(CTRL_LANES, N - n0)
+        for j in range(m):
+            n = n0 + j
+            put_lane_inputs(B, j, row5(q, n, 0), row5(qd, n, 0), row5(qr, n, 0), row5(qdr, n, 0), row5(qddr, n, 0),
+                            row5(res, n * rs, 0), S, n)
+        controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg)
+        for j in range(m):
+            n = n0 + j
+            err[n] = int(B[lane_index(CB_ERR, j)])
+            for k in range(OUT_LEN):
+                out[n, k] = B[lane_index(CB_TAU + k, j)]
+            put_lane_memory(B, j, S_new, n)
+
+
+@njit(cache=True, nogil=True)
+def batch_controller_commit(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, out):
+    """:func:`batch_controller` and the commit in one call (batches run in one thread); returns the
+    first failed row's error code, or ERR_NONE: every row succeeded (and the memory advanced if
+    ``commit``). A failed call changes no memory."""
+    S_new = S.copy()
+    err = np.zeros(q.shape[0], dtype=np.int64)
+    batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, out, err)
+    for n in range(err.shape[0]):
+        if err[n] != ERR_NONE:
+            return err[n]
+    if commit:
+        _commit_rows(S, S_new, err)
+    return ERR_NONE
+
+
+@njit(cache=True, nogil=True)
+def single_controller_commit(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, out):
+    """:func:`batch_controller_commit` for one state: 1-D inputs (5), out (``OUT_LEN``), S (1, ST_LEN)."""
+    cfg, p, lam, kg = config_tuples(cc)
+    B, A = controller_work()
+    put_lane_inputs(B, 0, row5_1d(q), row5_1d(qd), row5_1d(qr), row5_1d(qdr), row5_1d(qddr), row5_1d(res), S, 0)
+    controller_lanes(1, B, A, has_res, commit, cfg, p, lam, kg)
+    e = int(B[lane_index(CB_ERR, 0)])
+    if e != ERR_NONE:
+        return e
+    for k in range(OUT_LEN):
+        out[k] = B[lane_index(CB_TAU + k, 0)]
+    if commit:
+        put_lane_memory(B, 0, S, 0)
+    return ERR_NONE
+
+
+@_jit
+def _commit_rows(S, S_new, err):
+    """Copy the new memory of all rows, only if no row failed (a failed call changes nothing)."""
+    for n in range(err.shape[0]):
+        if err[n] != ERR_NONE:
+            return False
+    for n in range(S.shape[0]):
+        for k in range(ST_LEN):
+            S[n, k] = S_new[n, k]
+    return True
+
+
+@njit(cache=True, nogil=True)
+def commit_rows(S, S_new, err):
+    """:func:`_commit_rows` (compiled entry point): whether the memory advanced."""
+    return _commit_rows(S, S_new, err)
