@@ -67,6 +67,7 @@ def test_run_config_round_trips(tmp_path):
 
 
 # ------------------------------------------------------------------------------ train.py runs
+@pytest.mark.slow  # train.py in a subprocess
 def test_smoke_training_saves_checkpoints_and_compares_with_passivity(tmp_path):
     out = tmp_path / "run"
     r = run("train.py", "--timesteps", "1024", *SHORT, "--out", out)
@@ -84,6 +85,7 @@ def test_smoke_training_saves_checkpoints_and_compares_with_passivity(tmp_path):
     assert "passivity" in r.stdout and "ppo" in r.stdout
 
 
+@pytest.mark.slow  # three train.py runs in subprocesses
 def test_killed_run_resumes_bit_for_bit(tmp_path):
     """SIGKILL a run after a checkpoint; --resume finishes it with the same weights as an uninterrupted run."""
     from stable_baselines3 import PPO
@@ -159,6 +161,7 @@ def test_bad_evaluate_input_exits_2(args, message, tmp_path, capsys):
     assert not (tmp_path / "e.json").exists()
 
 
+@pytest.mark.slow  # train.py runs in subprocesses
 def test_sac_option_trains_checkpoints_its_replay_buffer_and_resumes(tmp_path):
     out = tmp_path / "sac"
     args = ["--algo", "sac", "--action-mode", "actuators", "--n-envs", "2", "--hp", "learning_starts=64",
