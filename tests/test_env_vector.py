@@ -112,6 +112,7 @@ def test_same_step_autoreset_final_obs():
     assert not np.array_equal(info["final_obs"][0], obs[0])
 
 
+@pytest.mark.slow  # a short PPO training
 def test_sb3_adapter_ppo_and_terminal_observation():
     from stable_baselines3 import PPO
 
