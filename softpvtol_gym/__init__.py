@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
-from . import dynamics, integrators
-from .params import PARAM_FIELDS, SoftPVTOLParams
-from .envs import SoftPVTOLEnv, SoftPVTOLVectorEnv, register_envs
-from .policies import PassivityPolicy
+from ._cache import configure_numba_cache
+
+#: the numba cache of this source version (see softpvtol_gym._cache); set before any kernel is defined
+NUMBA_CACHE_DIR = configure_numba_cache()
+
+from . import dynamics, integrators  # noqa: E402
+from .envs import SoftPVTOLEnv, SoftPVTOLVectorEnv, register_envs  # noqa: E402
+from .params import PARAM_FIELDS, SoftPVTOLParams  # noqa: E402
+from .policies import PassivityPolicy  # noqa: E402
 
 register_envs()
 

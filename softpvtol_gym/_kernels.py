@@ -219,30 +219,20 @@ def generalized_forces_into(q, a, p, input_map, out):
 def qddot(ql, qr, vl, vr, tau, p):
     """qddot = D^-1 (tau - C qdot - g) as a 5-tuple.
 
-    D, C and g depend only on the curvatures and their rates, so only (q_l, q_r, q_l', q_r') enter.
-    The solve uses the block structure of D: theta decouples, and the body block M*I2 is eliminated
-    by a Schur complement, leaving a 2x2 system for the arms. Allocation-free (scalars only).
+    D, C and g (their entries: :func:`mass_entries`, :func:`coriolis_entries`, :func:`gravity_entries`)
+    depend only on the curvatures and their rates, so only (q_l, q_r, q_l', q_r') enter. The solve uses
+    the block structure of D: theta decouples, and the body block M*I2 is eliminated by a Schur
+    complement, leaving a 2x2 system for the arms. Allocation-free (scalars only).
     """
-    ml, mr, ll, lr = p[1], p[2], p[6], p[7]
-    M = p[0] + p[1] + p[2]
-    d1l, d2l, d1pl, d2pl = arm_basis(ql)
-    d1r, d2r, d1pr, d2pr = arm_basis(qr)
-    wl = vl * vl
-    wr = vr * vr
-    kl = ml * ll
-    kr = mr * lr
-    # coupling columns a = D[0:2, 3], b = D[0:2, 4]
-    a0, a1 = kl * d1l, kl * d2l
-    b0, b1 = -kr * d1r, kr * d2r
-    dll = kl * ll * (d1l * d1l + d2l * d2l) + p[4]
-    drr = kr * lr * (d1r * d1r + d2r * d2r) + p[5]
-    g = p[8]
-    # right-hand side tau - C qdot - g
-    r0 = tau[0] - (kl * d1pl * wl - kr * d1pr * wr)
-    r1 = tau[1] - (kl * d2pl * wl + kr * d2pr * wr) - g * M
-    r3 = tau[3] - kl * ll * (d1l * d1pl + d2l * d2pl) * wl - g * kl * d2l
-    r4 = tau[4] - kr * lr * (d1r * d1pr + d2r * d2pr) * wr - g * kr * d2r
-    # Schur complement of the body block M*I2
+    M, inertia, a0, a1, b0, b1, dll, drr = mass_entries(ql, qr, p)
+    c03, c13, c04, c14, c33, c44 = coriolis_entries(ql, qr, vl, vr, p)
+    g1, g3, g4 = gravity_entries(ql, qr, p)
+    # right-hand side tau - C qdot - g (C qdot: rows 0, 1 from both arms, rows 3, 4 from their own)
+    r0 = tau[0] - (c03 * vl + c04 * vr)
+    r1 = tau[1] - (c13 * vl + c14 * vr) - g1
+    r3 = tau[3] - c33 * vl - g3
+    r4 = tau[4] - c44 * vr - g4
+    # Schur complement of the body block M*I2; a = D[0:2, 3], b = D[0:2, 4]
     s11 = dll - (a0 * a0 + a1 * a1) / M
     s22 = drr - (b0 * b0 + b1 * b1) / M
     s12 = -(a0 * b0 + a1 * b1) / M
@@ -254,7 +244,7 @@ def qddot(ql, qr, vl, vr, tau, p):
     return (
         (r0 - a0 * qdd_l - b0 * qdd_r) / M,
         (r1 - a1 * qdd_l - b1 * qdd_r) / M,
-        tau[2] / p[3],
+        tau[2] / inertia,
         qdd_l,
         qdd_r,
     )
@@ -269,16 +259,12 @@ def forward_dynamics_into(q, qd, tau, p, out):
 
 @_inline
 def kinetic_energy(q, qd, p):
-    ml, mr, ll, lr = p[1], p[2], p[6], p[7]
-    M = p[0] + p[1] + p[2]
-    d1l, d2l, _, _ = arm_basis(q[3])
-    d1r, d2r, _, _ = arm_basis(q[4])
-    # 2T = M|v|^2 + I th'^2 + sum_i (m_i |v + l_i q_i' dr_i|^2 - m_i |v|^2) + I_i q_i'^2, expanded
-    vx, vz = qd[0], qd[1]
-    e = M * (vx * vx + vz * vz) + p[3] * qd[2] * qd[2]
-    e += 2.0 * qd[3] * ml * ll * (d1l * vx + d2l * vz) + 2.0 * qd[4] * mr * lr * (-d1r * vx + d2r * vz)
-    e += (ml * ll * ll * (d1l * d1l + d2l * d2l) + p[4]) * qd[3] * qd[3]
-    e += (mr * lr * lr * (d1r * d1r + d2r * d2r) + p[5]) * qd[4] * qd[4]
+    """T = 1/2 qdot^T D(q) qdot from D's entries (:func:`mass_entries`)."""
+    M, inertia, d03, d13, d04, d14, d33, d44 = mass_entries(q[3], q[4], p)
+    vx, vz, w, vl, vr = qd[0], qd[1], qd[2], qd[3], qd[4]
+    e = M * (vx * vx + vz * vz) + inertia * w * w
+    e += 2.0 * vl * (d03 * vx + d13 * vz) + 2.0 * vr * (d04 * vx + d14 * vz)
+    e += d33 * vl * vl + d44 * vr * vr
     return 0.5 * e
 
 

@@ -89,18 +89,15 @@ class SoftPVTOLParams:
         """Gravity load of each arm at zero curvature [N m]: g m_i l_i / 2 (2.45 with defaults)."""
         return 0.5 * self.g * self.m_l * self.l_l, 0.5 * self.g * self.m_r * self.l_r
 
-    def replace(self, **changes: float) -> "SoftPVTOLParams":
+    def replace(self, **changes: float) -> SoftPVTOLParams:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
     @classmethod
-    def from_array(cls, array: np.ndarray) -> "SoftPVTOLParams":
+    def from_array(cls, array: np.ndarray) -> SoftPVTOLParams:
         """Inverse of :attr:`array`."""
         array = np.asarray(array, dtype=np.float64)
         if array.shape != (len(PARAM_FIELDS),):
             raise ValueError(f"expected a parameter vector of shape ({len(PARAM_FIELDS)},), got {array.shape}")
         return cls(**{f: float(v) for f, v in zip(PARAM_FIELDS, array)})
 
-
-#: Index of each field in :attr:`SoftPVTOLParams.array` (for the compiled kernels).
-P = {name: i for i, name in enumerate(PARAM_FIELDS)}

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ._parallel import row_ranges, run_split
 from .control import PassivityController
 from .control import _kernels as CK
 from .control.passivity import PassivityGains
-from ._parallel import row_ranges, run_split
 from .envs.config import EnvConfig
 from .envs.observation import OBS_DIM
 
@@ -30,67 +30,39 @@ def _clip1(x):
 
 
 @_jit
-def policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, out, err):
-    """Rows lo .. hi - 1 of :meth:`PassivityPolicy.predict` for the actuated loops: the state of
-    :meth:`PassivityPolicy.state_from_observation` (theta given), one controller step
-    (``control._kernels.controller_lanes``, new memory into S_new) and the scaled, clipped action."""
-    cfg, p, lam, kg = CK.config_tuples(cc)
-    zero = (0.0, 0.0, 0.0, 0.0, 0.0)
-    B, A = CK.controller_work()
-    for n0 in range(lo, hi, CK.CTRL_LANES):
-        m = min(CK.CTRL_LANES, hi - n0)
-        for j in range(m):
-            n = n0 + j
-            th = theta[n]
-            q = (obs[n, 0], obs[n, 1], th, obs[n, 5], obs[n, 6])
-            qr = (0.0, 0.0, th - obs[n, 2], 0.0, 0.0)
-            qd = (obs[n, 7], obs[n, 8], obs[n, 9], obs[n, 10], obs[n, 11])
-            qdr = (obs[n, 12], obs[n, 13], obs[n, 14], 0.0, 0.0)
-            qddr = (obs[n, 15], obs[n, 16], obs[n, 17], 0.0, 0.0)
-            CK.put_lane_inputs(B, j, q, qd, qr, qdr, qddr, zero, S, n)
-        CK.controller_lanes(m, B, A, False, True, cfg, p, lam, kg)
-        for j in range(m):
-            n = n0 + j
-            err[n] = int(B[CK.lane_index(CK.CB_ERR, j)])
-            CK.put_lane_memory(B, j, S_new, n)
-            if kind == ACTION_VIRTUAL:
-                tau = CK.lane5(B, CK.CB_TAU, j)
-                out[n, 0] = _clip1((tau[0] - offset[0]) / scale[0])
-                out[n, 1] = _clip1((tau[1] - offset[1]) / scale[1])
-                out[n, 2] = _clip1((tau[2] - offset[2]) / scale[2])
-                out[n, 3] = _clip1((tau[3] - offset[3]) / scale[3])
-                out[n, 4] = _clip1((tau[4] - offset[4]) / scale[4])
-            else:
-                act = CK.lane4(B, CK.CB_ACT, j)
-                out[n, 0] = _clip1(2.0 * act[0] / tmax - 1.0)
-                out[n, 1] = _clip1(2.0 * act[1] / tmax - 1.0)
-                out[n, 2] = _clip1(act[2] / taumax)
-                out[n, 3] = _clip1(act[3] / taumax)
+def policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, X, ctl, out, err):
+    """Rows lo .. hi - 1 of :meth:`PassivityPolicy.predict` for the actuated loops: the controller's
+    inputs from the observation (the state of :meth:`PassivityPolicy.state_from_observation`, theta
+    given) into X, the controller block driver (outputs into ctl, new memory into S_new), and the
+    scaled, clipped action into out."""
+    for n in range(lo, hi):
+        th = theta[n]
+        q = (obs[n, 0], obs[n, 1], th, obs[n, 5], obs[n, 6])
+        qr = (0.0, 0.0, th - obs[n, 2], 0.0, 0.0)
+        qdr = (obs[n, 12], obs[n, 13], obs[n, 14], 0.0, 0.0)
+        qddr = (obs[n, 15], obs[n, 16], obs[n, 17], 0.0, 0.0)
+        for i in range(5):
+            X[n, CK.IN_Q + i] = q[i]
+            X[n, CK.IN_QD + i] = obs[n, 7 + i]
+            X[n, CK.IN_QR + i] = qr[i]
+            X[n, CK.IN_QDR + i] = qdr[i]
+            X[n, CK.IN_QDDR + i] = qddr[i]
+            X[n, CK.IN_RES + i] = 0.0
+    CK.controller_rows(lo, hi, X, False, True, cc, S, S_new, ctl, err)
+    for n in range(lo, hi):
+        if kind == ACTION_VIRTUAL:
+            for i in range(5):
+                out[n, i] = _clip1((ctl[n, CK.OUT_TAU + i] - offset[i]) / scale[i])
+        else:
+            out[n, 0] = _clip1(2.0 * ctl[n, CK.OUT_ACT] / tmax - 1.0)
+            out[n, 1] = _clip1(2.0 * ctl[n, CK.OUT_ACT + 1] / tmax - 1.0)
+            out[n, 2] = _clip1(ctl[n, CK.OUT_ACT + 2] / taumax)
+            out[n, 3] = _clip1(ctl[n, CK.OUT_ACT + 3] / taumax)
 
 
 @njit(cache=True, nogil=True)
-def policy_step(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, out, err):
-    policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, out, err)
-
-
-@njit(cache=True, nogil=True)
-def policy_all(obs, theta, kind, scale, offset, tmax, taumax, cc, S, out):
-    """:func:`policy_rows` over all rows and the commit of the memory in one call; returns the first
-    failed row's error code, or ERR_NONE (every row succeeded, the memory advanced)."""
-    S_new = S.copy()
-    err = np.zeros(obs.shape[0], dtype=np.int64)
-    policy_rows(0, obs.shape[0], obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, out, err)
-    for n in range(err.shape[0]):
-        if err[n] != CK.ERR_NONE:
-            return err[n]
-    CK._commit_rows(S, S_new, err)
-    return CK.ERR_NONE
-
-
-@njit(cache=True, nogil=True)
-def commit_rows(S, S_new, err):
-    """Copy the new controller memory if no row failed; returns whether it did."""
-    return CK._commit_rows(S, S_new, err)
+def policy_step(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, X, ctl, out, err):
+    policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, X, ctl, out, err)
 
 
 class PassivityPolicy:
@@ -128,6 +100,7 @@ class PassivityPolicy:
             self.loop, params=config.params, gains=gains, input_map=config.input_map, dt=config.dt
         )
         self._n: int | None = None
+        self._work = None  # the controller driver's inputs, outputs and error codes for a batch of n
         self._scale = config.virtual_scale
         self._offset = config.virtual_offset
         self._tmax = config.thrust_max
@@ -135,7 +108,7 @@ class PassivityPolicy:
         self._kind = ACTION_VIRTUAL if config.action_mode == "virtual" else ACTION_ACTUATORS
 
     @classmethod
-    def from_env(cls, env, loop: str | None = None, gains: PassivityGains | None = None) -> "PassivityPolicy":
+    def from_env(cls, env, loop: str | None = None, gains: PassivityGains | None = None) -> PassivityPolicy:
         """Policy for a SoftPVTOLEnv / SoftPVTOLVectorEnv (wrapped or not) or the SB3 adapter."""
         cfg = getattr(env, "config", None)
         if cfg is None and hasattr(env, "unwrapped"):
@@ -175,23 +148,21 @@ class PassivityPolicy:
         obs = np.ascontiguousarray(obs)
         theta = np.arctan2(obs[:, 3], obs[:, 4])  # numpy's arctan2, as state_from_observation
         ctrl = self.controller
-        S = ctrl.state_rows(n)
+        S, S_new = ctrl.memory_pair(n)
+        if self._work is None or self._work[0].shape[0] != n:
+            self._work = (np.empty((n, CK.IN_LEN)), np.empty((n, CK.OUT_LEN)), np.zeros(n, dtype=np.int64))
+        X, ctl, err = self._work
         out = np.empty((n, self.config.action_dim), dtype=np.float32)
+        args = (obs, theta, self._kind, self._scale, self._offset, self._tmax, self._taumax, ctrl.kernel_constants,
+                S, S_new, X, ctl, out, err)
         ranges = row_ranges(n)
         if len(ranges) == 1:
-            code = policy_all(obs, theta, self._kind, self._scale, self._offset, self._tmax, self._taumax,
-                              ctrl.kernel_constants, S, out)
-            err = np.array([code])
-            ok = code == CK.ERR_NONE
+            policy_step(0, n, *args)
         else:
-            err = np.zeros(n, dtype=np.int64)
-            S_new = S.copy()
-            args = (obs, theta, self._kind, self._scale, self._offset, self._tmax, self._taumax,
-                    ctrl.kernel_constants, S, S_new, out, err)
             run_split(lambda lo, hi: policy_step(lo, hi, *args), ranges)
-            ok = commit_rows(S, S_new, err)
-        if not ok:
+        if err.any():  # nothing changed: the new memory is not swapped in
             ctrl.raise_for(err, self.state_from_observation(obs)[0])
+        ctrl.swap_memory()
         return out
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):

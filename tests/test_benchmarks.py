@@ -17,11 +17,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from softpvtol_gym import PassivityPolicy, SoftPVTOLEnv, SoftPVTOLParams, SoftPVTOLVectorEnv, _kernels as MK
-from softpvtol_gym import dynamics, integrators
-from softpvtol_gym.control import PassivityController, _kernels as CK, allocate, passivity_control, storage_function
-from softpvtol_gym.control.closed_loop import LOOPS
+from softpvtol_gym import PassivityPolicy, SoftPVTOLEnv, SoftPVTOLParams, SoftPVTOLVectorEnv, dynamics, integrators
+from softpvtol_gym import _kernels as MK
 from softpvtol_gym._parallel import row_ranges
+from softpvtol_gym.control import PassivityController, allocate, passivity_control, storage_function
+from softpvtol_gym.control import _kernels as CK
+from softpvtol_gym.control.closed_loop import LOOPS
 from softpvtol_gym.envs import core
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -257,7 +258,8 @@ def test_thread_split_equals_one_call():
         out = ctrl(q, qd, 0 * q, 0 * q, 0 * q)
         for j, c in enumerate(small):
             sl = slice(500 * j, 500 * j + 500)
-            np.testing.assert_array_equal(out.actuators[sl], c(q[sl], qd[sl], 0 * q[sl], 0 * q[sl], 0 * q[sl]).actuators)
+            zero = 0 * q[sl]
+            np.testing.assert_array_equal(out.actuators[sl], c(q[sl], qd[sl], zero, zero, zero).actuators)
 
 
 # ------------------------------------------------------------------------- lazy bracket

@@ -48,7 +48,7 @@ def test_nonzero_residual_is_applied_once_in_its_own_space(space):
     ref = tuple(r[None, :] for r in hover_reference(0.0, 2.0, 0.0))
     q, v = q0[None, :], np.zeros((1, 5))
     u = np.array([0.3, -0.2, 0.1, 0.25, -0.15])[: cfg.action_dim]
-    for k in range(100):
+    for _k in range(100):
         if space == "virtual":
             act = ctrl(q, v, *ref, tau_residual=(u * cfg.residual_tau_scale)[None, :]).actuators
         else:

@@ -26,6 +26,14 @@ def rk4_held(q, v, force_at, params, dt):
     return q + dt / 6 * (v + 2 * v2 + 2 * v3 + v4), v + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
+def held_force(applied, wind, params, input_map, ideal):
+    """The generalized force at a configuration under the held command: tau + wind (ideal mode) or
+    B(q) a + wind."""
+    if ideal:
+        return lambda qs: applied + wind
+    return lambda qs: generalized_forces(qs, applied[:4], params, input_map) + wind
+
+
 CASES = [
     dict(action_mode="actuators"),
     dict(action_mode="actuators", input_map="exact"),
@@ -54,13 +62,7 @@ def test_env_step_is_rk4_with_the_command_held(kw, frame_skip):
         p = env.plant_params
         wind = np.r_[sim.wind[0], 0.0, 0.0, 0.0]  # held over the step (the OU update comes after it)
         env.step(rng.uniform(-0.3, 0.3, env.action_space.shape))
-        applied = sim.applied[0]
-        if ideal:
-            def force(qs, tau=applied.copy(), w=wind):
-                return tau + w
-        else:
-            def force(qs, a=applied[:4].copy(), w=wind):
-                return generalized_forces(qs, a, p, imap) + w
+        force = held_force(sim.applied[0].copy(), wind, p, imap, ideal)
         for _ in range(frame_skip):
             q, v = rk4_held(q, v, force, p, 0.01)
         np.testing.assert_allclose(env.state[0], q, **TOL)

@@ -106,7 +106,7 @@ def test_vector_seeds_differ_between_subenvs():
 def test_same_step_autoreset_final_obs():
     v = SoftPVTOLVectorEnv(num_envs=2, max_episode_seconds=0.03, autoreset_mode="SameStep")
     v.reset(seed=0)
-    for k in range(3):
+    for _k in range(3):
         obs, _, _, trunc, info = v.step(np.zeros((2, 4)))
     assert trunc.all() and info["final_obs"][0].shape == (18,)
     assert not np.array_equal(info["final_obs"][0], obs[0])

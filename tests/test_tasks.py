@@ -66,7 +66,8 @@ def test_registered_task_vector_env_equals_single_envs(circle_task):
     venv = SoftPVTOLVectorEnv(num_envs=n, task="test_circle", action_mode="residual", tier="wind")
     obs_v, _ = venv.reset(seed=10)
     singles = [SoftPVTOLEnv(task="test_circle", action_mode="residual", tier="wind") for _ in range(n)]
-    obs_s = [e.reset(seed=10 + i)[0] for i, e in enumerate(singles)]
+    for i, e in enumerate(singles):
+        np.testing.assert_array_equal(e.reset(seed=10 + i)[0], obs_v[i])
     rng = np.random.default_rng(0)
     for _ in range(60):
         a = rng.uniform(-0.2, 0.2, (n, 5)).astype(np.float32)

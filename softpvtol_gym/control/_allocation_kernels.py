@@ -196,7 +196,7 @@ def allocate_exact(t0, t1, t2, theta, p, input_map, w0, w2, use_warm, qmax):
     ql = qr = Tl = Tr = 0.0
     status = 0
     it = 0
-    for it in range(1, 101):
+    for it in range(1, 101):  # noqa: B007 (the count of the last iteration is returned)
         Gl, dGl, ql, Tl = _lever(x, h, ll, eps, input_map)
         Gr, dGr, qr, Tr = _lever(uz - x, -h, lr, eps, input_map)
         status, x, lo, hi, lo_raw, hi_raw = _exact_newton(x, lo, hi, lo_raw, hi_raw, Gl, dGl, Gr, dGr, uz, h, tt,
@@ -336,7 +336,7 @@ def allocate_paper(t0, t1, t2, theta, p, w2, w3, use_warm):
         ql, qr = 0.4, -0.2
     eps = 1e-7
     it = 0
-    for it in range(1, 61):
+    for it in range(1, 61):  # noqa: B007 (the count of the last iteration is returned)
         _a, _b, pl, pr = _paper_map(ql, qr, ux, uz, tt, ll, lr)
         F0 = ql - pl
         F1 = qr - pr

@@ -10,12 +10,11 @@ import numpy as np
 from numba import njit
 
 from .. import _kernels as MK
+from .._layout import Layout
+from ._allocation_kernels import ALLOC_PAPER, CTRL_LANES, N_AW, N_INFO, allocate_exact_lanes, allocate_paper
+from ._passivity_kernels import model_entries, passivity_rows
 
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
-from .._layout import Layout
-from ._allocation_kernels import (ALLOC_PAPER, CTRL_LANES, INFO_RESIDUAL, N_AW, N_INFO, allocate_exact_lanes,
-                                  allocate_paper)
-from ._passivity_kernels import model_entries, passivity_rows
 
 # ------------------------------------------------------------------------- fused controller step
 # One control step of :class:`~softpvtol_gym.control.PassivityController` (actuated loops) for a block
@@ -305,32 +304,34 @@ def row5(A, n, c):
     return (A[n, c], A[n, c + 1], A[n, c + 2], A[n, c + 3], A[n, c + 4])
 
 
-@MK._inline
-def row5_1d(a):
-    """(a[0], ..., a[4])."""
-    return (a[0], a[1], a[2], a[3], a[4])
+#: per-row inputs of the driver (X): q, qdot, body reference (arm entries ignored), its velocity and
+#: acceleration, tau residual (5 each)
+INPUTS = Layout("controller_inputs", [("q", 5), ("qd", 5), ("qr", 5), ("qdr", 5), ("qddr", 5), ("res", 5)])
+IN_Q, IN_QD, IN_QR, IN_QDR, IN_QDDR, IN_RES = INPUTS.at
+IN_LEN = INPUTS.size
+#: per-row outputs (out): tau (5), actuators (4), arm references (2), allocation info (residual,
+#: iterations, feasible), in the order of the block's output rows
+OUTPUTS = Layout("controller_outputs", [("tau", 5), ("act", 4), ("arm", 2), ("info", N_INFO)])
+OUT_TAU, OUT_ACT, OUT_ARM, OUT_INFO = OUTPUTS.at
+OUT_LEN = OUTPUTS.size
 
 
-#: columns of the output of :func:`batch_controller`: tau (5), actuators (4), arm references (2),
-#: allocation info (residual, iterations, feasible), in the order of the block's output rows
-OUT_TAU, OUT_ACT, OUT_ARM, OUT_INFO, OUT_LEN = 0, 5, 9, 11, 14
-
-
-@njit(cache=True, nogil=True)
-def batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, out, err):
-    """:func:`controller_lanes` over a batch (res: one row, broadcast, or one per row): outputs into
-    out (N, ``OUT_LEN``), error codes into err (N), the memory after the step into S_new (commit it
-    with :func:`commit_rows` once every row is done)."""
-    rs = np.int64(res.shape[0] > 1)
+@_jit
+def controller_rows(lo, hi, X, has_res, commit, cc, S, S_new, out, err):
+    """The controller block driver, the one loop that runs :func:`controller_lanes` over a batch:
+    rows lo .. hi - 1 of the inputs X (N, ``IN_LEN``) and the memory S (N, ``ST_LEN``), in blocks of
+    CTRL_LANES; outputs into out (N, ``OUT_LEN``), error codes (``ERR_*``) into err (N), and every
+    row's memory after the step (unchanged for a failed row, or without ``commit``) into S_new (may
+    be S itself: a block's rows are read before they are written). PassivityController, the env's
+    residual mode and PassivityPolicy fill X, call this, and read out."""
     cfg, p, lam, kg = config_tuples(cc)
     B, A = controller_work()
-    N = q.shape[0]
-    for n0 in range(0, N, CTRL_LANES):
-        m = min(CTRL_LANES, N - n0)
+    for n0 in range(lo, hi, CTRL_LANES):
+        m = min(CTRL_LANES, hi - n0)
         for j in range(m):
             n = n0 + j
-            put_lane_inputs(B, j, row5(q, n, 0), row5(qd, n, 0), row5(qr, n, 0), row5(qdr, n, 0), row5(qddr, n, 0),
-                            row5(res, n * rs, 0), S, n)
+            put_lane_inputs(B, j, row5(X, n, IN_Q), row5(X, n, IN_QD), row5(X, n, IN_QR), row5(X, n, IN_QDR),
+                            row5(X, n, IN_QDDR), row5(X, n, IN_RES), S, n)
         controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg)
         for j in range(m):
             n = n0 + j
@@ -341,51 +342,19 @@ def batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, o
 
 
 @njit(cache=True, nogil=True)
-def batch_controller_commit(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, out):
-    """:func:`batch_controller` and the commit in one call (batches run in one thread); returns the
-    first failed row's error code, or ERR_NONE: every row succeeded (and the memory advanced if
-    ``commit``). A failed call changes no memory."""
-    S_new = S.copy()
-    err = np.zeros(q.shape[0], dtype=np.int64)
-    batch_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, S_new, out, err)
-    for n in range(err.shape[0]):
-        if err[n] != ERR_NONE:
-            return err[n]
-    if commit:
-        _commit_rows(S, S_new, err)
-    return ERR_NONE
+def batch_controller(X, has_res, commit, cc, S, S_new, out, err):
+    """:func:`controller_rows` over all rows of its arguments (a thread's share of a batch)."""
+    controller_rows(0, X.shape[0], X, has_res, commit, cc, S, S_new, out, err)
 
 
 @njit(cache=True, nogil=True)
-def single_controller_commit(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, out):
-    """:func:`batch_controller_commit` for one state: 1-D inputs (5), out (``OUT_LEN``), S (1, ST_LEN)."""
-    cfg, p, lam, kg = config_tuples(cc)
-    B, A = controller_work()
-    put_lane_inputs(B, 0, row5_1d(q), row5_1d(qd), row5_1d(qr), row5_1d(qdr), row5_1d(qddr), row5_1d(res), S, 0)
-    controller_lanes(1, B, A, has_res, commit, cfg, p, lam, kg)
-    e = int(B[lane_index(CB_ERR, 0)])
-    if e != ERR_NONE:
-        return e
-    for k in range(OUT_LEN):
-        out[k] = B[lane_index(CB_TAU + k, 0)]
-    if commit:
-        put_lane_memory(B, 0, S, 0)
-    return ERR_NONE
-
-
-@_jit
-def _commit_rows(S, S_new, err):
-    """Copy the new memory of all rows, only if no row failed (a failed call changes nothing)."""
-    for n in range(err.shape[0]):
-        if err[n] != ERR_NONE:
-            return False
-    for n in range(S.shape[0]):
-        for k in range(ST_LEN):
-            S[n, k] = S_new[n, k]
-    return True
-
-
-@njit(cache=True, nogil=True)
-def commit_rows(S, S_new, err):
-    """:func:`_commit_rows` (compiled entry point): whether the memory advanced."""
-    return _commit_rows(S, S_new, err)
+def single_controller(q, qd, qr, qdr, qddr, res, has_res, commit, cc, S, out):
+    """:func:`controller_rows` for one state: 1-D inputs (5), out (``OUT_LEN``), memory S (1, ST_LEN)
+    advanced in place if ``commit`` and the row succeeded; returns the row's error code."""
+    X = np.empty((1, IN_LEN))
+    for i in range(5):
+        X[0, IN_Q + i], X[0, IN_QD + i], X[0, IN_QR + i] = q[i], qd[i], qr[i]
+        X[0, IN_QDR + i], X[0, IN_QDDR + i], X[0, IN_RES + i] = qdr[i], qddr[i], res[i]
+    err = np.zeros(1, dtype=np.int64)
+    controller_rows(0, 1, X, has_res, commit, cc, S, S, out.reshape(1, OUT_LEN), err)
+    return err[0]

@@ -5,5 +5,4 @@ driver (:mod:`._block_kernels`). This module gathers their names (``CK.name``)."
 from ._allocation_kernels import *  # noqa: F403
 from ._allocation_kernels import _lever  # noqa: F401
 from ._block_kernels import *  # noqa: F403
-from ._block_kernels import _commit_rows  # noqa: F401
 from ._passivity_kernels import *  # noqa: F403

@@ -5,8 +5,6 @@ Built on the model kernels (:mod:`softpvtol_gym._kernels`): D, C and g are never
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 

@@ -99,7 +99,8 @@ def allocate(
     out = np.empty((n, 4))
     info = np.empty((n, CK.N_INFO))
     theta = np.ascontiguousarray(qf[:, 2])
-    run_rows(CK.batch_allocate, n, bf, theta, param_matrix(params), code, imap, warm, use_warm, float(curvature_limit), out, info)
+    run_rows(CK.batch_allocate, n, bf, theta, param_matrix(params), code, imap, warm, use_warm,
+             float(curvature_limit), out, info)
     out = out.reshape(lead + (4,))
     if not return_info:
         return out

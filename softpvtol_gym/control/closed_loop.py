@@ -22,12 +22,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
 from .._batching import broadcast_batch, check_curvature
-from .._parallel import MIN_ROWS, run_rows
+from .._parallel import run_rows
 from ..dynamics import forward_dynamics, generalized_forces, input_map_code
 from ..integrators import rk4_step, rk4_step_actuated
 from ..params import SoftPVTOLParams
@@ -134,7 +134,7 @@ class PassivityController:
         self.reset()
 
     @classmethod
-    def from_loop(cls, loop: str, **kwargs) -> "PassivityController":
+    def from_loop(cls, loop: str, **kwargs) -> PassivityController:
         """A controller configured as one of :data:`LOOPS` (``"paper"``, ``"improved"``, ``"ideal"``)."""
         if loop not in LOOPS:
             raise ValueError(f"loop must be one of {sorted(LOOPS)}, got {loop!r}")
@@ -232,22 +232,19 @@ class PassivityController:
             names = ("q", "qdot", "q_ref", "qdot_ref", "qddot_ref", "tau_residual")
             lead, flat = broadcast_batch(**{name: (x, 5) for name, x in zip(names, ins)})
         n = flat[0].shape[0]
-        out = np.empty((n, CK.OUT_LEN))
-        S = self.state_rows(n)
+        X = np.empty((n, CK.IN_LEN))
+        for c, x in zip((CK.IN_Q, CK.IN_QD, CK.IN_QR, CK.IN_QDR, CK.IN_QDDR), flat[:5]):
+            X[:, c:c + 5] = x
         has_res, commit = tau_residual is not None, bool(commit)
-        res = flat[5] if has_res else self._no_residual
-        if n < MIN_ROWS:
-            code = CK.batch_controller_commit(flat[0], flat[1], flat[2], flat[3], flat[4], res, has_res, commit,
-                                              self.kernel_constants, S, out)
-            if code != CK.ERR_NONE:
-                self.raise_for(np.array([code]), flat[0])
-        else:
-            S_new = S.copy()
-            err = np.zeros(n, dtype=np.int64)
-            run_rows(CK.batch_controller, n, *flat[:5], res, has_res, commit, self.kernel_constants, S, S_new, out,
-                     err)
-            if not (CK.commit_rows(S, S_new, err) if commit else not err.any()):
-                self.raise_for(err, flat[0])
+        X[:, CK.IN_RES:CK.IN_RES + 5] = flat[5] if has_res else 0.0
+        out = np.empty((n, CK.OUT_LEN))
+        err = np.zeros(n, dtype=np.int64)
+        S, S_new = self.memory_pair(n)
+        run_rows(CK.batch_controller, n, X, has_res, commit, self.kernel_constants, S, S_new, out, err)
+        if err.any():  # nothing changed: the new memory is not swapped in
+            self.raise_for(err, flat[0])
+        if commit:
+            self.swap_memory()
         if lead != (n,):
             out = out.reshape(lead + (CK.OUT_LEN,))
         info = out[..., CK.OUT_INFO:]
@@ -260,9 +257,9 @@ class PassivityController:
         """__call__ for one state given as contiguous float64 arrays (5,) (the fast path)."""
         out = np.empty(CK.OUT_LEN)
         S = self.state_rows(1)
-        code = CK.single_controller_commit(ins[0], ins[1], ins[2], ins[3], ins[4],
-                                           ins[5] if has_res else self._no_residual[0], has_res, commit,
-                                           self.kernel_constants, S, out)
+        code = CK.single_controller(ins[0], ins[1], ins[2], ins[3], ins[4],
+                                    ins[5] if has_res else self._no_residual[0], has_res, commit,
+                                    self.kernel_constants, S, out)
         if code != CK.ERR_NONE:
             self.raise_for(np.array([code]), ins[0].reshape(1, 5))
         allocation = _allocation_info(out[..., CK.OUT_INFO], np.array(int(out[CK.OUT_INFO + 1])),

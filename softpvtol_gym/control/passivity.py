@@ -45,12 +45,12 @@ class PassivityGains:
         object.__setattr__(self, "k", _positive_5vector("k", self.k))
 
     @classmethod
-    def paper_kd(cls) -> "PassivityGains":
+    def paper_kd(cls) -> PassivityGains:
         """K = the paper's k_d list (the default)."""
         return cls()
 
     @classmethod
-    def paper_kp(cls) -> "PassivityGains":
+    def paper_kp(cls) -> PassivityGains:
         """K = the paper's k_p list (3, 3, 15, 30, 30), the other reading of the paper."""
         return cls(k=cls.PAPER_KP)
 
@@ -81,7 +81,8 @@ def passivity_control(
         q=(q, 5), qdot=(qdot, 5), q_ref=(q_ref, 5), qdot_ref=(qdot_ref, 5), qddot_ref=(qddot_ref, 5)
     )
     out = np.empty_like(qf)
-    run_rows(CK.batch_passivity, qf.shape[0], qf, vf, rf, rdf, rddf, param_matrix(params), gains.lam_array, gains.k_array, out)
+    run_rows(CK.batch_passivity, qf.shape[0], qf, vf, rf, rdf, rddf, param_matrix(params), gains.lam_array,
+             gains.k_array, out)
     return out.reshape(lead + (5,))
 
 

@@ -1,5 +1,6 @@
 """Gymnasium environments: SoftPVTOL-v0 (single), its native vector env and the SB3 adapter."""
 
+from ..tasks import TASKS
 from .actions import ACTION_MODES
 from .config import EnvConfig
 from .observation import OBS_NAMES
@@ -7,7 +8,6 @@ from .reward import REWARD_TERMS
 from .soft_pvtol import SoftPVTOLEnv
 from .tiers import TIERS, TierSpec, register_tier
 from .vector import SoftPVTOLVectorEnv
-from ..tasks import TASKS
 
 __all__ = [
     "SoftPVTOLEnv", "SoftPVTOLVectorEnv", "EnvConfig", "ACTION_MODES", "TASKS", "TIERS", "OBS_NAMES",

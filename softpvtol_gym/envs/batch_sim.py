@@ -6,14 +6,21 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _kernels as MK
-from .._batching import check_curvature
 from .._parallel import row_ranges, run_split
+from ..control import _kernels as CK
 from .config import EnvConfig
 from .episodes import apply_options, sample_episodes
 from .layout import ISTATE, STATE, S
 from .observation import OBS_DIM
-from .step import (CTL_LEN, STEP_BAD_ACTION, STEP_CONTROLLER_TAU, STEP_OK, controller_error, reset_rows,
-                   step_check_actions, step_controller_rows, step_physics_rows, step_serial)
+from .step import (
+    STEP_BAD_ACTION,
+    STEP_OK,
+    reset_rows,
+    step_check_actions,
+    step_controller_rows,
+    step_physics_rows,
+    step_serial,
+)
 
 
 class BatchSim:
@@ -44,7 +51,10 @@ class BatchSim:
         self._make_views()
         self.P[:] = cfg.params.array
         self.lag_init[:] = 1
-        self._ctl = np.empty((n, CTL_LEN))  # the residual mode's base-controller outputs
+        # the residual mode's base controller: inputs, outputs and error codes of its block driver
+        self._ctl_in = np.empty((n, CK.IN_LEN))
+        self._ctl = np.empty((n, CK.OUT_LEN))
+        self._ctl_err = np.zeros(n, dtype=np.int64)
         self._ranges = row_ranges(n, align=MK.LANES)  # one per thread, whole lane blocks
         self._shape = {True: (n, self.action_dim), False: (self.action_dim,)}
         self.controller = None
@@ -120,16 +130,12 @@ class BatchSim:
         else:
             cc, S_mem, S_new = self.C, self.F, self.F  # unused (same types: no second compilation)
         if len(self._ranges) == 1:
-            code = step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, cc, S_mem, S_new, self._ctl)
+            code = step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, cc, S_mem, S_new, self._ctl_in,
+                               self._ctl, self._ctl_err)
         else:
             code = self._step_split(a, cc, S_mem, S_new, side)
-        if code != STEP_OK:
-            if code == STEP_BAD_ACTION:
-                raise ValueError(f"action must be finite (in [-1, 1]), got {action!r}")
-            if code == STEP_CONTROLLER_TAU:
-                raise ValueError("tau contains NaN or inf; allocation needs a finite body force")
-            check_curvature(self.qm)
-            raise RuntimeError(f"step kernel failed with code {code}")  # pragma: no cover
+        if code == STEP_BAD_ACTION:
+            raise ValueError(f"action must be finite (in [-1, 1]), got {action!r}")
         if ctrl is not None:
             ctrl.swap_memory()
         if len(self._ranges) == 1 and side is not None:
@@ -137,16 +143,13 @@ class BatchSim:
 
     def _step_split(self, a, cc, S_mem, S_new, side=None) -> int:
         """The step of a large batch with its rows split over threads (same result as step_serial)."""
-        F, obs, key, I, C, K, ctl = self.F, self.obs, self.key, self.I, self.C, self.K, self._ctl
+        F, obs, key, I, C, K, X, ctl, err = (self.F, self.obs, self.key, self.I, self.C, self.K, self._ctl_in,
+                                             self._ctl, self._ctl_err)
         ok, has_res = step_check_actions(a, K)
         if not ok:
             return STEP_BAD_ACTION
         if self.controller is not None:
-            err = np.zeros(self.n, dtype=np.int64)
-            run_split(lambda lo, hi: step_controller_rows(lo, hi, a, F, I, C, K, has_res, cc, S_mem, S_new, ctl, err),
-                      self._ranges)
-            code = controller_error(err)
-            if code != STEP_OK:
-                return code
+            run_split(lambda lo, hi: step_controller_rows(lo, hi, a, F, I, C, K, has_res, cc, S_mem, S_new, X, ctl,
+                                                          err), self._ranges)
         run_split(lambda lo, hi: step_physics_rows(lo, hi, a, F, obs, key, I, C, K, ctl), self._ranges, side)
         return STEP_OK

@@ -60,7 +60,8 @@ class EnvConfig:
         if self.params is None:  # the default, as for the env's other arguments
             object.__setattr__(self, "params", SoftPVTOLParams())
         if not isinstance(self.params, SoftPVTOLParams):
-            raise ValueError(f"params must be a SoftPVTOLParams, got {self.params!r} of type {type(self.params).__name__}")
+            raise ValueError(f"params must be a SoftPVTOLParams, got {self.params!r} of type "
+                             f"{type(self.params).__name__}")
         if self.allocation is not None:
             choice("allocation", self.allocation, ALLOCATIONS)
             if self.allocation == "ideal" and self.action_mode != "virtual":
@@ -69,7 +70,8 @@ class EnvConfig:
                     f"got action_mode={self.action_mode!r}; use one of ['exact', 'paper']"
                 )
         choice("residual_space", self.residual_space, RESIDUAL_SPACES)
-        if isinstance(self.frame_skip, bool) or not isinstance(self.frame_skip, (int, np.integer)) or self.frame_skip < 1:
+        fs = self.frame_skip
+        if isinstance(fs, bool) or not isinstance(fs, (int, np.integer)) or fs < 1:
             raise ValueError(f"frame_skip must be an int >= 1, got {self.frame_skip!r}")
         if self.max_episode_seconds is not None:
             positive_number("max_episode_seconds", self.max_episode_seconds)

@@ -12,7 +12,7 @@ from .episodes import N_UNIFORMS, sample_episodes
 from .observation import OBS_CLIP, OBS_DIM, OBS_NAMES
 from .references import N_REF_PARAMS
 from .reward import CRASH_PENALTY, REWARD_TERMS
-from .termination import BOX_X, BOX_Z, GROUND_Z, MAX_ANG_SPEED, MAX_LIN_SPEED, REASONS, R_NONE
+from .termination import BOX_X, BOX_Z, GROUND_Z, MAX_ANG_SPEED, MAX_LIN_SPEED, R_NONE, REASONS
 from .tiers import DEFAULT_TIER_OPTIONS, OBS_NOISE_Q, OBS_NOISE_QD, TIERS
 
 __all__ = [

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from .layout import S, SI
+from .layout import SI, S
 from .reward import REWARD_TERMS
 
 #: float diagnostics: (info key, column of the packed state)

@@ -6,7 +6,7 @@ import math
 
 from numba import njit
 
-from .layout import S, SC, SI
+from .layout import SC, SI, S
 from .noise import STREAM_Q, STREAM_QD, counter_normal
 
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
@@ -37,31 +37,31 @@ def _clip(v):
 
 
 @_jit
-def observe_range(lo, hi, F, key, I, C, obs):
-    """Measured state (noise tiers: + Gaussian noise) into F's qm/qdm and the observation obs[n] of
+def observe_range(lo, hi, state, keys, istate, consts, obs):
+    """Measured state (noise tiers: + Gaussian noise) into state's qm/qdm and the observation obs[n] of
     envs lo .. hi - 1."""
-    noise = C[SC.noise_on] > 0.0
+    noise = consts[SC.noise_on] > 0.0
     for n in range(lo, hi):
-        counter = I[n, SI.counter]
+        counter = istate[n, SI.counter]
         for i in range(5):
-            a = F[n, S.q + i]
-            b = F[n, S.qd + i]
+            a = state[n, S.q + i]
+            b = state[n, S.qd + i]
             if noise:
-                a = a + C[SC.noise_q + i] * counter_normal(key[n], counter, STREAM_Q + i)
-                b = b + C[SC.noise_qd + i] * counter_normal(key[n], counter, STREAM_QD + i)
-            F[n, S.qm + i] = a
-            F[n, S.qdm + i] = b
-        obs[n, 0] = _clip(F[n, S.qm] - F[n, S.qr])
-        obs[n, 1] = _clip(F[n, S.qm + 1] - F[n, S.qr + 1])
-        obs[n, 2] = _clip(wrap(F[n, S.qm + 2] - F[n, S.qr + 2]))
-        th = F[n, S.qm + 2]
+                a = a + consts[SC.noise_q + i] * counter_normal(keys[n], counter, STREAM_Q + i)
+                b = b + consts[SC.noise_qd + i] * counter_normal(keys[n], counter, STREAM_QD + i)
+            state[n, S.qm + i] = a
+            state[n, S.qdm + i] = b
+        obs[n, 0] = _clip(state[n, S.qm] - state[n, S.qr])
+        obs[n, 1] = _clip(state[n, S.qm + 1] - state[n, S.qr + 1])
+        obs[n, 2] = _clip(wrap(state[n, S.qm + 2] - state[n, S.qr + 2]))
+        th = state[n, S.qm + 2]
         s_th, c_th = math.sin(th), math.cos(th)  # side by side: one sincos call
         obs[n, 3] = _clip(s_th)
         obs[n, 4] = _clip(c_th)
-        obs[n, 5] = _clip(F[n, S.qm + 3])
-        obs[n, 6] = _clip(F[n, S.qm + 4])
+        obs[n, 5] = _clip(state[n, S.qm + 3])
+        obs[n, 6] = _clip(state[n, S.qm + 4])
         for i in range(5):
-            obs[n, 7 + i] = _clip(F[n, S.qdm + i])
+            obs[n, 7 + i] = _clip(state[n, S.qdm + i])
         for i in range(3):
-            obs[n, 12 + i] = _clip(F[n, S.qdr + i])
-            obs[n, 15 + i] = _clip(F[n, S.qddr + i])
+            obs[n, 12 + i] = _clip(state[n, S.qdr + i])
+            obs[n, 15 + i] = _clip(state[n, S.qddr + i])

@@ -214,7 +214,7 @@ class SoftPVTOLEnv(gym.Env):
         if self.render_mode is None:
             gym.logger.warn(
                 "You are calling render method without specifying any render mode. You can specify the "
-                f'render_mode at initialization, e.g. gym.make("SoftPVTOL-v0", render_mode="rgb_array")'
+                'render_mode at initialization, e.g. gym.make("SoftPVTOL-v0", render_mode="rgb_array")'
             )
             return None
         if self._renderer is None:
