@@ -10,7 +10,6 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import softpvtol_gym
 from softpvtol_gym import SoftPVTOLEnv, SoftPVTOLParams, SoftPVTOLVectorEnv
 from softpvtol_gym.envs import core
 
