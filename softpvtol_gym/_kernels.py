@@ -73,6 +73,27 @@ def one_minus_cos_over_q2(q):
     return horner(_C1, q * q)
 
 
+@_inline
+def sin_cos(q):
+    """(sin q, cos q) = (q sinc q, 1 - q^2 (1 - cos q)/q^2) from the same series as the rest of the
+    model (a few ulps for |q| <= 1.2 pi, 3e-14 at 2 pi): polynomial arithmetic only, so that a lane
+    loop that evaluates the input map stays SIMD code. Used for the arm curvatures."""
+    s = q * q
+    return q * horner(_S0, s), 1.0 - s * horner(_C1, s)
+
+
+TWO_PI = 2.0 * math.pi
+
+
+@_inline
+def rotate(s0, c0, d):
+    """(sin, cos) of theta + d from (s0, c0) = (sin theta, cos theta), d reduced to [-pi, pi] and
+    evaluated by the series (branch-free, SIMD): the attitude at an RK4 stage from the step's start."""
+    d = d - TWO_PI * math.floor(d / TWO_PI + 0.5)
+    sd, cd = sin_cos(d)
+    return s0 * cd + c0 * sd, c0 * cd - s0 * sd
+
+
 # --------------------------------------------------------------------------------------- model terms
 @_inline
 def mass_entries(ql, qr, p):
@@ -175,8 +196,8 @@ def thrust_curvature_work(T, length, q):
 def thrust_body_forces(st, ct, ql, qr, Tl, Tr, p, input_map):
     """The body rows (tau_x, tau_z, tau_theta) of :func:`generalized_forces` for thrusts (T_l, T_r) at
     curvatures (q_l, q_r), given st, ct = sin(theta), cos(theta)."""
-    sl, cl = math.sin(ql), math.cos(ql)
-    sr, cr = math.sin(qr), math.cos(qr)
+    sl, cl = sin_cos(ql)
+    sr, cr = sin_cos(qr)
     vx = Tl * sl - Tr * sr
     vz = Tl * cl + Tr * cr
     t0 = ct * vx - st * vz
@@ -188,6 +209,16 @@ def thrust_body_forces(st, ct, ql, qr, Tl, Tr, p, input_map):
 
 
 @_inline
+def generalized_forces_sc(st, ct, ql, qr, a, p, input_map):
+    """:func:`generalized_forces` given st, ct = sin(theta), cos(theta) and the curvatures."""
+    Tl, Tr = a[0], a[1]
+    t0, t1, t2 = thrust_body_forces(st, ct, ql, qr, Tl, Tr, p, input_map)
+    if input_map == INPUT_MAP_PAPER:
+        return (t0, t1, t2, a[2], a[3])
+    return (t0, t1, t2, a[2] + thrust_curvature_work(Tl, p[6], ql), a[3] + thrust_curvature_work(Tr, p[7], qr))
+
+
+@_inline
 def generalized_forces(q, a, p, input_map):
     """tau = B(q) a for a = (T_l, T_r, tau_l, tau_r), as a 5-tuple (q, a: arrays or tuples).
 
@@ -196,12 +227,7 @@ def generalized_forces(q, a, p, input_map):
     the moment of the horizontal thrust components and of epsilon to tau_theta, and the work
     T_i l_i (1 - cos q_i)/q_i^2 of each thrust on its own curvature.
     """
-    th, ql, qr = q[2], q[3], q[4]
-    Tl, Tr = a[0], a[1]
-    t0, t1, t2 = thrust_body_forces(math.sin(th), math.cos(th), ql, qr, Tl, Tr, p, input_map)
-    if input_map == INPUT_MAP_PAPER:
-        return (t0, t1, t2, a[2], a[3])
-    return (t0, t1, t2, a[2] + thrust_curvature_work(Tl, p[6], ql), a[3] + thrust_curvature_work(Tr, p[7], qr))
+    return generalized_forces_sc(math.sin(q[2]), math.cos(q[2]), q[3], q[4], a, p, input_map)
 
 
 @_jit
@@ -298,9 +324,9 @@ HELD_TAU = -1
 
 
 @_inline
-def held_force(q, u, ext, p, input_map):
-    """Generalized force at the configuration q under a held command u, plus an external force
-    ext = (f_x, f_z) on the body, as a 5-tuple.
+def held_force(st, ct, q, u, ext, p, input_map):
+    """Generalized force at the configuration q (st, ct = sin, cos of its theta) under a held command
+    u, plus an external force ext = (f_x, f_z) on the body, as a 5-tuple.
 
     ``input_map`` ``INPUT_MAP_PAPER`` / ``INPUT_MAP_EXACT``: u = (T_l, T_r, tau_l, tau_r[, unused]) are
     the actuators and tau = B(q) u (:func:`generalized_forces`), so B is evaluated at q; ``HELD_TAU``:
@@ -309,7 +335,7 @@ def held_force(q, u, ext, p, input_map):
     if input_map == HELD_TAU:
         t = (u[0], u[1], u[2], u[3], u[4])
     else:
-        t = generalized_forces(q, u, p, input_map)
+        t = generalized_forces_sc(st, ct, q[3], q[4], u, p, input_map)
     return (t[0] + ext[0], t[1] + ext[1], t[2], t[3], t[4])
 
 
@@ -329,24 +355,28 @@ def _rk4_combine(x, v, a1, a2, a3, a4, h, dt, c):
 
 
 @_inline
-def rk4_step(q, qd, u, ext, p, dt, input_map):
-    """One classical RK4 step of (q, qdot) with the command u and the external force ext held
+def rk4_step_sc(q, qd, s0, c0, u, ext, p, dt, input_map):
+    r"""One classical RK4 step of (q, qdot) with the command u and the external force ext held
     (zero-order hold): at every stage the generalized force is :func:`held_force` at that stage's
     configuration, so held actuators see B(q) move with the state; with ``HELD_TAU`` the
-    generalized force itself is held.
+    generalized force itself is held. (s0, c0) = (sin, cos) of q's theta; a stage's are
+    :func:`rotate`\ d from them by its theta increment.
 
     q, qd, u (5), ext (2) and p (10) are arrays or tuples; returns (q_next, qdot_next) as 5-tuples.
     Stages: (q, v), (q + h v, v + h k1), (q + h v2, v + h k2), (q + dt v3, v + dt k3), h = dt / 2.
     """
     h = 0.5 * dt
     v1 = (qd[0], qd[1], qd[2], qd[3], qd[4])
-    k1 = qddot(q[3], q[4], v1[3], v1[4], held_force(q, u, ext, p, input_map), p)
+    k1 = qddot(q[3], q[4], v1[3], v1[4], held_force(s0, c0, q, u, ext, p, input_map), p)
     q2, v2 = _axpy5(q, h, v1), _axpy5(v1, h, k1)
-    k2 = qddot(q2[3], q2[4], v2[3], v2[4], held_force(q2, u, ext, p, input_map), p)
+    s2, c2 = rotate(s0, c0, h * v1[2])
+    k2 = qddot(q2[3], q2[4], v2[3], v2[4], held_force(s2, c2, q2, u, ext, p, input_map), p)
     q3, v3 = _axpy5(q, h, v2), _axpy5(v1, h, k2)
-    k3 = qddot(q3[3], q3[4], v3[3], v3[4], held_force(q3, u, ext, p, input_map), p)
+    s3, c3 = rotate(s0, c0, h * v2[2])
+    k3 = qddot(q3[3], q3[4], v3[3], v3[4], held_force(s3, c3, q3, u, ext, p, input_map), p)
     q4, v4 = _axpy5(q, dt, v3), _axpy5(v1, dt, k3)
-    k4 = qddot(q4[3], q4[4], v4[3], v4[4], held_force(q4, u, ext, p, input_map), p)
+    s4, c4 = rotate(s0, c0, dt * v3[2])
+    k4 = qddot(q4[3], q4[4], v4[3], v4[4], held_force(s4, c4, q4, u, ext, p, input_map), p)
     c = dt / 6.0
     x0, w0 = _rk4_combine(q[0], qd[0], k1[0], k2[0], k3[0], k4[0], h, dt, c)
     x1, w1 = _rk4_combine(q[1], qd[1], k1[1], k2[1], k3[1], k4[1], h, dt, c)
@@ -354,6 +384,12 @@ def rk4_step(q, qd, u, ext, p, dt, input_map):
     x3, w3 = _rk4_combine(q[3], qd[3], k1[3], k2[3], k3[3], k4[3], h, dt, c)
     x4, w4 = _rk4_combine(q[4], qd[4], k1[4], k2[4], k3[4], k4[4], h, dt, c)
     return (x0, x1, x2, x3, x4), (w0, w1, w2, w3, w4)
+
+
+@_inline
+def rk4_step(q, qd, u, ext, p, dt, input_map):
+    """:func:`rk4_step_sc` from q alone (sin, cos of its theta by libm)."""
+    return rk4_step_sc(q, qd, math.sin(q[2]), math.cos(q[2]), u, ext, p, dt, input_map)
 
 
 @_jit
@@ -383,8 +419,8 @@ def rk4_step_into(q, qd, u, ext, p, dt, input_map, q_out, qd_out):
 #: width of a lane block: W holds LANES states structure-of-arrays, W[row * LANES + lane]
 LANES = 64
 #: lane rows of :func:`rk4_lanes`: q, qdot, held command u, external force (f_x, f_z), params
-RK4_LANES = Layout("rk4_lanes", [("q", 5), ("qd", 5), ("u", 5), ("ext", 2), ("p", 10)])
-LANE_Q, LANE_QD, LANE_U, LANE_EXT, LANE_P = RK4_LANES.at
+RK4_LANES = Layout("rk4_lanes", [("q", 5), ("qd", 5), ("u", 5), ("ext", 2), ("p", 10), ("sc", 2)])
+LANE_Q, LANE_QD, LANE_U, LANE_EXT, LANE_P, LANE_SC = RK4_LANES.at
 LANE_ROWS_RK4 = RK4_LANES.size
 
 
@@ -416,13 +452,20 @@ def _lane_store(W, j, qn, vn):
 def rk4_lanes(W, dt, m, input_map):
     """:func:`rk4_step` in place on the first m lanes of a lane block W (rows ``LANE_*``).
 
-    A full block (m == LANES) runs a loop of constant trip count over the inlined step, which LLVM
-    vectorises (the lanes are independent); a partial block calls the same step lane by lane.
+    sin and cos of each lane's theta (libm, as in the scalar step) go into the rows ``LANE_SC`` first;
+    the step itself is then polynomial arithmetic only: a full block (m == LANES) runs a loop of
+    constant trip count over the inlined step, which LLVM vectorises (the lanes are independent); a
+    partial block calls the same step lane by lane.
     """
+    L = LANES
+    for j in range(m):
+        th = W[(LANE_Q + 2) * L + j]
+        W[LANE_SC * L + j] = math.sin(th)
+        W[(LANE_SC + 1) * L + j] = math.cos(th)
     if m == LANES:
         for j in range(LANES):
             q, qd, u, ext, p = _lane_load(W, j)
-            qn, vn = rk4_step(q, qd, u, ext, p, dt, input_map)
+            qn, vn = rk4_step_sc(q, qd, W[LANE_SC * L + j], W[(LANE_SC + 1) * L + j], u, ext, p, dt, input_map)
             _lane_store(W, j, qn, vn)
     else:
         for j in range(m):
