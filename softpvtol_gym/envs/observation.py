@@ -6,13 +6,25 @@ import math
 
 from numba import njit
 
+from .._layout import Layout
 from .layout import SC, SI, S
 from .noise import STREAM_Q, STREAM_QD, counter_normal
 
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 
 OBS_CLIP = 1.0e6
-OBS_DIM = 18
+#: the observation's entries, declared once (the env writes them, PassivityPolicy reads them back)
+OBSERVATION = Layout("observation", [
+    ("e_pos", 2),  # x - x_ref, z - z_ref [m]
+    ("e_theta", 1),  # theta - theta_ref, wrapped to [-pi, pi) [rad]
+    ("sin_cos", 2),  # sin theta, cos theta
+    ("arms", 2),  # q_l, q_r [rad]
+    ("qd", 5),  # xdot, zdot [m/s], thetadot, q_l dot, q_r dot [rad/s]
+    ("ref_vel", 3),  # xdot_ref, zdot_ref [m/s], thetadot_ref [rad/s]
+    ("ref_acc", 3),  # xddot_ref, zddot_ref [m/s^2], thetaddot_ref [rad/s^2]
+])
+O = OBSERVATION.at
+OBS_DIM = OBSERVATION.size
 OBS_NAMES = (
     "x - x_ref", "z - z_ref", "theta - theta_ref", "sin theta", "cos theta", "q_l", "q_r",
     "xdot", "zdot", "thetadot", "q_l dot", "q_r dot",
@@ -51,17 +63,17 @@ def observe_range(lo, hi, state, keys, istate, consts, obs):
                 b = b + consts[SC.noise_qd + i] * counter_normal(keys[n], counter, STREAM_QD + i)
             state[n, S.qm + i] = a
             state[n, S.qdm + i] = b
-        obs[n, 0] = _clip(state[n, S.qm] - state[n, S.qr])
-        obs[n, 1] = _clip(state[n, S.qm + 1] - state[n, S.qr + 1])
-        obs[n, 2] = _clip(wrap(state[n, S.qm + 2] - state[n, S.qr + 2]))
+        obs[n, O.e_pos] = _clip(state[n, S.qm] - state[n, S.qr])
+        obs[n, O.e_pos + 1] = _clip(state[n, S.qm + 1] - state[n, S.qr + 1])
+        obs[n, O.e_theta] = _clip(wrap(state[n, S.qm + 2] - state[n, S.qr + 2]))
         th = state[n, S.qm + 2]
         s_th, c_th = math.sin(th), math.cos(th)  # side by side: one sincos call
-        obs[n, 3] = _clip(s_th)
-        obs[n, 4] = _clip(c_th)
-        obs[n, 5] = _clip(state[n, S.qm + 3])
-        obs[n, 6] = _clip(state[n, S.qm + 4])
+        obs[n, O.sin_cos] = _clip(s_th)
+        obs[n, O.sin_cos + 1] = _clip(c_th)
+        obs[n, O.arms] = _clip(state[n, S.qm + 3])
+        obs[n, O.arms + 1] = _clip(state[n, S.qm + 4])
         for i in range(5):
-            obs[n, 7 + i] = _clip(state[n, S.qdm + i])
+            obs[n, O.qd + i] = _clip(state[n, S.qdm + i])
         for i in range(3):
-            obs[n, 12 + i] = _clip(state[n, S.qdr + i])
-            obs[n, 15 + i] = _clip(state[n, S.qddr + i])
+            obs[n, O.ref_vel + i] = _clip(state[n, S.qdr + i])
+            obs[n, O.ref_acc + i] = _clip(state[n, S.qddr + i])
