@@ -17,10 +17,12 @@ Conventions: q = (x, z, theta, q_l, q_r); p in ``PARAM_FIELDS`` order
 Speed (see ``benchmarks/``): the small, pure-arithmetic functions (series, D entries, qddot, the RK4
 step, energies) are inlined into their callers (``inline="always"``) and take arrays *or* tuples, so a
 loop over a block of ``LANES`` states stored structure-of-arrays (:func:`rk4_lanes`) compiles to SIMD
-code. Every lane performs exactly the scalar IEEE operations (no fastmath, no FMA contraction), so the
-SIMD path is bit-identical to the scalar one; the tests check it. The error model is numpy's (x/0 gives
-inf/nan instead of raising), which the vectoriser needs; no division here has a zero denominator for
-valid parameters.
+code. The series polynomial :func:`horner` is the exception: a plain compiled call that LLVM inlines
+(numba's own inliner re-types and copies each of its few hundred inlined copies per kernel, which was
+most of the cold compile time). Every lane performs exactly the scalar IEEE operations (no fastmath,
+no FMA contraction), so the SIMD path is bit-identical to the scalar one; the tests check it. The
+error model is numpy's (x/0 gives inf/nan instead of raising), which the vectoriser needs; no division
+here has a zero denominator for valid parameters.
 """
 
 from __future__ import annotations
@@ -48,11 +50,39 @@ _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 _inline = njit(cache=True, fastmath=False, nogil=True, error_model="numpy", inline="always")
 
 
-@_inline
+#: coefficients of every series (``_series.N_TERMS``): :func:`horner` is written out for this many
+HORNER_TERMS = 18
+if any(len(c) != HORNER_TERMS for c in COEFFICIENTS.values()):  # pragma: no cover
+    raise RuntimeError(f"_kernels.horner is written out for {HORNER_TERMS} coefficients; update it for "
+                       f"{ {k: len(c) for k, c in COEFFICIENTS.items()} }")
+
+
+@_jit
 def horner(c, s):
-    acc = c[c.shape[0] - 1]
-    for k in range(c.shape[0] - 2, -1, -1):
-        acc = acc * s + c[k]
+    """c[0] + c[1] s + ... + c[17] s^17 by Horner's rule, from the highest coefficient down.
+
+    The one small function here that numba does *not* inline: it is called a few hundred times per
+    step kernel, and numba's inliner re-types and copies every inlined copy (most of the cold compile
+    time). LLVM inlines the call (so lane loops stay SIMD); written out rather than looped, it is one
+    straight block, the same operations in the same order as the loop."""
+    acc = c[17]
+    acc = acc * s + c[16]
+    acc = acc * s + c[15]
+    acc = acc * s + c[14]
+    acc = acc * s + c[13]
+    acc = acc * s + c[12]
+    acc = acc * s + c[11]
+    acc = acc * s + c[10]
+    acc = acc * s + c[9]
+    acc = acc * s + c[8]
+    acc = acc * s + c[7]
+    acc = acc * s + c[6]
+    acc = acc * s + c[5]
+    acc = acc * s + c[4]
+    acc = acc * s + c[3]
+    acc = acc * s + c[2]
+    acc = acc * s + c[1]
+    acc = acc * s + c[0]
     return acc
 
 
@@ -101,9 +131,17 @@ def mass_entries(ql, qr, p):
 
     Only the curvatures enter; D = [[M, 0, 0, D03, D04], [0, M, 0, D13, D14], [0, 0, I, 0, 0], ...].
     """
+    return mass_entries_basis(arm_basis(ql), arm_basis(qr), p)
+
+
+@_inline
+def mass_entries_basis(bl, br, p):
+    """:func:`mass_entries` from the arms' :func:`arm_basis` (bl, br): a caller that needs D, C and g
+    evaluates each arm's series once (the same values; one inlined copy instead of three, which keeps
+    the cold compile short)."""
     ml, mr, ll, lr = p[1], p[2], p[6], p[7]
-    d1l, d2l, _, _ = arm_basis(ql)
-    d1r, d2r, _, _ = arm_basis(qr)
+    d1l, d2l = bl[0], bl[1]
+    d1r, d2r = br[0], br[1]
     M = p[0] + p[1] + p[2]
     return (
         M,
@@ -139,9 +177,15 @@ def mass_matrix_into(q, p, out):
 def coriolis_entries(ql, qr, vl, vr, p):
     """The nonzero entries of C(q, qdot): (C03, C13, C04, C14, C33, C44) (Christoffel symbols of the
     first kind, so that Ddot - 2C is skew); only the curvatures and their rates enter."""
+    return coriolis_entries_basis(arm_basis(ql), arm_basis(qr), vl, vr, p)
+
+
+@_inline
+def coriolis_entries_basis(bl, br, vl, vr, p):
+    """:func:`coriolis_entries` from the arms' :func:`arm_basis` (see :func:`mass_entries_basis`)."""
     ml, mr, ll, lr = p[1], p[2], p[6], p[7]
-    d1l, d2l, d1pl, d2pl = arm_basis(ql)
-    d1r, d2r, d1pr, d2pr = arm_basis(qr)
+    d1l, d2l, d1pl, d2pl = bl
+    d1r, d2r, d1pr, d2pr = br
     return (
         ml * ll * d1pl * vl,
         ml * ll * d2pl * vl,
@@ -170,8 +214,13 @@ def coriolis_matrix_into(q, qd, p, out):
 @_inline
 def gravity_entries(ql, qr, p):
     """The nonzero entries of g(q) = dP/dq: (g1, g3, g4) (g0 = g2 = 0)."""
-    _, d2l, _, _ = arm_basis(ql)
-    _, d2r, _, _ = arm_basis(qr)
+    return gravity_entries_basis(arm_basis(ql), arm_basis(qr), p)
+
+
+@_inline
+def gravity_entries_basis(bl, br, p):
+    """:func:`gravity_entries` from the arms' :func:`arm_basis` (see :func:`mass_entries_basis`)."""
+    d2l, d2r = bl[1], br[1]
     return p[8] * (p[0] + p[1] + p[2]), p[8] * p[1] * p[6] * d2l, p[8] * p[2] * p[7] * d2r
 
 
@@ -250,9 +299,10 @@ def qddot(ql, qr, vl, vr, tau, p):
     the block structure of D: theta decouples, and the body block M*I2 is eliminated by a Schur
     complement, leaving a 2x2 system for the arms. Allocation-free (scalars only).
     """
-    M, inertia, a0, a1, b0, b1, dll, drr = mass_entries(ql, qr, p)
-    c03, c13, c04, c14, c33, c44 = coriolis_entries(ql, qr, vl, vr, p)
-    g1, g3, g4 = gravity_entries(ql, qr, p)
+    bl, br = arm_basis(ql), arm_basis(qr)
+    M, inertia, a0, a1, b0, b1, dll, drr = mass_entries_basis(bl, br, p)
+    c03, c13, c04, c14, c33, c44 = coriolis_entries_basis(bl, br, vl, vr, p)
+    g1, g3, g4 = gravity_entries_basis(bl, br, p)
     # right-hand side tau - C qdot - g (C qdot: rows 0, 1 from both arms, rows 3, 4 from their own)
     r0 = tau[0] - (c03 * vl + c04 * vr)
     r1 = tau[1] - (c13 * vl + c14 * vr) - g1
@@ -468,10 +518,18 @@ def rk4_lanes(W, dt, m, input_map):
             qn, vn = rk4_step_sc(q, qd, W[LANE_SC * L + j], W[(LANE_SC + 1) * L + j], u, ext, p, dt, input_map)
             _lane_store(W, j, qn, vn)
     else:
-        for j in range(m):
-            q, qd, u, ext, p = _lane_load(W, j)
-            qn, vn = rk4_step_tuple(q, qd, u, ext, p, dt, input_map)
-            _lane_store(W, j, qn, vn)
+        rk4_lanes_partial(W, dt, m, input_map)
+
+
+@_jit
+def rk4_lanes_partial(W, dt, m, input_map):
+    """The lane-by-lane path of :func:`rk4_lanes` (any m <= LANES): :func:`rk4_step_tuple` per lane.
+    A batch of fewer than LANES states needs only this (the env's small-batch step kernels call it
+    directly: no SIMD copy of the step to compile)."""
+    for j in range(m):
+        q, qd, u, ext, p = _lane_load(W, j)
+        qn, vn = rk4_step_tuple(q, qd, u, ext, p, dt, input_map)
+        _lane_store(W, j, qn, vn)
 
 
 # ------------------------------------------------------------------------------- batched wrappers

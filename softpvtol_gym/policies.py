@@ -5,12 +5,15 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ._batching import MAX_CURVATURE
 from ._parallel import row_ranges, run_split
 from .control import PassivityController
 from .control import _kernels as CK
+from .control.closed_loop import LOOPS
 from .control.passivity import PassivityGains
+from .envs._validation import real_array, short_repr
 from .envs.config import EnvConfig
-from .envs.observation import OBS_DIM
+from .envs.observation import OBS_DIM, OBS_NAMES
 
 __all__ = ["PassivityPolicy"]
 
@@ -65,6 +68,39 @@ def policy_step(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_
     policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, X, ctl, out, err)
 
 
+def _check_observation(obs: np.ndarray) -> None:
+    """Observations (N, 18) the controller can act on: finite, arm curvatures inside the model's
+    validity (the controller's series are accurate up to 2 pi; the env ends an episode beyond pi)."""
+    if not np.isfinite(obs).all():
+        rows, cols = np.nonzero(~np.isfinite(obs))
+        raise ValueError(f"observation must be finite, got {obs[rows[0], cols[0]]} at "
+                         f"{'index ' + str(cols[0]) if obs.shape[0] == 1 else f'[{rows[0]}, {cols[0]}]'} "
+                         f"({OBS_NAMES[cols[0]]})")
+    arms = obs[:, 5:7]
+    bad = ~(np.abs(arms) <= MAX_CURVATURE)
+    if bad.any():
+        rows, cols = np.nonzero(bad)
+        r, c = rows[0], cols[0] + 5
+        raise ValueError(
+            f"observation {'index ' + str(c) if obs.shape[0] == 1 else f'[{r}, {c}]'} ({OBS_NAMES[c]}) = "
+            f"{float(obs[r, c])!r} is outside the model's validity: the controller needs arm curvatures "
+            f"|q_l|, |q_r| <= 2 pi (the model holds for |q| <= pi; the env ends an episode beyond pi as "
+            f"'curvature_limit', and clips observations at +-1e6 only after a divergence); act on observations "
+            f"of running episodes"
+        )
+
+
+def _episode_start_mask(episode_start, n: int) -> np.ndarray:
+    """``episode_start`` as a bool mask of n entries: a bool (or 0/1) scalar, or N of them."""
+    a = np.asarray(episode_start)
+    if a.dtype.kind not in "biuf" or a.size not in (1, n) or (a.dtype.kind != "b" and not np.isin(a, (0, 1)).all()):
+        raise ValueError(f"episode_start must be None, a bool or a bool array of {n} entries (one per "
+                         f"observation), got {short_repr(episode_start)}"
+                         + (f" with {a.size} entries" if a.dtype.kind in "biuf" and a.size not in (1, n) else ""))
+    mask = a.astype(bool).reshape(-1)
+    return np.repeat(mask, n) if mask.size == 1 and n > 1 else mask
+
+
 class PassivityPolicy:
     """The paper's passivity controller acting from SoftPVTOL observations only.
 
@@ -91,7 +127,14 @@ class PassivityPolicy:
 
     def __init__(self, config: EnvConfig, loop: str | None = None, gains: PassivityGains | None = None):
         if not isinstance(config, EnvConfig):
-            raise ValueError(f"config must be an EnvConfig, got {type(config).__name__}")
+            raise ValueError(f"config must be an EnvConfig, got {short_repr(config)} of type {type(config).__name__} "
+                             "(build the policy with PassivityPolicy.from_env(env))")
+        if gains is not None and not isinstance(gains, PassivityGains):
+            raise ValueError(f"gains must be a PassivityGains or None, got {short_repr(gains)} of type "
+                             f"{type(gains).__name__}")
+        if loop is not None and (not isinstance(loop, str) or loop not in LOOPS):
+            raise ValueError(f"loop must be one of {sorted(LOOPS)} or None (from the env's allocation), got "
+                             f"{short_repr(loop)}")
         self.config = config
         self.loop = config.controller_loop if loop is None else loop
         if config.action_mode == "virtual" and config.resolved_allocation == "ideal" and self.loop != "ideal":
@@ -118,7 +161,8 @@ class PassivityPolicy:
         if cfg is None and hasattr(env, "get_wrapper_attr"):
             cfg = env.get_wrapper_attr("config")
         if not isinstance(cfg, EnvConfig):
-            raise ValueError(f"cannot find a SoftPVTOL EnvConfig on {env!r}")
+            raise ValueError(f"env must be a SoftPVTOLEnv / SoftPVTOLVectorEnv (wrapped or not) or the SB3 adapter: "
+                             f"cannot find a SoftPVTOL EnvConfig on {short_repr(env)}")
         return cls(cfg, loop=loop, gains=gains)
 
     def reset(self) -> None:
@@ -166,19 +210,22 @@ class PassivityPolicy:
         return out
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        obs = np.asarray(observation, dtype=np.float64)
+        """(action, state) for observations (18,) or (N, 18) of the env; ``episode_start``: None, a bool
+        or a bool array of N entries (the entries whose controller memory is reset). Observations must be
+        finite and inside the model's validity (arm curvatures |q_l|, |q_r| <= 2 pi); ValueError otherwise."""
+        obs = real_array("observation", observation, f"an array of shape ({OBS_DIM},) or (N, {OBS_DIM})")
         single = obs.ndim == 1
-        if obs.shape[-1] != OBS_DIM or obs.ndim not in (1, 2):
-            raise ValueError(f"observation must have shape ({OBS_DIM},) or (N, {OBS_DIM}), got {obs.shape}")
+        if obs.ndim not in (1, 2) or obs.shape[-1] != OBS_DIM or obs.shape[0] == 0:
+            raise ValueError(f"observation must have shape ({OBS_DIM},) or (N, {OBS_DIM}) with N >= 1, got shape "
+                             f"{obs.shape}")
         obs = obs.reshape(-1, OBS_DIM)
         n = obs.shape[0]
+        _check_observation(obs)
+        mask = None if episode_start is None else _episode_start_mask(episode_start, n)
         if self._n != n:
             self.controller.reset()
             self._n = n
-        elif episode_start is not None:
-            mask = np.asarray(episode_start, dtype=bool).reshape(-1)
-            if mask.size == 1 and n > 1:
-                mask = np.repeat(mask, n)
+        elif mask is not None:
             if mask.all():
                 self.controller.reset(np.ones(n, dtype=bool))
             elif mask.any():

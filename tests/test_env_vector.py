@@ -80,7 +80,8 @@ def test_random_actions_never_nan(mode, tier):
 
 def test_non_finite_state_terminates_with_finite_observation():
     e = SoftPVTOLEnv(action_mode="virtual", allocation="ideal", params=None)
-    e.reset(seed=0, options={"q0": [0, 2, 0, 1e200, 0], "qdot0": [0, 0, 0, 1e200, 0]})
+    # (a curvature beyond pi is refused by reset: the divergence comes from the rate)
+    e.reset(seed=0, options={"q0": [0, 2, 0, 0, 0], "qdot0": [0, 0, 0, 1e200, 0]})
     obs, r, term, trunc, info = e.step(np.zeros(5))
     assert term and info["termination_reason"] == "non_finite"
     assert np.isfinite(obs).all() and np.isfinite(r)

@@ -17,8 +17,9 @@ _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 def model_entries(q, qd, p):
     """The nonzero entries of D(q), C(q, qdot), g(q) (model kernels: mass_entries, coriolis_entries,
     gravity_entries)."""
-    return (MK.mass_entries(q[3], q[4], p), MK.coriolis_entries(q[3], q[4], qd[3], qd[4], p),
-            MK.gravity_entries(q[3], q[4], p))
+    bl, br = MK.arm_basis(q[3]), MK.arm_basis(q[4])
+    return (MK.mass_entries_basis(bl, br, p), MK.coriolis_entries_basis(bl, br, qd[3], qd[4], p),
+            MK.gravity_entries_basis(bl, br, p))
 
 
 @MK._inline

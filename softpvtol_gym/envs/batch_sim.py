@@ -8,6 +8,7 @@ import numpy as np
 from .. import _kernels as MK
 from .._parallel import row_ranges, run_split
 from ..control import _kernels as CK
+from ._validation import real_array, short_repr
 from .config import EnvConfig
 from .episodes import apply_options, sample_episodes
 from .layout import ISTATE, STATE, S
@@ -16,11 +17,13 @@ from .step import (
     STEP_BAD_ACTION,
     STEP_OK,
     reset_rows,
+    serial_step_kernel,
     step_check_actions,
     step_controller_rows,
     step_physics_rows,
-    step_serial,
 )
+
+_F64 = np.dtype(np.float64)
 
 
 class BatchSim:
@@ -56,6 +59,8 @@ class BatchSim:
         self._ctl = np.empty((n, CK.OUT_LEN))
         self._ctl_err = np.zeros(n, dtype=np.int64)
         self._ranges = row_ranges(n, align=MK.LANES)  # one per thread, whole lane blocks
+        # the compiled step of one call (compiled on first use, with the controller only in residual mode)
+        self._step_serial = serial_step_kernel(n, cfg.action_mode == "residual")
         self._shape = {True: (n, self.action_dim), False: (self.action_dim,)}
         self.controller = None
         if cfg.action_mode == "residual":
@@ -72,8 +77,8 @@ class BatchSim:
     _VIEWS = tuple(f for f, _ in STATE.fields + ISTATE.fields)
 
     def __getstate__(self) -> dict:
-        # the views are rebuilt on unpickling (pickle would turn them into independent copies)
-        state = {k: v for k, v in self.__dict__.items() if k not in self._VIEWS}
+        # the views (pickle would turn them into independent copies) and the kernel are rebuilt on unpickling
+        state = {k: v for k, v in self.__dict__.items() if k not in self._VIEWS and k != "_step_serial"}
         state["layouts"] = (STATE.signature, ISTATE.signature)
         return state
 
@@ -83,6 +88,7 @@ class BatchSim:
         ISTATE.check(layouts[1])
         self.__dict__.update(state)
         self._make_views()
+        self._step_serial = serial_step_kernel(self.n, self.cfg.action_mode == "residual")
 
     # -------------------------------------------------------------------------------- reset
     def reset_entries(self, idx: np.ndarray, u: np.ndarray, options: dict | None = None) -> None:
@@ -112,13 +118,15 @@ class BatchSim:
         ``side()``, if given, runs in this thread once the step cannot fail any more, beside the
         kernel threads of a large batch (Python work that overlaps the physics)."""
         expected = self._shape[batched]
-        try:
-            a = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(f"action must be a real array of shape {expected} in [-1, 1], got {action!r}") from None
+        a = action
+        # the kernels get C-contiguous, writeable float64 (one compiled signature); anything else is
+        # converted (real numbers only: str, bool, complex values are refused, never cast)
+        if not (type(a) is np.ndarray and a.dtype is _F64 and a.flags.c_contiguous and a.flags.writeable):
+            a = real_array("action", action, f"an array of shape {expected} in [-1, 1]")
         if a.shape != expected:
             raise ValueError(
-                f"action must have shape {expected} (action_mode={self.cfg.action_mode!r}), got shape {a.shape}"
+                f"action must have shape {expected} (action_mode={self.cfg.action_mode!r}"
+                + (f", num_envs={self.n}" if batched else "") + f"), got shape {a.shape}"
             )
         if not batched:
             a = a.reshape(1, self.action_dim)
@@ -130,19 +138,20 @@ class BatchSim:
         else:
             cc, S_mem, S_new = self.C, self.F, self.F  # unused (same types: no second compilation)
         if len(self._ranges) == 1:
-            code = step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, cc, S_mem, S_new, self._ctl_in,
-                               self._ctl, self._ctl_err)
+            code = self._step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, cc, S_mem, S_new,
+                                     self._ctl_in, self._ctl, self._ctl_err)
         else:
             code = self._step_split(a, cc, S_mem, S_new, side)
         if code == STEP_BAD_ACTION:
-            raise ValueError(f"action must be finite (in [-1, 1]), got {action!r}")
+            raise ValueError(f"action must be finite (in [-1, 1]; out-of-range values are clipped), got "
+                             f"{short_repr(action)}")
         if ctrl is not None:
             ctrl.swap_memory()
         if len(self._ranges) == 1 and side is not None:
             side()
 
     def _step_split(self, a, cc, S_mem, S_new, side=None) -> int:
-        """The step of a large batch with its rows split over threads (same result as step_serial)."""
+        """The step of a large batch with its rows split over threads (same result as the serial step)."""
         F, obs, key, I, C, K, X, ctl, err = (self.F, self.obs, self.key, self.I, self.C, self.K, self._ctl_in,
                                              self._ctl, self._ctl_err)
         ok, has_res = step_check_actions(a, K)

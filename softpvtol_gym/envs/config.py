@@ -18,7 +18,7 @@ from ..control.passivity import PassivityGains
 from ..params import SoftPVTOLParams
 from ..tasks import TaskSpec, get_task
 from . import tiers as _tiers
-from ._validation import choice, positive_number
+from ._validation import choice, positive_number, short_repr
 from .actions import ACTION_MODE_SPECS, ACTION_MODES
 from .layout import CODES, CONST, SC, SK
 
@@ -50,7 +50,10 @@ class EnvConfig:
         if self.actuator_limits is not None:
             lim = self.actuator_limits
             if not isinstance(lim, (tuple, list)) or len(lim) != 2:
-                raise ValueError(f"actuator_limits must be (thrust_max [N], arm_torque_max [N m]), got {lim!r}")
+                raise ValueError(f"actuator_limits must be a tuple (thrust_max [N], arm_torque_max [N m]) of two "
+                                 f"numbers > 0, e.g. (102.9, 9.8), or None (the defaults); got {short_repr(lim)}"
+                                 + (" (pass tuple(limits))" if isinstance(lim, np.ndarray) and lim.shape == (2,)
+                                    else ""))
             positive_number("actuator_limits[0] (thrust_max)", lim[0])
             positive_number("actuator_limits[1] (arm_torque_max)", lim[1])
         choice("action_mode", self.action_mode, ACTION_MODES)
@@ -60,8 +63,9 @@ class EnvConfig:
         if self.params is None:  # the default, as for the env's other arguments
             object.__setattr__(self, "params", SoftPVTOLParams())
         if not isinstance(self.params, SoftPVTOLParams):
-            raise ValueError(f"params must be a SoftPVTOLParams, got {self.params!r} of type "
-                             f"{type(self.params).__name__}")
+            raise ValueError(f"params must be a SoftPVTOLParams (e.g. SoftPVTOLParams(m=4.0)) or None, got "
+                             f"{short_repr(self.params)} of type {type(self.params).__name__}"
+                             + (" (use SoftPVTOLParams(**d))" if isinstance(self.params, dict) else ""))
         if self.allocation is not None:
             choice("allocation", self.allocation, ALLOCATIONS)
             if self.allocation == "ideal" and self.action_mode != "virtual":
@@ -71,10 +75,14 @@ class EnvConfig:
                 )
         choice("residual_space", self.residual_space, RESIDUAL_SPACES)
         fs = self.frame_skip
-        if isinstance(fs, bool) or not isinstance(fs, (int, np.integer)) or fs < 1:
-            raise ValueError(f"frame_skip must be an int >= 1, got {self.frame_skip!r}")
+        if isinstance(fs, (bool, np.bool_)) or not isinstance(fs, (int, np.integer)) or fs < 1:
+            raise ValueError(f"frame_skip must be an int >= 1 (RK4 steps of 0.01 s per env step), got "
+                             f"{short_repr(self.frame_skip)} of type {type(fs).__name__}")
         if self.max_episode_seconds is not None:
-            positive_number("max_episode_seconds", self.max_episode_seconds)
+            t = positive_number("max_episode_seconds", self.max_episode_seconds)
+            if t < self.dt:
+                raise ValueError(f"max_episode_seconds must be at least one control step (dt = {self.dt:g} s with "
+                                 f"frame_skip={fs}), got {self.max_episode_seconds!r}")
         positive_number("residual_scale", self.residual_scale)
         _tiers.check_tier_options(self.tier_options)
 
@@ -117,7 +125,8 @@ class EnvConfig:
 
     @property
     def max_steps(self) -> int:
-        return max(1, int(round(self.episode_seconds / self.dt)))
+        # (at most 2**62: an "endless" episode length stays an int64)
+        return max(1, min(int(round(self.episode_seconds / self.dt)), 2**62))
 
     @functools.cached_property
     def tier_values(self) -> dict:

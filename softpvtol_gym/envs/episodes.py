@@ -11,7 +11,9 @@ from numba import njit
 
 from ..params import PARAM_FIELDS
 from ..tasks import HOVER_SETPOINT, PAPER_Q0, SAMPLE_CUSTOM, SAMPLE_HOVER, SAMPLE_PAPER, SAMPLE_SETPOINT
+from ._validation import real_array, short_repr
 from .references import N_REF_PARAMS
+from .termination import BOX_X, BOX_Z, GROUND_Z, Q_LIMITS
 
 #: fixed number of uniforms each env draws from its RNG at every reset
 N_UNIFORMS = 48
@@ -120,24 +122,69 @@ def _sample_rows(u, sampler, params, scale, refp, q0, qd0, P, key):
         key[i] = np.uint64(u[i, 46] * 2.0**53) ^ (np.uint64(u[i, 47] * 2.0**53) << np.uint64(11))
 
 
-def apply_options(cfg, ep: dict, options: dict) -> dict:
-    """reset(options=...): "q0" (5,), "qdot0" (5,), "setpoint" (3,) (tasks with a constant reference)."""
-    valid = ("q0", "qdot0", "setpoint")
+#: the keys of ``reset(options=...)``
+RESET_OPTIONS = ("q0", "qdot0", "setpoint")
+_OPTION_SIZES = {"q0": 5, "qdot0": 5, "setpoint": 3}
+
+
+def _limits_text(name: str, lo: float, hi: float) -> str:
+    if lo == -hi:
+        return f"|{name}| <= {'pi' if hi == math.pi else f'{hi:g}'}"
+    return f"{lo:g} <= {name} <= {hi:g}"
+
+
+def check_reset_options(cfg, options, extra_keys: tuple = ()) -> dict:
+    """``reset(options=...)`` checked before anything changes: a dict with keys from
+    :data:`RESET_OPTIONS` (plus ``extra_keys``, the caller's: the vector env's ``reset_mask``), each
+    None or a vector of real numbers: "q0" (5) inside the position limits of :mod:`.termination`
+    (|x| <= 20 m, -1 <= z <= 20 m, |q_l|, |q_r| <= pi: the model's validity), "qdot0" (5) finite (a speed
+    beyond the speed limits is a valid state: the episode ends as "out_of_bounds" at its first step),
+    "setpoint" (3: x, z, theta; tasks with a constant reference) inside the box. Returns {key: float64
+    array} of the options given."""
+    valid = RESET_OPTIONS + tuple(extra_keys)
+    if options is None:
+        return {}
     if not isinstance(options, dict):
-        raise ValueError(f"reset options must be a dict with keys from {list(valid)}, got {options!r}")
-    for k in options:
-        if k not in valid:
-            raise ValueError(f"unknown reset option {k!r}; valid ones are {list(valid)}")
-    for k, key, size in (("q0", "q0", 5), ("qdot0", "qd0", 5), ("setpoint", None, 3)):
-        if k not in options or options[k] is None:
+        raise ValueError(f"reset options must be a dict with keys from {list(valid)} (or None), got "
+                         f"{short_repr(options)} of type {type(options).__name__}")
+    unknown = [k for k in options if k not in valid]
+    if unknown:
+        raise ValueError(f"unknown reset option(s) {unknown}; valid ones are {list(valid)}")
+    out = {}
+    for k in RESET_OPTIONS:
+        if options.get(k) is None:
             continue
-        v = np.asarray(options[k], dtype=np.float64)
+        size = _OPTION_SIZES[k]
+        expected = f"{size} finite numbers" + (" (x, z, theta)" if k == "setpoint" else " (x, z, theta, q_l, q_r)"
+                                                 if k == "q0" else " (xdot, zdot, thetadot, q_l dot, q_r dot)")
+        v = real_array(f"reset option {k!r}", options[k], expected)
         if v.shape != (size,) or not np.isfinite(v).all():
-            raise ValueError(f"reset option {k!r} must be {size} finite numbers, got {options[k]!r}")
+            raise ValueError(f"reset option {k!r} must be {expected}, got {short_repr(options[k])}"
+                             + (f" of shape {v.shape}" if v.shape != (size,) else ""))
         if k == "setpoint":
             if cfg.task_spec.sampler not in (SAMPLE_HOVER, SAMPLE_SETPOINT):
-                raise ValueError(f"reset option 'setpoint' needs task 'hover' or 'setpoint', got {cfg.task!r}")
+                raise ValueError(f"reset option 'setpoint' needs task 'hover' or 'setpoint' (a constant reference), "
+                                 f"got task={cfg.task!r}")
+            limits = (("x", -BOX_X, BOX_X, "out_of_bounds"), ("z", GROUND_Z, BOX_Z, "ground/out_of_bounds"))
+        else:
+            limits = Q_LIMITS if k == "q0" else ()
+        for i, (name, lo, hi, reason) in enumerate(limits):
+            if not (lo <= v[i] <= hi):
+                why = ("a target outside the termination box cannot be reached" if k == "setpoint" else
+                       f"the env's valid states; beyond it the episode ends at once: {reason}")
+                raise ValueError(
+                    f"reset option {k!r}[{i}] ({name}) = {float(v[i])!r} is outside {_limits_text(name, lo, hi)} "
+                    f"({why}); give a value inside the limits of softpvtol_gym.envs.termination"
+                )
+        out[k] = v
+    return out
+
+
+def apply_options(cfg, ep: dict, options: dict) -> dict:
+    """reset(options=...) (checked by :func:`check_reset_options`) written into the episodes ``ep``."""
+    for k, v in check_reset_options(cfg, options).items():
+        if k == "setpoint":
             ep["refp"][:, :3] = v
         else:
-            ep[key][:] = v
+            ep["q0" if k == "q0" else "qd0"][:] = v
     return ep

@@ -56,8 +56,8 @@ class Renderer:
         pg = self.pg
         if self.screen is None:
             if self.mode == "human":
-                # classic_control: a display window, flipped and ticked at metadata["render_fps"]
-                pg.init()
+                # classic_control: a display window, flipped and ticked at metadata["render_fps"]; only the
+                # display is initialised (pygame.init() would start audio too: ALSA errors on headless machines)
                 pg.display.init()
                 pg.display.set_caption("SoftPVTOL-v0")
                 self.screen = pg.display.set_mode((WIDTH, HEIGHT))

@@ -8,6 +8,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
+from ._validation import real_array, short_repr
 from .vector import SoftPVTOLVectorEnv
 
 
@@ -26,6 +27,9 @@ class SoftPVTOLSB3VecEnv(VecEnv):
             vector_env = SoftPVTOLVectorEnv(num_envs=num_envs, autoreset_mode=AutoresetMode.SAME_STEP, **env_kwargs)
         elif env_kwargs:
             raise ValueError("pass either vector_env or env kwargs, not both")
+        elif not isinstance(vector_env, SoftPVTOLVectorEnv):
+            raise ValueError(f"vector_env must be a SoftPVTOLVectorEnv (autoreset_mode='SameStep') or None, got "
+                             f"{short_repr(vector_env)} of type {type(vector_env).__name__}")
         if vector_env.autoreset_mode != AutoresetMode.SAME_STEP:
             raise ValueError("the SB3 adapter needs a SoftPVTOLVectorEnv with autoreset_mode='SameStep'")
         self.venv = vector_env
@@ -42,7 +46,12 @@ class SoftPVTOLSB3VecEnv(VecEnv):
         return obs
 
     def step_async(self, actions: np.ndarray) -> None:
-        self._actions = np.asarray(actions, dtype=np.float64).reshape(self.num_envs, -1)
+        # real numbers only (str, bool, complex refused, never cast); a flat batch is reshaped to (N, A),
+        # any other shape is left for the vector env to refuse with the shape it expects
+        a = real_array("actions", actions, f"an array of shape {(self.num_envs, *self.action_space.shape)}")
+        if a.ndim == 1 and a.size == self.num_envs * self.action_space.shape[0]:
+            a = a.reshape(self.num_envs, -1)
+        self._actions = a
 
     def step_wait(self):
         obs, rew, term, trunc, info = self.venv.step(self._actions)

@@ -5,12 +5,13 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 
 from ..params import SoftPVTOLParams
-from ._validation import choice
+from ._validation import choice, seed_value
 from .batch_sim import BatchSim
 from .config import RENDER_MODES, EnvConfig
-from .episodes import N_UNIFORMS
+from .episodes import N_UNIFORMS, check_reset_options
 from .info import single_info
 from .observation import OBS_CLIP, OBS_DIM
 from .termination import R_NONE, REASONS
@@ -55,7 +56,8 @@ class SoftPVTOLEnv(gym.Env):
     ``"residual"`` mode the base controller is :class:`~softpvtol_gym.control.PassivityController`
     with the nominal ``params`` ("exact" loop — exact allocation, no arm feedforward — for allocation "exact", "paper" loop for "paper"),
     fed with the measured state; action 0 reproduces it exactly. Finite out-of-range actions are
-    clipped (``info["action_clipped"]``); NaN/inf or wrong shapes raise ValueError.
+    clipped (``info["action_clipped"]``); NaN/inf, wrong shapes and values that are not real numbers
+    (str, bool, complex, None) raise ValueError (nothing is cast).
 
     ## Observation Space
 
@@ -108,7 +110,10 @@ class SoftPVTOLEnv(gym.Env):
       z_ref = 3 m + the same with A_k in [0, 0.5] m; w_k in [0.2, 0.8] rad/s, phi_k in [0, 2 pi);
       theta_ref = 0. Start at the reference plus half the hover perturbation. 20 s.
 
-    ``reset(options={"q0": ..., "qdot0": ..., "setpoint": (x, z, theta)})`` overrides them.
+    ``reset(options={"q0": ..., "qdot0": ..., "setpoint": (x, z, theta)})`` overrides them; q0 must lie
+    inside the position limits below (|q_l|, |q_r| <= pi: the model's validity; the box) and the
+    setpoint inside the box, qdot0 be finite, else ValueError (checked before anything changes). ``seed``: an int
+    >= 0 (Python or numpy integer) or None.
 
     ## Episode End
 
@@ -154,6 +159,11 @@ class SoftPVTOLEnv(gym.Env):
       an error of up to 1.4e-3 relative per 0.01 s step). ``allocation="ideal"`` holds tau itself.
       The built-in references are evaluated in compiled code (same formulas; last-bit differences).
       Tasks come from a registry (:mod:`softpvtol_gym.tasks`): ``task=`` takes any registered name.
+    * v0, input checks (issue 13): ``step()`` before ``reset()`` raises gymnasium's ``ResetNeeded``
+      (as under ``gym.make``) also for the class used directly; stepping after ``terminated`` or
+      ``truncated`` warns once per episode (as CartPole) and stays allowed; str/bool/complex actions,
+      reset states q0 outside the position limits, ``tier_options["mismatch_scale"] >= 1`` and
+      ``max_episode_seconds`` below one control step are refused; numpy integer seeds are accepted.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 100}  # per instance: 1 / control period
@@ -169,12 +179,19 @@ class SoftPVTOLEnv(gym.Env):
         self.dt = self.config.dt
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.dt)))
         self._renderer = None
+        self._needs_reset = True  # step() and render() need a reset() first (as under gym.make)
+        self._episode_over = self._warned_over = False
 
     # ------------------------------------------------------------------------------------ api
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        # checked before anything changes: a bad seed or option leaves the env as it was
+        seed = seed_value(seed)
+        options = check_reset_options(self.config, options)
         super().reset(seed=seed)
         u = self.np_random.random(N_UNIFORMS)[None, :]
         self._sim.reset_entries(np.array([0]), u, options)
+        self._needs_reset = False
+        self._episode_over = self._warned_over = False
         if self._renderer is not None:
             self._renderer.clear_trail()
         if self.render_mode == "human":
@@ -182,11 +199,22 @@ class SoftPVTOLEnv(gym.Env):
         return self._sim.obs[0].copy(), single_info(self._sim, None)
 
     def step(self, action):
+        if self._needs_reset:
+            raise ResetNeeded("Cannot call env.step() before calling env.reset()")
+        if self._episode_over and not self._warned_over:  # as CartPole: once per episode, stepping stays allowed
+            self._warned_over = True
+            gym.logger.warn(
+                "You are calling 'step()' even though this environment has already returned terminated = True "
+                "or truncated = True. You should always call 'reset()' once you receive 'terminated = True' or "
+                "'truncated = True' -- any further steps are undefined behavior."
+            )
         sim = self._sim
         sim.step(action, batched=False)
         code = int(sim.reason[0])
         terminated = code != R_NONE
         truncated = bool(sim.steps[0] >= sim.max_steps) and not terminated
+        if terminated or truncated:
+            self._episode_over = True
         info = single_info(sim, REASONS[code] if terminated else ("time_limit" if truncated else None))
         if self.render_mode == "human":
             self.render()
@@ -217,6 +245,8 @@ class SoftPVTOLEnv(gym.Env):
                 'render_mode at initialization, e.g. gym.make("SoftPVTOL-v0", render_mode="rgb_array")'
             )
             return None
+        if self._needs_reset:
+            raise ResetNeeded("Cannot call env.render() before calling env.reset()")
         if self._renderer is None:
             from .rendering import Renderer
 

@@ -4,7 +4,7 @@ command held), clock, wind, termination, observation and reward of a range of en
 The physics of up to ``MK.LANES`` envs at a time runs in a lane block (structure of arrays, layout
 :data:`~softpvtol_gym.envs.layout.LANES`) that LLVM turns into SIMD code. The residual mode's base
 controller is the controller block driver of :mod:`softpvtol_gym.control._kernels`, fed the
-measured state. Entry points: :func:`step_serial` (one call, small batches) and, for large batches
+measured state. Entry points: :func:`serial_step_kernel` (one call, small batches) and, for large batches
 split over threads by BatchSim, :func:`step_check_actions`, :func:`step_controller_rows` and
 :func:`step_physics_rows`. An error code changes nothing.
 """
@@ -103,9 +103,16 @@ def _diag_lanes(lanes, m, pnom, lam, kg):
             q, qd, qr, qdr, p = _diag_lane_in(lanes, j)
             lanes[SL.energy * L + j], lanes[SL.storage * L + j] = _energy_storage(q, qd, qr, qdr, p, pnom, lam, kg)
     else:
-        for j in range(m):
-            q, qd, qr, qdr, p = _diag_lane_in(lanes, j)
-            lanes[SL.energy * L + j], lanes[SL.storage * L + j] = energy_storage(q, qd, qr, qdr, p, pnom, lam, kg)
+        _diag_lanes_partial(lanes, m, pnom, lam, kg)
+
+
+@_jit
+def _diag_lanes_partial(lanes, m, pnom, lam, kg):
+    """The lane-by-lane path of :func:`_diag_lanes` (any m <= LANES)."""
+    L = MK.LANES
+    for j in range(m):
+        q, qd, qr, qdr, p = _diag_lane_in(lanes, j)
+        lanes[SL.energy * L + j], lanes[SL.storage * L + j] = energy_storage(q, qd, qr, qdr, p, pnom, lam, kg)
 
 
 # ------------------------------------------------------------------------------------ reference
@@ -322,6 +329,21 @@ def _step_block(n0, m, state, obs, keys, istate, consts, codes, ctl, lanes, cmd)
     _reward_range(n0, hi, state, istate, consts, codes, lanes)
 
 
+@_jit
+def _step_block_partial(n0, m, state, obs, keys, istate, consts, codes, ctl, lanes, cmd):
+    """:func:`_step_block` for m < LANES through the lane-by-lane paths only (what a batch of fewer
+    than LANES envs needs: the same functions per lane, without the SIMD copies to compile)."""
+    hi = n0 + m
+    _begin_range(n0, hi, state, istate, consts, codes, ctl, lanes, cmd)
+    held = MK.HELD_TAU if codes[SK.mode] == MODE_IDEAL else codes[SK.imap]
+    for _ in range(int(consts[SC.frame_skip])):
+        MK.rk4_lanes_partial(lanes, consts[SC.dt_physics], m, held)
+    _end_range(n0, hi, state, keys, istate, consts, lanes)
+    _diag_lanes_partial(lanes, m, _nominal_params(consts), _vec5(consts, SC.lam), _vec5(consts, SC.kg))
+    observe_range(n0, hi, state, keys, istate, consts, obs)
+    _reward_range(n0, hi, state, istate, consts, codes, lanes)
+
+
 # ---------------------------------------------------------------------------------------- reset
 @njit(cache=True, nogil=True)
 def reset_rows(state, obs, keys, istate, consts, rows, q0, qd0, P, new_keys, refp, ref):
@@ -424,6 +446,14 @@ def _physics_rows(lo, hi, state, obs, keys, istate, consts, codes, ctl):
         _step_block(n0, min(MK.LANES, hi - n0), state, obs, keys, istate, consts, codes, ctl, lanes, cmd)
 
 
+@_jit
+def _physics_rows_small(lo, hi, state, obs, keys, istate, consts, codes, ctl):
+    """:func:`_physics_rows` for hi - lo < LANES envs (one partial block)."""
+    lanes = np.empty(LANE_BLOCK)
+    cmd = np.empty(10)
+    _step_block_partial(lo, hi - lo, state, obs, keys, istate, consts, codes, ctl, lanes, cmd)
+
+
 # --------------------------------------------------------------------------------- entry points
 @njit(cache=True, nogil=True)
 def step_check_actions(act, codes):
@@ -447,17 +477,66 @@ def step_physics_rows(lo, hi, act, state, obs, keys, istate, consts, codes, ctl)
     _physics_rows(lo, hi, state, obs, keys, istate, consts, codes, ctl)
 
 
+# One control step of every env (actions act (N, A)) in this thread; returns a ``STEP_*`` code. Four
+# entry points of one signature, so that a process compiles only what its env needs (numba compiles a
+# kernel with everything it calls, used or not): with or without the residual mode's base controller
+# (its new memory goes into S_new; the caller swaps it in on STEP_OK), for any N or for N < LANES
+# (lane-by-lane paths only). Same functions per env in each: the results do not depend on the choice.
 @njit(cache=True, nogil=True)
 def step_serial(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl, ctl_err):
-    """One control step of every env (actions act (N, A)) in this thread; returns a ``STEP_*`` code.
-    Residual mode: the controller's new memory goes into S_new (the caller swaps it in on STEP_OK)."""
+    """Action modes without the base controller, any N."""
+    n = state.shape[0]
+    ok, _ = _check_actions(act, codes[SK.action_dim])
+    if not ok:
+        return STEP_BAD_ACTION
+    _clip_actions(0, n, act, state, istate, codes[SK.action_dim])
+    _physics_rows(0, n, state, obs, keys, istate, consts, codes, ctl)
+    return STEP_OK
+
+
+@njit(cache=True, nogil=True)
+def step_serial_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl, ctl_err):
+    """Residual mode (the base controller, then the physics), any N."""
     n = state.shape[0]
     ok, anyu = _check_actions(act, codes[SK.action_dim])
     if not ok:
         return STEP_BAD_ACTION
     _clip_actions(0, n, act, state, istate, codes[SK.action_dim])
-    if codes[SK.mode] == MODE_RES_ACT:
-        has_res = anyu and codes[SK.res_virtual] != 0
-        _controller_rows(0, n, state, consts, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err)
+    has_res = anyu and codes[SK.res_virtual] != 0
+    _controller_rows(0, n, state, consts, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err)
     _physics_rows(0, n, state, obs, keys, istate, consts, codes, ctl)
     return STEP_OK
+
+
+@njit(cache=True, nogil=True)
+def step_serial_small(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl, ctl_err):
+    """:func:`step_serial` for N < LANES."""
+    n = state.shape[0]
+    ok, _ = _check_actions(act, codes[SK.action_dim])
+    if not ok:
+        return STEP_BAD_ACTION
+    _clip_actions(0, n, act, state, istate, codes[SK.action_dim])
+    _physics_rows_small(0, n, state, obs, keys, istate, consts, codes, ctl)
+    return STEP_OK
+
+
+@njit(cache=True, nogil=True)
+def step_serial_small_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl,
+                               ctl_err):
+    """:func:`step_serial_residual` for N < LANES."""
+    n = state.shape[0]
+    ok, anyu = _check_actions(act, codes[SK.action_dim])
+    if not ok:
+        return STEP_BAD_ACTION
+    _clip_actions(0, n, act, state, istate, codes[SK.action_dim])
+    has_res = anyu and codes[SK.res_virtual] != 0
+    _controller_rows(0, n, state, consts, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err)
+    _physics_rows_small(0, n, state, obs, keys, istate, consts, codes, ctl)
+    return STEP_OK
+
+
+def serial_step_kernel(n: int, residual: bool):
+    """The entry point above for N = n envs, with (residual mode) or without the base controller."""
+    if n < MK.LANES:
+        return step_serial_small_residual if residual else step_serial_small
+    return step_serial_residual if residual else step_serial

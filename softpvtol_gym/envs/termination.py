@@ -12,6 +12,14 @@ BOX_Z = 20.0  # m: terminate when z > BOX_Z
 MAX_LIN_SPEED = 50.0  # m/s: terminate when |xdot| or |zdot| exceeds it
 MAX_ANG_SPEED = 100.0  # rad/s: terminate when |thetadot|, |q_l dot| or |q_r dot| exceeds it
 
+#: the configurations an episode may start from, per coordinate of q: (name, lower, upper, the
+#: termination reason beyond), the position limits of :func:`termination_reason` (``reset(options=...)``
+#: refuses a q0 outside them; speeds beyond the speed limits are valid model states, they end the
+#: episode as "out_of_bounds" at its first step)
+Q_LIMITS = (("x", -BOX_X, BOX_X, "out_of_bounds"), ("z", GROUND_Z, BOX_Z, "ground/out_of_bounds"),
+            ("theta", -math.inf, math.inf, ""), ("q_l", -math.pi, math.pi, "curvature_limit (model validity)"),
+            ("q_r", -math.pi, math.pi, "curvature_limit (model validity)"))
+
 REASONS = ("", "curvature_limit", "ground", "out_of_bounds", "non_finite")
 R_NONE, R_CURV, R_GROUND, R_OOB, R_NONFINITE = range(5)
 

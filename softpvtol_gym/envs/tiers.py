@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from ._validation import positive_number
+from ._validation import positive_number, short_repr
 
 #: default option values (every effect's options)
 DEFAULT_TIER_OPTIONS = {
@@ -92,11 +92,15 @@ def check_tier_options(options) -> None:
     if options is None:
         return
     if not isinstance(options, dict):
-        raise ValueError(f"tier_options must be a dict, got {options!r}")
+        raise ValueError(f"tier_options must be a dict with keys from {sorted(DEFAULT_TIER_OPTIONS)} (or None), got "
+                         f"{short_repr(options)} of type {type(options).__name__}")
     for k, v in options.items():
-        if k not in DEFAULT_TIER_OPTIONS:
+        if not isinstance(k, str) or k not in DEFAULT_TIER_OPTIONS:
             raise ValueError(f"unknown tier option {k!r}; valid ones are {sorted(DEFAULT_TIER_OPTIONS)}")
-        positive_number(f"tier_options[{k!r}]", v, allow_zero=k not in _KEPT_WHEN_OFF)
+        x = positive_number(f"tier_options[{k!r}]", v, allow_zero=k not in _KEPT_WHEN_OFF)
+        if k == "mismatch_scale" and x >= 1.0:
+            raise ValueError(f"tier_options['mismatch_scale'] must be in [0, 1) (the plant's masses, inertias and "
+                             f"lengths are scaled by U(1 - s, 1 + s), which must stay > 0), got {v!r}")
 
 
 def tier_values(tier: str, options: dict | None) -> dict:

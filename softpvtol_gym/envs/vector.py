@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
+from gymnasium.error import ResetNeeded
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ._validation import choice
+from ._validation import choice, seed_value, short_repr
 from .batch_sim import BatchSim
 from .config import EnvConfig
-from .episodes import N_UNIFORMS
+from .episodes import N_UNIFORMS, check_reset_options
 from .info import batch_info
 from .soft_pvtol import make_spaces
 from .termination import R_NONE, REASONS
@@ -32,21 +34,25 @@ class SoftPVTOLVectorEnv(VectorEnv):
     ``reward_terms`` (a dict of arrays), ``total_energy``, ``storage_function``,
     ``curvature_violation``, ``allocation_residual``, ``thrust_saturated``, ``arm_torque_saturated``,
     ``action_clipped``, ``termination_reason`` (object array, None where not done), ``time``.
-    With SameStep autoreset, ``final_obs``/``final_info`` as in gymnasium.
+    With SameStep autoreset, ``final_obs``/``final_info`` as in gymnasium. With Disabled autoreset,
+    ``reset(options={"reset_mask": mask})`` (a bool array of num_envs) resets the sub-envs where mask
+    (gymnasium's convention), and stepping a sub-env that has ended warns once per episode.
+    ``step()`` before every sub-env has been reset raises gymnasium's ``ResetNeeded``.
     """
 
     metadata = {"render_modes": ["rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP, "render_fps": 100}
 
     def __init__(self, num_envs: int = 1, render_mode: str | None = None,
                  autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP, **config) -> None:
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise ValueError(f"num_envs must be an int >= 1, got {num_envs!r}")
+        if isinstance(num_envs, (bool, np.bool_)) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs must be an int >= 1, got {short_repr(num_envs)} of type "
+                             f"{type(num_envs).__name__}")
         # the arguments of EnvConfig, as SoftPVTOLEnv (one signature for both)
         self.config = EnvConfig.from_kwargs(**config)
         choice("render_mode", render_mode, (None, "rgb_array"))
         try:
             self.autoreset_mode = AutoresetMode(autoreset_mode)
-        except ValueError:
+        except (ValueError, TypeError):
             raise ValueError(
                 f"autoreset_mode must be one of {[m.value for m in AutoresetMode]}, got {autoreset_mode!r}"
             ) from None
@@ -62,6 +68,12 @@ class SoftPVTOLVectorEnv(VectorEnv):
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._all = np.arange(self.num_envs)
         self._renderer = None
+        # step() needs every sub-env reset once; Disabled autoreset: done sub-envs stepped on are warned
+        # about once per episode (as CartPole)
+        self._fresh = np.ones(self.num_envs, dtype=bool)
+        self._needs_reset = True
+        self._over = np.zeros(self.num_envs, dtype=bool)
+        self._warned = np.zeros(self.num_envs, dtype=bool)
 
     # ------------------------------------------------------------------------------ seeding
     def _draw(self, idx: np.ndarray) -> np.ndarray:
@@ -72,24 +84,79 @@ class SoftPVTOLVectorEnv(VectorEnv):
         return u
 
     def reset(self, *, seed: int | list | None = None, options: dict | None = None):
-        if seed is not None:
-            if isinstance(seed, (int, np.integer)):
-                seeds = [int(seed) + i for i in range(self.num_envs)]
-            else:
-                seeds = list(seed)
-                if len(seeds) != self.num_envs:
-                    raise ValueError(f"seed list must have num_envs={self.num_envs} entries, got {len(seeds)}")
-            self._rngs = [seeding.np_random(s)[0] for s in seeds]
-            self._np_random, self._np_random_seed = seeding.np_random(seeds[0])
-        self._sim.reset_entries(self._all, self._draw(self._all), options)
-        self._autoreset[:] = False
-        if self._renderer is not None:
+        """Reset every sub-env, or (gymnasium's ``options={"reset_mask": mask}``, a bool array of shape
+        (num_envs,)) those where mask; ``seed``: None, an int s (sub-env i seeded with s + i) or a list of
+        num_envs ints/None. Arguments are checked before anything changes."""
+        seeds = self._seeds(seed)
+        state_options = check_reset_options(self.config, options, extra_keys=("reset_mask",))
+        mask = self._reset_mask(options["reset_mask"]) if options and "reset_mask" in options else None
+        idx = self._all if mask is None else np.flatnonzero(mask)
+        if seeds is not None:
+            for i in idx.tolist():
+                self._rngs[i] = seeding.np_random(seeds[i])[0]
+            if mask is None or mask[0]:
+                self._np_random, self._np_random_seed = seeding.np_random(seeds[0])
+        self._sim.reset_entries(idx, self._draw(idx), state_options)
+        self._autoreset[idx] = False
+        self._over[idx] = False
+        self._warned[idx] = False
+        self._fresh[idx] = False
+        self._needs_reset = bool(self._fresh.any())
+        if self._renderer is not None and (mask is None or mask[0]):
             self._renderer.clear_trail()
-        return self._sim.obs.copy(), batch_info(self._sim, None)
+        infos = batch_info(self._sim, None)
+        if mask is not None:  # infos of the sub-envs reset (gymnasium's masks)
+            for k in list(infos):
+                if k.startswith("_"):
+                    infos[k] = mask.copy()
+        return self._sim.obs.copy(), infos
+
+    def _seeds(self, seed) -> list | None:
+        """The per-sub-env seeds of :meth:`reset` (gymnasium's rules; numpy integers accepted)."""
+        n = self.num_envs
+        if seed is None:
+            return None
+        if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
+            s = seed_value(seed)
+            return [s + i for i in range(n)]
+        if not isinstance(seed, (list, tuple, np.ndarray)):
+            raise ValueError(f"seed must be an int >= 0, a list of num_envs={n} ints >= 0 (or None entries), "
+                             f"or None; got {short_repr(seed)} of type {type(seed).__name__}")
+        seeds = [seed_value(s, f"seed[{i}]") for i, s in enumerate(list(seed))]
+        if len(seeds) != n:
+            raise ValueError(f"seed list must have num_envs={n} entries, got {len(seeds)}")
+        return seeds
+
+    def _reset_mask(self, mask) -> np.ndarray:
+        """``options["reset_mask"]`` checked as gymnasium's vector envs do."""
+        n = self.num_envs
+        if not isinstance(mask, np.ndarray):
+            raise TypeError(f"options['reset_mask'] must be a numpy bool array of shape ({n},), got "
+                            f"{short_repr(mask)} of type {type(mask).__name__}")
+        if mask.shape != (n,):
+            raise ValueError(f"options['reset_mask'] must have shape ({n},) (num_envs), got {mask.shape}")
+        if mask.dtype != np.bool_:
+            raise TypeError(f"options['reset_mask'] must have dtype bool, got {mask.dtype} (use mask.astype(bool))")
+        if not mask.any():
+            raise ValueError("options['reset_mask'] must be True for at least one sub-env, got all False")
+        return mask.copy()
 
     def step(self, actions):
+        if self._needs_reset:
+            raise ResetNeeded("Cannot call env.step() before calling env.reset() (every sub-env: a reset_mask "
+                              f"reset left sub-envs {np.flatnonzero(self._fresh).tolist()[:8]} never reset)"
+                              if not self._fresh.all() else "Cannot call env.step() before calling env.reset()")
         sim = self._sim
         mode = self.autoreset_mode
+        if mode == AutoresetMode.DISABLED and self._over.any():
+            new = self._over & ~self._warned
+            if new.any():
+                self._warned |= new
+                gym.logger.warn(
+                    f"You are calling 'step()' on sub-envs {np.flatnonzero(new).tolist()[:8]} that have already "
+                    "returned terminated = True or truncated = True (autoreset_mode='Disabled'). Reset them "
+                    "with reset(options={'reset_mask': mask}) -- any further steps are undefined behavior."
+                )
         pending = None
         if mode == AutoresetMode.NEXT_STEP:
             idx = np.flatnonzero(self._autoreset)
@@ -141,6 +208,8 @@ class SoftPVTOLVectorEnv(VectorEnv):
         else:
             infos = batch_info(sim, reasons)
             obs = sim.obs.copy()
+            if reasons is not None:
+                self._over |= done
         return obs, rewards, terminated, truncated, infos
 
     # --------------------------------------------------------------------------------- access

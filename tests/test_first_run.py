@@ -1,0 +1,144 @@
+"""First-run experience (issue 13, item 7): the compile message, display-only pygame, the
+``"softpvtol_gym:SoftPVTOL-v0"`` id in worker processes that never imported the package."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import softpvtol_gym
+from softpvtol_gym import _cache
+
+# a light kernel (the gravity vector): compiles in seconds, so the message test does not pay the step's compile
+_LIGHT = ("import numpy as np, softpvtol_gym; "
+          "softpvtol_gym.dynamics.gravity_vector(np.zeros(5), softpvtol_gym.SoftPVTOLParams())")
+
+
+def _run(code: str, cache_dir, timeout=600) -> subprocess.CompletedProcess:
+    env = dict(os.environ, SOFTPVTOL_GYM_CACHE_DIR=str(cache_dir))
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=timeout)
+
+
+def test_first_run_message_once_then_silent(tmp_path):
+    first = _run(_LIGHT, tmp_path)
+    assert first.returncode == 0, first.stderr
+    lines = [ln for ln in first.stderr.splitlines() if ln.startswith("softpvtol_gym: compiling kernels")]
+    assert lines == [_cache.FIRST_RUN_MESSAGE]
+    assert f"first run only, about {_cache.COLD_COMPILE_SECONDS} s" in lines[0]
+    second = _run(_LIGHT, tmp_path)  # the kernel is in the cache now
+    assert second.returncode == 0, second.stderr
+    assert "compiling kernels" not in second.stderr
+
+
+def test_no_message_with_a_warm_cache():
+    # this session's cache holds the env's kernels (the other tests compiled them)
+    softpvtol_gym.SoftPVTOLEnv().reset(seed=0)
+    out = _run(_LIGHT + "; e = softpvtol_gym.SoftPVTOLEnv(); e.reset(seed=0); e.step(np.zeros(4))",
+               softpvtol_gym.NUMBA_CACHE_DIR.parent)
+    assert out.returncode == 0, out.stderr
+    assert "compiling kernels" not in out.stderr
+
+
+def test_cache_is_empty_looks_for_numba_index_files(tmp_path):
+    assert _cache.cache_is_empty(tmp_path)
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "step.step_serial-1.py311.nbi").write_bytes(b"")
+    assert not _cache.cache_is_empty(tmp_path)
+
+
+# ------------------------------------------------------------------------------------ pygame
+def test_human_mode_initialises_only_the_display(monkeypatch):
+    pygame = pytest.importorskip("pygame")
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    monkeypatch.delenv("SDL_AUDIODRIVER", raising=False)  # audio, if started, would find no device here
+
+    def no_full_init(*args, **kwargs):
+        raise AssertionError("pygame.init() starts audio (ALSA errors on headless machines); init the display only")
+
+    monkeypatch.setattr(pygame, "init", no_full_init)
+    env = softpvtol_gym.SoftPVTOLEnv(render_mode="human")
+    env.reset(seed=0)
+    env.step(np.zeros(4))
+    assert pygame.display.get_init()
+    assert not pygame.mixer.get_init()
+    env.close()
+    assert not pygame.display.get_init()
+
+
+def test_human_mode_headless_prints_no_audio_errors(tmp_path):
+    code = textwrap.dedent("""
+        import numpy as np, softpvtol_gym, pygame
+        env = softpvtol_gym.SoftPVTOLEnv(render_mode="human")
+        env.reset(seed=0)
+        env.step(np.zeros(4))
+        assert pygame.display.get_init() and not pygame.mixer.get_init()
+        env.close()
+    """)
+    env = {k: v for k, v in os.environ.items() if k != "SDL_AUDIODRIVER"}
+    env.update(SDL_VIDEODRIVER="dummy", PYGAME_HIDE_SUPPORT_PROMPT="1")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    assert "ALSA" not in out.stderr
+
+
+# --------------------------------------------------------------------- workers and the env id
+_ASYNC = textwrap.dedent("""
+    import sys
+    import gymnasium as gym
+    import numpy as np
+
+    def main(context):
+        # no `import softpvtol_gym` here: the id's module part makes gymnasium import it
+        envs = gym.make_vec("softpvtol_gym:SoftPVTOL-v0", num_envs=2, vectorization_mode="async",
+                            vector_kwargs={} if context is None else {"context": context})
+        obs, _ = envs.reset(seed=0)
+        obs2, reward, *_ = envs.step(np.zeros((2, 4)))
+        assert obs.shape == (2, 18) and np.isfinite(obs2).all() and reward.shape == (2,)
+        envs.close()
+        print("ok")
+
+    if __name__ == "__main__":
+        main(None if sys.argv[1] == "default" else sys.argv[1])
+""")
+
+
+@pytest.mark.parametrize("context", ["default", "spawn"])
+def test_async_make_vec_with_the_module_id_in_a_fresh_process(tmp_path, context):
+    script = tmp_path / "run_async.py"
+    script.write_text(_ASYNC)
+    out = subprocess.run([sys.executable, str(script), context], capture_output=True, text=True, timeout=900,
+                         cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().endswith("ok")
+
+
+_SUBPROC = textwrap.dedent("""
+    import numpy as np
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    def main():
+        # created inside a function, workers started by spawn: only the module id reaches them
+        venv = make_vec_env("softpvtol_gym:SoftPVTOL-v0", n_envs=2, vec_env_cls=SubprocVecEnv,
+                            vec_env_kwargs={"start_method": "spawn"})
+        venv.reset()
+        obs, *_ = venv.step(np.zeros((2, 4)))
+        assert obs.shape == (2, 18)
+        venv.close()
+        print("ok")
+
+    if __name__ == "__main__":
+        main()
+""")
+
+
+@pytest.mark.slow
+def test_sb3_subproc_vec_env_with_the_module_id(tmp_path):
+    script = tmp_path / "run_subproc.py"
+    script.write_text(_SUBPROC)
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=900, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().endswith("ok")
