@@ -62,6 +62,7 @@ class BatchSim:
         # the compiled step of one call (compiled on first use, with the controller only in residual mode)
         self._step_serial = serial_step_kernel(n, cfg.action_mode == "residual")
         self._shape = {True: (n, self.action_dim), False: (self.action_dim,)}
+        self._expected = {b: f"an array of shape {shape} in [-1, 1]" for b, shape in self._shape.items()}
         self.controller = None
         if cfg.action_mode == "residual":
             self.controller = PassivityController.from_loop(
@@ -122,7 +123,7 @@ class BatchSim:
         # the kernels get C-contiguous, writeable float64 (one compiled signature); anything else is
         # converted (real numbers only: str, bool, complex values are refused, never cast)
         if not (type(a) is np.ndarray and a.dtype is _F64 and a.flags.c_contiguous and a.flags.writeable):
-            a = real_array("action", action, f"an array of shape {expected} in [-1, 1]")
+            a = real_array("action", action, self._expected[batched])
         if a.shape != expected:
             raise ValueError(
                 f"action must have shape {expected} (action_mode={self.cfg.action_mode!r}"
