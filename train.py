@@ -8,7 +8,10 @@ Thin CLI; the logic lives in ``baselines/`` (``baselines/train_agent.py``, ``bas
 
 import sys
 
-from baselines.train_agent import main
+from baselines._extras import require
 
 if __name__ == "__main__":
+    require("train.py")  # a plain install lacks the 'baselines' extra: say which one, before any import fails
+    from baselines.train_agent import main
+
     sys.exit(main())

@@ -1,31 +1,67 @@
-"""Run configuration: hyperparameters from YAML per (env id, action mode), CLI overrides, saving.
+"""Run configuration: hyperparameters from YAML per (env id, action mode), CLI overrides, validation, saving.
 
 ``baselines/hyperparams/<algo>.yml`` holds one entry per ``"<env id>/<action mode>"`` (rl-baselines3-zoo
 style). :func:`load_hyperparams` reads the entry, :func:`apply_overrides` applies ``key=value`` strings
-from the command line (values parsed as YAML), and :class:`RunConfig` is what a run saves next to its
-checkpoints (``config.yaml``), so that a run can be resumed, evaluated or audited later.
+from the command line (values parsed as YAML), :func:`validate_hyperparams` checks every key against the
+algorithm's constructor and stable-baselines3's constraints (before anything is written), and
+:class:`RunConfig` is what a run saves next to its checkpoints (``config.yaml``), so that a run can be
+resumed, evaluated or audited later.
 """
 
 from __future__ import annotations
 
 import ast
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from softpvtol_gym.envs.core import ACTION_MODES, TASKS, TIERS
 
+from .errors import ConfigError
+
+__all__ = ["ConfigError", "RunConfig", "load_hyperparams", "apply_overrides", "algo_kwargs", "validate_hyperparams",
+           "read_yaml"]
+
 ENV_ID = "SoftPVTOL-v0"
+CONFIG_FILE_NAME = "config.yaml"
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 ALGOS = ("ppo", "sac")
 #: keys of a hyperparameter entry that are not keyword arguments of the SB3 algorithm
 NON_ALGO_KEYS = ("policy", "n_envs", "n_timesteps", "normalize")
+#: constructor arguments of the SB3 algorithms that a run sets itself (not hyperparameters)
+RESERVED_ALGO_ARGS = ("self", "policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model")
+#: training seeds are below this (evaluation seeds start at 1,000,000: the two sets never overlap)
+TRAIN_SEED_LIMIT = 500_000
+MAX_N_ENVS = 1024
+#: at most this many evaluation episodes per call (they run as one vector env, in memory together)
+MAX_EPISODES = 10_000
+MAX_TIMESTEPS = 10**10
+MAX_ROLLOUT = 2**24          # PPO: n_steps * n_envs (the rollout buffer is allocated up front)
+MAX_BUFFER_SIZE = 10**7      # SAC: the replay buffer is allocated up front
+VECNORM_KEYS = ("norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon")
 
 
-class ConfigError(ValueError):
-    """A bad configuration value: the message names what was received and what is expected."""
+def read_yaml(path: Path, what: str) -> Any:
+    """``yaml.safe_load`` of a file, with every failure a ConfigError naming the file and the problem."""
+    import yaml
+
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{what} {path} is a directory; expected a YAML file")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"no {what} at {path}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read {what} {path}: {exc}") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ConfigError(f"{what} {path} is not valid YAML{where}: {problem}") from None
 
 
 def load_hyperparams(algo: str, action_mode: str, env_id: str = ENV_ID, directory: Path | None = None) -> dict:
@@ -35,12 +71,15 @@ def load_hyperparams(algo: str, action_mode: str, env_id: str = ENV_ID, director
     if action_mode not in ACTION_MODES:
         raise ConfigError(f"action mode must be one of {list(ACTION_MODES)}, got {action_mode!r}")
     path = (HYPERPARAMS_DIR if directory is None else Path(directory)) / f"{algo}.yml"
-    if not path.is_file():
-        raise ConfigError(f"no hyperparameter file {path}")
-    table = yaml.safe_load(path.read_text()) or {}
+    table = read_yaml(path, "hyperparameter file") or {}
+    if not isinstance(table, dict):
+        raise ConfigError(f"hyperparameter file {path} must map '<env id>/<action mode>' to entries, "
+                          f"got a {type(table).__name__}")
     key = f"{env_id}/{action_mode}"
     if key not in table:
         raise ConfigError(f"{path} has no entry {key!r}; entries: {sorted(table)}")
+    if not isinstance(table[key], dict):
+        raise ConfigError(f"entry {key!r} of {path} must be a mapping, got {table[key]!r}")
     return dict(table[key])
 
 
@@ -60,7 +99,12 @@ def apply_overrides(hyperparams: dict, overrides: list[str]) -> dict:
 
 def _parse_value(raw: str) -> Any:
     """A YAML value, with numbers like ``1e-4`` (a string for YAML 1.1) read as floats."""
-    value = yaml.safe_load(raw)
+    import yaml
+
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"hyperparameter value {raw!r} is not valid YAML: {getattr(exc, 'problem', exc)}") from None
     if isinstance(value, str):
         try:
             return float(value)
@@ -77,6 +121,11 @@ def algo_kwargs(hyperparams: dict) -> dict:
     if isinstance(pk, str):
         kwargs["policy_kwargs"] = _parse_dict_call(pk)
     return kwargs
+
+
+def normalize_kwargs(hyperparams: dict) -> dict | None:
+    """The VecNormalize keyword arguments of an entry, or None (no normalisation)."""
+    return hyperparams.get("normalize") or None
 
 
 def _parse_dict_call(text: str) -> dict:
@@ -105,12 +154,229 @@ def _parse_dict_call(text: str) -> dict:
     return value
 
 
+# ------------------------------------------------------------------------------- validation
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _int(lo=None, hi=None):
+    def check(v):
+        if not _is_int(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
+            bounds = " and ".join(b for b in ((f">= {lo:,}" if lo is not None else ""),
+                                              (f"<= {hi:,}" if hi is not None else "")) if b)
+            return f"an integer {bounds}".rstrip()
+    return check
+
+
+def _num(lo=None, hi=None, lo_open=False, hi_open=False):
+    def check(v):
+        ok = _is_num(v)
+        if ok and lo is not None:
+            ok = v > lo if lo_open else v >= lo
+        if ok and hi is not None:
+            ok = v < hi if hi_open else v <= hi
+        if not ok:
+            parts = []
+            if lo is not None:
+                parts.append(f"{'>' if lo_open else '>='} {lo:g}")
+            if hi is not None:
+                parts.append(f"{'<' if hi_open else '<='} {hi:g}")
+            return "a finite number" + (" " + " and ".join(parts) if parts else "")
+    return check
+
+
+def _optional(check):
+    def wrapped(v):
+        if v is None:
+            return None
+        msg = check(v)
+        return None if msg is None else f"null or {msg}"
+    return wrapped
+
+
+def _bool(v):
+    if not isinstance(v, bool):
+        return "true or false"
+
+
+def _none(v):
+    if v not in (None, {}):
+        return "null (classes and objects cannot be given in a config)"
+
+
+def _policy_kwargs(v):
+    if isinstance(v, str):
+        try:
+            _parse_dict_call(v)
+        except ConfigError as exc:
+            return f"a dict(...) expression ({exc})"
+        return None
+    if not isinstance(v, dict):
+        return "a dict or a 'dict(...)' string"
+
+
+def _sac_ent_coef(v):
+    if isinstance(v, str):
+        if v == "auto":
+            return None
+        if v.startswith("auto_"):
+            try:
+                x = float(v[5:])
+            except ValueError:
+                x = float("nan")
+            if math.isfinite(x) and x > 0:
+                return None
+        return "'auto', 'auto_<initial value > 0>' or a number > 0"
+    if not _is_num(v) or v <= 0:
+        return "'auto', 'auto_<initial value > 0>' or a number > 0"
+
+
+def _sac_target_entropy(v):
+    if v != "auto" and not _is_num(v):
+        return "'auto' or a finite number"
+
+
+def _train_freq(v):
+    if _is_int(v) and v >= 1:
+        return None
+    if (isinstance(v, (list, tuple)) and len(v) == 2 and _is_int(v[0]) and v[0] >= 1
+            and v[1] in ("step", "episode")):
+        return None
+    return "an integer >= 1 or [n >= 1, 'step' | 'episode']"
+
+
+def _gradient_steps(v):
+    if not _is_int(v) or (v < 1 and v != -1):
+        return "an integer >= 1, or -1 (as many as env steps)"
+
+
+def _policy(v):
+    if v != "MlpPolicy":
+        return "'MlpPolicy' (the observation is a flat vector)"
+
+
+def _normalize(v):
+    if v is None or v is False:
+        return None
+    if not isinstance(v, dict):
+        return f"false or a mapping of VecNormalize arguments {list(VECNORM_KEYS)}"
+    unknown = sorted(set(v) - set(VECNORM_KEYS))
+    if unknown:
+        return f"a mapping of VecNormalize arguments {list(VECNORM_KEYS)} (unknown: {unknown})"
+    for key, check in (("norm_obs", _bool), ("norm_reward", _bool), ("clip_obs", _num(0, lo_open=True)),
+                       ("clip_reward", _num(0, lo_open=True)), ("gamma", _num(0, 1, lo_open=True)),
+                       ("epsilon", _num(0, lo_open=True))):
+        if key in v and check(v[key]) is not None:
+            return f"a mapping whose {key} is {check(v[key])} (got {v[key]!r})"
+
+
+_COMMON_RULES = {
+    "policy": _policy,
+    "n_envs": _int(1, MAX_N_ENVS),
+    "n_timesteps": _int(1, MAX_TIMESTEPS),
+    "normalize": _normalize,
+    "learning_rate": _num(0, lo_open=True),
+    "gamma": _num(0, 1, lo_open=True),
+    "use_sde": _bool,
+    "sde_sample_freq": _int(-1),
+    "stats_window_size": _int(1),
+    "policy_kwargs": _policy_kwargs,
+}
+_RULES = {
+    "ppo": {
+        "n_steps": _int(1),
+        "batch_size": _int(2),        # SB3: "batch_size must be greater than 1"
+        "n_epochs": _int(1),
+        "gae_lambda": _num(0, 1),
+        "clip_range": _num(0, lo_open=True),
+        "clip_range_vf": _optional(_num(0, lo_open=True)),
+        "normalize_advantage": _bool,
+        "ent_coef": _num(0),
+        "vf_coef": _num(0),
+        "max_grad_norm": _num(0, lo_open=True),
+        "target_kl": _optional(_num(0, lo_open=True)),
+        "rollout_buffer_class": _none,
+        "rollout_buffer_kwargs": _none,
+    },
+    "sac": {
+        "buffer_size": _int(1, MAX_BUFFER_SIZE),
+        "learning_starts": _int(0),
+        "batch_size": _int(1),
+        "tau": _num(0, 1, lo_open=True),
+        "train_freq": _train_freq,
+        "gradient_steps": _gradient_steps,
+        "action_noise": _none,
+        "replay_buffer_class": _none,
+        "replay_buffer_kwargs": _none,
+        "optimize_memory_usage": _bool,
+        "n_steps": _int(1),
+        "ent_coef": _sac_ent_coef,
+        "target_update_interval": _int(1),
+        "target_entropy": _sac_target_entropy,
+        "use_sde_at_warmup": _bool,
+    },
+}
+
+
+def valid_hyperparameter_keys(algo: str) -> list[str]:
+    """Every key a hyperparameter entry of ``algo`` may have: :data:`NON_ALGO_KEYS` and the keyword
+    arguments of the SB3 algorithm's constructor (minus those a run sets itself)."""
+    return sorted({*NON_ALGO_KEYS, *_COMMON_RULES, *_RULES[algo]} - set(RESERVED_ALGO_ARGS) | {"policy"})
+
+
+def validate_hyperparams(algo: str, hp: Any, n_envs: int | None = None) -> None:
+    """ConfigError for the first hyperparameter that stable-baselines3 would reject (or that the run would
+    get wrong): unknown keys, wrong types, out-of-range or non-finite values, ``algo``-specific limits."""
+    if algo not in ALGOS:
+        raise ConfigError(f"algo must be one of {list(ALGOS)}, got {algo!r}")
+    if not isinstance(hp, dict):
+        raise ConfigError(f"hyperparameters must be a mapping, got {hp!r}")
+    rules = {**_COMMON_RULES, **_RULES[algo]}
+    for key in hp:
+        if not isinstance(key, str) or key not in rules:
+            raise ConfigError(f"unknown hyperparameter {key!r} for {algo.upper()}; valid ones are "
+                              f"{valid_hyperparameter_keys(algo)}")
+    for key, value in hp.items():
+        msg = rules[key](value)
+        if msg is not None:
+            raise ConfigError(f"hyperparameter {key} must be {msg}, got {value!r}")
+    if algo == "ppo":
+        envs = n_envs if n_envs is not None else hp.get("n_envs", 16)
+        steps = hp.get("n_steps", 2048)
+        if steps * envs < 2:
+            raise ConfigError(f"n_steps * n_envs must be > 1 for PPO (its advantage normalisation), got "
+                              f"{steps} * {envs}")
+        if steps * envs > MAX_ROLLOUT:
+            raise ConfigError(f"n_steps * n_envs must be <= {MAX_ROLLOUT:,} (the rollout buffer is allocated up "
+                              f"front), got {steps} * {envs} = {steps * envs:,}")
+
+
+def _check_sb3_signature(algo: str) -> None:
+    """The validation table covers the constructor of the installed SB3 (a test checks this)."""
+    import inspect
+
+    from stable_baselines3 import PPO, SAC
+
+    cls = {"ppo": PPO, "sac": SAC}[algo]
+    params = set(inspect.signature(cls.__init__).parameters) - set(RESERVED_ALGO_ARGS)
+    table = (set(_COMMON_RULES) | set(_RULES[algo])) - set(NON_ALGO_KEYS)
+    if params != table:
+        raise AssertionError(f"{algo}: SB3 arguments {sorted(params - table)} are not validated; "
+                             f"{sorted(table - params)} are not SB3 arguments")
+
+
+# ------------------------------------------------------------------------------- RunConfig
 @dataclasses.dataclass
 class RunConfig:
     """Everything a training run needs; saved as ``<out>/config.yaml``.
 
     ``hyperparams`` is the YAML entry after CLI overrides; ``overrides`` lists what the CLI changed
-    (``--hp`` strings and explicit ``--n-envs``), for the record.
+    (``--hp`` strings and explicit ``--n-envs``), for the record. Every field is validated on creation
+    (and therefore on loading a saved config).
     """
 
     algo: str = "ppo"
@@ -133,35 +399,55 @@ class RunConfig:
         for name, valid in (("action_mode", ACTION_MODES), ("task", TASKS), ("tier", TIERS)):
             if getattr(self, name) not in valid:
                 raise ConfigError(f"{name} must be one of {list(valid)}, got {getattr(self, name)!r}")
-        for name in ("timesteps", "n_envs", "checkpoint_freq", "eval_freq"):
+        if self.env_id != ENV_ID:
+            raise ConfigError(f"env_id must be {ENV_ID!r}, got {self.env_id!r}")
+        for name, hi in (("timesteps", MAX_TIMESTEPS), ("n_envs", MAX_N_ENVS), ("checkpoint_freq", MAX_TIMESTEPS),
+                         ("eval_freq", MAX_TIMESTEPS)):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ConfigError(f"{name} must be an integer >= 1, got {v!r}")
-        if isinstance(self.eval_episodes, bool) or not isinstance(self.eval_episodes, int) or self.eval_episodes < 0:
-            raise ConfigError(f"eval_episodes must be an integer >= 0, got {self.eval_episodes!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ConfigError(f"seed must be an integer >= 0, got {self.seed!r}")
+            if not _is_int(v) or v < 1 or v > hi:
+                raise ConfigError(f"{name} must be an integer in [1, {hi:,}], got {v!r}")
+        if not _is_int(self.eval_episodes) or not 0 <= self.eval_episodes <= MAX_EPISODES:
+            raise ConfigError(f"eval_episodes must be an integer in [0, {MAX_EPISODES:,}], got {self.eval_episodes!r}")
+        if not _is_int(self.seed) or not 0 <= self.seed < TRAIN_SEED_LIMIT:
+            raise ConfigError(f"seed must be an integer in [0, {TRAIN_SEED_LIMIT:,}) (evaluation seeds start at "
+                              f"1,000,000), got {self.seed!r}")
+        if not isinstance(self.overrides, list) or not all(isinstance(o, str) for o in self.overrides):
+            raise ConfigError(f"overrides must be a list of 'key=value' strings, got {self.overrides!r}")
+        validate_hyperparams(self.algo, self.hyperparams, self.n_envs)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict) -> RunConfig:
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(data) - names
+    def from_dict(cls, data: Any, source: str = "run config", strict: bool = False) -> RunConfig:
+        """A RunConfig from a mapping; ``strict``: every field must be present (saved configs)."""
+        names = [f.name for f in dataclasses.fields(cls)]
+        if not isinstance(data, dict):
+            what = "empty" if data is None else f"a {type(data).__name__}"
+            raise ConfigError(f"{source} is {what}; expected a mapping with the keys {names}")
+        unknown = set(data) - set(names)
         if unknown:
-            raise ConfigError(f"unknown run config keys {sorted(unknown)}; valid ones are {sorted(names)}")
+            raise ConfigError(f"{source}: unknown keys {sorted(map(str, unknown))}; valid ones are {sorted(names)}")
+        if strict:
+            lost = [n for n in names if n not in data]
+            if lost:
+                raise ConfigError(f"{source} lacks the keys {lost} (a saved run config has all of {names})")
         return cls(**data)
 
+    def to_yaml(self) -> str:
+        import yaml
+
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
     def save(self, path: Path) -> None:
-        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
+        from .atomic import atomic_write_text
+
+        atomic_write_text(path, self.to_yaml())
 
     @classmethod
     def load(cls, path: Path) -> RunConfig:
         path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"no run config at {path}")
-        return cls.from_dict(yaml.safe_load(path.read_text()))
+        return cls.from_dict(read_yaml(path, "run config"), source=f"run config {path}", strict=True)
 
     def env_kwargs(self) -> dict:
         return {"action_mode": self.action_mode, "task": self.task, "tier": self.tier}

@@ -4,31 +4,40 @@
     python baselines/evaluate.py --policy runs/ppo_residual_hover_nominal_s0 --tier mismatch --json out.json
 
 ``--policy``: ``passivity`` (the analytic controller; ``--allocation paper|exact`` picks its allocation,
-default exact) or a checkpoint: a run directory, a checkpoint directory or a ``model.zip`` next to its
-``vecnormalize.pkl`` and ``config.yaml``. A checkpoint's action mode is its own (``--action-mode``, if
-given, must match it); task and tier default to the ones it was trained on and may be changed.
+default exact) or a checkpoint: a run directory, a checkpoint directory or its ``model.safetensors``.
+Checkpoints load in the project's safe format (docs/baselines.md, "Loading checkpoints"): nothing is
+unpickled. A pickle-based file (an SB3 ``model.zip``, a ``vecnormalize.pkl``) is refused unless
+``--trust-pickle`` is given: loading one runs any code it contains, so pass it only for files you
+created or trust. A checkpoint's action mode is its own (``--action-mode``, if given, must match it);
+task and tier default to the ones it was trained on and may be changed.
 Episode i uses seed ``--seed`` + i (default 1,000,000: evaluation seeds never overlap training seeds,
-which ``train.py`` keeps below 500,000).
+which ``train.py`` keeps below 500,000). At most 10,000 episodes per call (they run together, as one
+vector env).
 
 The JSON holds ``episodes`` (each: return, rms_position_error [m], rms_attitude_error [rad],
 control_effort, crashed, length; see ``baselines/evaluation.py``), ``summary`` (their means, and the
-crash rate) and the settings. Exit codes: 0 done, 2 bad input (nothing written).
+crash rate) and the settings. Exit codes: 0 done, 2 bad input (one line; nothing written).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
+from baselines.cli import Parser, int_arg, run_main
+from baselines.errors import ConfigError
 from baselines.evaluation import EVAL_SEED_OFFSET, evaluate
 from softpvtol_gym.envs.core import ACTION_MODES, TASKS, TIERS
 
+MAX_EPISODES = 10_000
+MAX_SEED = 2**63 - 1
 
-def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="evaluate.py", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+
+def build_parser() -> Parser:
+    ap = Parser(prog="evaluate.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--policy", required=True, help="'passivity' or a checkpoint path")
     ap.add_argument("--action-mode", choices=ACTION_MODES, default=None,
                     help="default: the checkpoint's; 'actuators' for passivity")
@@ -36,22 +45,41 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--tier", choices=TIERS, default=None, help="default: the checkpoint's; 'nominal' for passivity")
     ap.add_argument("--allocation", choices=("exact", "paper"), default="exact",
                     help="allocation of the passivity controller (and of the env in virtual/residual mode)")
-    ap.add_argument("--episodes", type=int, default=20)
-    ap.add_argument("--seed", type=int, default=EVAL_SEED_OFFSET)
+    ap.add_argument("--episodes", type=int_arg(), default=20, help=f"1 to {MAX_EPISODES:,} (default 20)")
+    ap.add_argument("--seed", type=int_arg(), default=EVAL_SEED_OFFSET)
     ap.add_argument("--json", type=Path, default=None, help="write the results here (refuses to overwrite)")
     ap.add_argument("--force", action="store_true", help="overwrite --json if it exists")
+    ap.add_argument("--trust-pickle", action="store_true",
+                    help="also load pickle-based checkpoints (SB3 model.zip, *.pkl): they can run code; only for "
+                         "files you created or trust")
     return ap
 
 
-def main(argv=None) -> int:
+def check_output_file(path: Path, force: bool, option: str = "--json") -> None:
+    """ConfigError unless ``path`` can be written as a file (checked before any work is done)."""
+    if path.is_dir():
+        raise ConfigError(f"{option} {path} is a directory; expected a file name")
+    if path.exists() and not force:
+        raise ConfigError(f"{option} {path} exists; pass --force to overwrite it (nothing was written)")
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ConfigError(f"{option} {path}: {parent} is a file, not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ConfigError(f"{option} {path}: directory {parent} is not writable")
+
+
+def _main(argv) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
-    if args.episodes < 1:
-        ap.error(f"--episodes must be >= 1, got {args.episodes}")
-    if args.seed < 0:
-        ap.error(f"--seed must be >= 0, got {args.seed}")
-    if args.json is not None and args.json.exists() and not args.force:
-        ap.error(f"{args.json} exists; pass --force to overwrite it (nothing was written)")
+    if not 1 <= args.episodes <= MAX_EPISODES:
+        ap.error(f"--episodes must be >= 1 and at most {MAX_EPISODES:,} (all episodes run at once, in memory), "
+                 f"got {args.episodes}")
+    if not 0 <= args.seed <= MAX_SEED - args.episodes:
+        ap.error(f"--seed must be >= 0 and seed + episodes at most 2**63 - 1, got {args.seed}")
+    if args.json is not None:
+        check_output_file(args.json, args.force)
     env_kwargs = {"allocation": args.allocation}
     if args.policy == "passivity":
         from softpvtol_gym import PassivityPolicy
@@ -61,17 +89,10 @@ def main(argv=None) -> int:
         policy = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode=mode, task=task, **env_kwargs))
         source = "passivity"
     else:
-        path = Path(args.policy)
-        if not path.exists():
-            ap.error(f"checkpoint {path} does not exist (expected 'passivity', a run directory, a checkpoint "
-                     f"directory or a model.zip)")
-        from baselines.config import ConfigError
         from baselines.training import LearnedPolicy
 
-        try:
-            policy, config = LearnedPolicy.load(path)
-        except (FileNotFoundError, ConfigError) as exc:
-            ap.error(str(exc))
+        path = Path(args.policy)
+        policy, config = LearnedPolicy.load(path, trust_pickle=args.trust_pickle)
         if args.action_mode is not None and args.action_mode != config.action_mode:
             ap.error(f"--action-mode {args.action_mode} does not match the checkpoint's action mode "
                      f"{config.action_mode!r}; leave it out or pass {config.action_mode}")
@@ -86,9 +107,17 @@ def main(argv=None) -> int:
           f"rms attitude {s['mean_rms_attitude_error']:.3f} rad  effort {s['mean_control_effort']:.3f}  "
           f"crash rate {s['crash_rate']:.2f}")
     if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=2))
+        from baselines.atomic import atomic_write_text
+
+        atomic_write_text(args.json, json.dumps(report, indent=2))
     return 0
+
+
+def main(argv=None) -> int:
+    from baselines._extras import require
+
+    require("evaluate.py")
+    return run_main(_main, argv, prog="evaluate.py")
 
 
 if __name__ == "__main__":

@@ -10,27 +10,39 @@ the same list unchanged, writing into a shared file system.
 
 Job outputs (``<root>/<job.name>/``): ``eval.json`` (per evaluation tier, the episode list of
 :func:`baselines.evaluation.run_episodes`), and for learned policies the run directory contents that
-the leaderboard needs (``model.zip``, ``vecnormalize.pkl``, ``config.yaml``, ``evaluations.json``).
-A job whose ``eval.json`` exists is done and skipped, so an interrupted list can simply be re-run.
+the leaderboard needs (the final model in the safe checkpoint format: ``model.safetensors``,
+``model.json``, ``vecnormalize.json``, ``config.yaml`` and the manifest ``checkpoint.json``, plus
+``evaluations.json``). A job whose ``eval.json`` exists is done and skipped, so an interrupted list can
+simply be re-run.
+
+The spec is validated before any job runs (:func:`load_spec`: unknown keys, wrong types, unknown tasks,
+tiers or action modes are errors naming the key); job names are safe slugs and every output path is
+checked to stay under the root.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import shutil
 import sys
 import time
 from concurrent.futures import Executor, as_completed
 from pathlib import Path
 
-import yaml
+from .errors import ConfigError
+from .paths import check_slug, under
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SPEC_FILE = Path(__file__).resolve().parent / "leaderboard.yml"
 RUNS_DIR = Path(__file__).resolve().parent / "results" / "leaderboard_runs"
 EVAL_FILE = "eval.json"
+#: the spec's keys, and those of its entries (anything else is an error, not ignored)
+SPEC_KEYS = ("evaluation", "passivity", "tasks", "trained", "seeds")
+EVALUATION_KEYS = ("episodes", "seed", "tiers")
+PASSIVITY_KEYS = ("name", "allocation")
+TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps")
+ALLOCATIONS = ("paper", "exact")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,18 +62,120 @@ class Job:
 
     @property
     def name(self) -> str:
+        """The job's folder under the root: built from safe slugs only (checked here)."""
         if self.policy == "ppo":
-            return f"ppo_{self.action_mode}_{self.task}_{self.train_tier}/seed_{self.seed}"
+            for what, v in (("action mode", self.action_mode), ("task", self.task), ("tier", self.train_tier)):
+                check_slug(v, f"the {what} of a job")
+            return f"ppo_{self.action_mode}_{self.task}_{self.train_tier}/seed_{int(self.seed)}"
+        check_slug(self.policy, "a passivity entry's name")
+        check_slug(self.task, "the task of a job")
         return f"{self.policy}_{self.task}"
 
     @property
     def learned(self) -> bool:
         return self.policy == "ppo"
 
+    def folder(self, root: Path) -> Path:
+        """``<root>/<name>``, refused if it would leave ``root``."""
+        return under(root, self.name, "job folder")
+
+
+# ------------------------------------------------------------------------------------- the spec
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _mapping(value, keys: tuple, where: str, required: tuple | None = None) -> dict:
+    if not isinstance(value, dict):
+        raise ConfigError(f"{where} must be a mapping with the keys {list(keys)}, got {value!r}")
+    unknown = [k for k in value if k not in keys]
+    if unknown:
+        raise ConfigError(f"{where} has unknown keys {unknown}; valid ones are {list(keys)}")
+    lost = [k for k in (keys if required is None else required) if k not in value]
+    if lost:
+        raise ConfigError(f"{where} lacks the keys {lost}")
+    return value
+
+
+def _list(value, where: str, allow_empty: bool = True) -> list:
+    if not isinstance(value, list) or (not allow_empty and not value):
+        raise ConfigError(f"{where} must be a{'' if allow_empty else ' non-empty'} list, got {value!r}")
+    return value
+
+
+def _choice(value, valid, where: str):
+    if not isinstance(value, str) or value not in valid:
+        raise ConfigError(f"{where} must be one of {list(valid)}, got {value!r}")
+    return value
+
+
+def validate_spec(spec, source: str = "leaderboard spec") -> dict:
+    """``spec`` if it is a valid leaderboard spec, else ConfigError naming the key and what is expected."""
+    from softpvtol_gym.envs.core import ACTION_MODES, TASKS, TIERS
+
+    from .config import MAX_EPISODES, MAX_TIMESTEPS, TRAIN_SEED_LIMIT
+    from .evaluation import EVAL_SEED_OFFSET
+
+    if spec is None:
+        raise ConfigError(f"{source} is empty; expected a mapping with the keys {list(SPEC_KEYS)}")
+    _mapping(spec, SPEC_KEYS, source)
+    ev = _mapping(spec["evaluation"], EVALUATION_KEYS, f"{source}: evaluation")
+    if not _is_int(ev["episodes"]) or not 1 <= ev["episodes"] <= MAX_EPISODES:
+        raise ConfigError(f"{source}: evaluation.episodes must be an integer in [1, {MAX_EPISODES:,}], "
+                          f"got {ev['episodes']!r}")
+    if not _is_int(ev["seed"]) or ev["seed"] < EVAL_SEED_OFFSET:
+        raise ConfigError(f"{source}: evaluation.seed must be an integer >= {EVAL_SEED_OFFSET:,} (evaluation seeds "
+                          f"never overlap training seeds), got {ev['seed']!r}")
+    tiers = _list(ev["tiers"], f"{source}: evaluation.tiers", allow_empty=False)
+    for t in tiers:
+        _choice(t, TIERS, f"{source}: each of evaluation.tiers")
+    if len(set(tiers)) != len(tiers):
+        raise ConfigError(f"{source}: evaluation.tiers lists a tier twice: {tiers}")
+    tasks = _list(spec["tasks"], f"{source}: tasks", allow_empty=False)
+    for t in tasks:
+        _choice(t, TASKS, f"{source}: each of tasks")
+    if len(set(tasks)) != len(tasks):
+        raise ConfigError(f"{source}: tasks lists a task twice: {tasks}")
+    names = set()
+    for i, p in enumerate(_list(spec["passivity"], f"{source}: passivity")):
+        _mapping(p, PASSIVITY_KEYS, f"{source}: passivity[{i}]")
+        check_slug(p["name"], f"{source}: passivity[{i}].name")
+        if p["name"] == "ppo" or p["name"] in names:
+            raise ConfigError(f"{source}: passivity[{i}].name {p['name']!r} is taken (names must be unique, not 'ppo')")
+        names.add(p["name"])
+        _choice(p["allocation"], ALLOCATIONS, f"{source}: passivity[{i}].allocation")
+    cells = set()
+    for i, c in enumerate(_list(spec["trained"], f"{source}: trained")):
+        _mapping(c, TRAINED_KEYS, f"{source}: trained[{i}]")
+        _choice(c["action_mode"], ACTION_MODES, f"{source}: trained[{i}].action_mode")
+        _choice(c["task"], TASKS, f"{source}: trained[{i}].task")
+        _choice(c["tier"], TIERS, f"{source}: trained[{i}].tier")
+        if not _is_int(c["timesteps"]) or not 1 <= c["timesteps"] <= MAX_TIMESTEPS:
+            raise ConfigError(f"{source}: trained[{i}].timesteps must be an integer in [1, {MAX_TIMESTEPS:,}], "
+                              f"got {c['timesteps']!r}")
+        key = (c["action_mode"], c["task"], c["tier"])
+        if key in cells:
+            raise ConfigError(f"{source}: trained[{i}] repeats the cell {key}")
+        cells.add(key)
+    seeds = _list(spec["seeds"], f"{source}: seeds", allow_empty=not spec["trained"])
+    for s in seeds:
+        if not _is_int(s) or not 0 <= s < TRAIN_SEED_LIMIT:
+            raise ConfigError(f"{source}: seeds must be integers in [0, {TRAIN_SEED_LIMIT:,}), got {s!r}")
+    if len(set(seeds)) != len(seeds):
+        raise ConfigError(f"{source}: seeds lists a seed twice: {seeds}")
+    return spec
+
+
+def load_spec(spec_path: Path = SPEC_FILE) -> dict:
+    """The validated leaderboard spec at ``spec_path`` (ConfigError naming the problem otherwise)."""
+    from .config import read_yaml
+
+    return validate_spec(read_yaml(spec_path, "leaderboard spec"), f"leaderboard spec {spec_path}")
+
 
 def load_jobs(spec_path: Path = SPEC_FILE) -> list[Job]:
     """The job list of a leaderboard spec (``baselines/leaderboard.yml``)."""
-    spec = yaml.safe_load(Path(spec_path).read_text())
+    spec = load_spec(spec_path)
     ev = spec["evaluation"]
     common = dict(eval_tiers=tuple(ev["tiers"]), eval_episodes=int(ev["episodes"]), eval_seed=int(ev["seed"]))
     jobs = []
@@ -73,48 +187,86 @@ def load_jobs(spec_path: Path = SPEC_FILE) -> list[Job]:
         for seed in spec["seeds"]:
             jobs.append(Job(policy="ppo", action_mode=cell["action_mode"], task=cell["task"], train_tier=cell["tier"],
                             seed=int(seed), timesteps=int(cell["timesteps"]), **common))
+    names = [j.name for j in jobs]
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise ConfigError(f"leaderboard spec {spec_path}: two jobs would share the folders {dup}")
     return jobs
+
+
+# ----------------------------------------------------------------------------------------- jobs
+def read_eval(path: Path) -> dict:
+    """A job's eval.json, checked enough to be used (ConfigError naming the file otherwise)."""
+    try:
+        rec = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{path} is not readable JSON ({exc}); delete it to re-run the job") from None
+    if (not isinstance(rec, dict) or not isinstance(rec.get("job"), dict) or not isinstance(rec.get("eval"), dict)
+            or "checkpoint" not in rec or "train_seconds" not in rec):
+        raise ConfigError(f"{path} is not a job result (expected job, checkpoint, train_seconds and eval); delete it "
+                          f"to re-run the job")
+    return rec
+
+
+def _checkpoint_field(out: Path) -> str:
+    from .checkpoints import MODEL_FILE
+
+    path = (out / MODEL_FILE).resolve()
+    try:
+        return str(path.relative_to(REPO_ROOT))
+    except ValueError:
+        return str(out / MODEL_FILE)
 
 
 def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
     """Train (learned policies) and evaluate one job; writes ``<root>/<job.name>/eval.json``.
 
-    A learned job whose ``model.zip`` exists is not trained again, only evaluated; ``reevaluate=True``
-    re-runs the evaluation of a finished job (after a change of the env or controller code)."""
+    A learned job whose final model exists (a checkpoint folder that verifies) is not trained again, only
+    evaluated; ``reevaluate=True`` re-runs the evaluation of a finished job (after a change of the env or
+    controller code). Training happens in ``<job>.run/`` (resumed if a run was interrupted, started over if
+    it never reached a checkpoint); the final model is copied into the job's folder (manifest last) and
+    the training folder removed."""
     from softpvtol_gym import PassivityPolicy
     from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
+    from .atomic import atomic_copy, atomic_write_text
+    from .checkpoints import MANIFEST_FILE, MODEL_FILES
     from .evaluation import run_episodes
 
-    out = Path(root) / job.name
-    previous = json.loads((out / EVAL_FILE).read_text()) if (out / EVAL_FILE).is_file() else None
+    out = job.folder(root)
+    previous = read_eval(out / EVAL_FILE) if (out / EVAL_FILE).is_file() else None
     if previous is not None and not reevaluate:
         return previous
     t0 = time.perf_counter()
     env_kwargs = {}
     train_seconds = None
-    if job.learned and (out / "model.zip").is_file():
+    if job.learned and (out / MANIFEST_FILE).is_file():
         from .training import LearnedPolicy
 
-        policy, _ = LearnedPolicy.load(out / "model.zip")
+        policy, _ = LearnedPolicy.load(out)
         train_seconds = None if previous is None else previous["train_seconds"]
     elif job.learned:
+        from .checkpoints import legacy_files
         from .config import RunConfig, load_hyperparams
         from .training import LearnedPolicy, train
 
-        run_dir = out.parent / (out.name + ".run")
+        if legacy_files(out):
+            raise ConfigError(f"{out} holds a model in the earlier pickle-based format ({legacy_files(out)}); convert "
+                              f"it once with python baselines/export.py from-sb3 --trust-pickle {out} if you trust it")
+        run_dir = under(root, job.name + ".run", "job training folder")
         hp = load_hyperparams("ppo", job.action_mode)
         config = RunConfig(algo="ppo", action_mode=job.action_mode, task=job.task, tier=job.train_tier,
                            timesteps=job.timesteps, seed=job.seed, n_envs=int(hp.get("n_envs", 16)), hyperparams=hp,
                            checkpoint_freq=max(job.timesteps // 4, 1), eval_freq=max(job.timesteps // 4, 1),
                            eval_episodes=5)
-        run = train(config, run_dir, resume=(run_dir / "checkpoints").is_dir())
-        train_seconds = run["seconds"]
+        run = train(config, run_dir, resume=True)
+        train_seconds = run["seconds"] if run["status"] == "trained" else None
         policy = LearnedPolicy(run["model"], run["vecnorm"])
-        out.mkdir(parents=True, exist_ok=True)
-        for fname in ("model.zip", "vecnormalize.pkl", "config.yaml", "evaluations.json"):
+        from .training import EVALUATIONS_FILE
+
+        for fname in (*MODEL_FILES, EVALUATIONS_FILE, MANIFEST_FILE):  # the manifest last: it marks the copy done
             if (run_dir / fname).is_file():
-                shutil.copy2(run_dir / fname, out / fname)
+                atomic_copy(run_dir / fname, out / fname)
         shutil.rmtree(run_dir, ignore_errors=True)  # checkpoints and TensorBoard logs are not kept
     else:
         env_kwargs = {"allocation": job.allocation}
@@ -126,15 +278,11 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
                                      env_kwargs=env_kwargs)
     record = {
         "job": dataclasses.asdict(job),
-        "checkpoint": (str((out / "model.zip").relative_to(REPO_ROOT)) if job.learned and _inside_repo(out) else
-                       (str(out / "model.zip") if job.learned else None)),
+        "checkpoint": _checkpoint_field(out) if job.learned else None,
         "train_seconds": None if train_seconds is None else round(train_seconds, 1),
         "eval": results,
     }
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = out / f".{EVAL_FILE}.{os.getpid()}.tmp"
-    tmp.write_text(json.dumps(record, indent=1))
-    os.replace(tmp, out / EVAL_FILE)
+    atomic_write_text(out / EVAL_FILE, json.dumps(record, indent=1))
     record["wall_seconds"] = time.perf_counter() - t0
     return record
 
@@ -142,14 +290,6 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
 def reevaluate_job(job: Job, root: Path = RUNS_DIR) -> dict:
     """:func:`run_job` with ``reevaluate=True`` (picklable entry point for executors)."""
     return run_job(job, root, reevaluate=True)
-
-
-def _inside_repo(path: Path) -> bool:
-    try:
-        Path(path).resolve().relative_to(REPO_ROOT)
-        return True
-    except ValueError:
-        return False
 
 
 def _run_job_entry(job: Job, root: str, reevaluate: bool = False) -> tuple[str, float]:
@@ -164,18 +304,29 @@ def _run_job_entry(job: Job, root: str, reevaluate: bool = False) -> tuple[str, 
 
 def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevaluate: bool = False) -> list[str]:
     """Submit every job to ``executor`` (anything with ``submit`` returning futures); returns the
-    names of the jobs that finished, in completion order, printing progress."""
+    names of the jobs that finished, in completion order, printing progress. A job that fails on a
+    :class:`~baselines.errors.ConfigError` (an unusable checkpoint, a busy folder) is reported in one line
+    and the others go on; a ConfigError listing the failed jobs is raised at the end."""
+    for job in jobs:
+        job.folder(root)  # every output path checked before anything runs
     futures = {executor.submit(_run_job_entry, job, str(root), reevaluate): job for job in jobs}
-    done = []
+    done, failed = [], []
     for fut in as_completed(futures):
-        name, seconds = fut.result()
+        try:
+            name, seconds = fut.result()
+        except ConfigError as exc:
+            failed.append(futures[fut].name)
+            print(f"[failed] {futures[fut].name}: {' '.join(str(exc).split())}", file=sys.stderr, flush=True)
+            continue
         done.append(name)
         print(f"[{len(done)}/{len(jobs)}] {name} ({seconds:.0f} s)", flush=True)
+    if failed:
+        raise ConfigError(f"{len(failed)} of {len(jobs)} jobs failed (see above): {', '.join(sorted(failed))}")
     return done
 
 
 def pending(jobs: list[Job], root: Path = RUNS_DIR) -> list[Job]:
-    return [j for j in jobs if not (Path(root) / j.name / EVAL_FILE).is_file()]
+    return [j for j in jobs if not (j.folder(root) / EVAL_FILE).is_file()]
 
 
 if __name__ == "__main__":  # pragma: no cover

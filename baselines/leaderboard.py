@@ -18,6 +18,9 @@ episodes), on the RMS position error; its CI resamples runs only (rliable's inde
 bootstrap for pairs does not support resampling episodes), so for the passivity-vs-passivity row it
 is a point. The bootstrap is seeded: the JSON, and
 therefore LEADERBOARD.md, are reproducible.
+
+Every output (JSON, Markdown, PNG) is written atomically; the output paths are checked, and the spec or
+the JSON validated, before any work. Exit codes: 0 done, 2 bad input (one line, nothing written).
 """
 
 from __future__ import annotations
@@ -25,6 +28,8 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import json
+import math
+import os
 import subprocess
 import sys
 import warnings
@@ -32,7 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.jobs import EVAL_FILE, REPO_ROOT, RUNS_DIR, SPEC_FILE, load_jobs
+from baselines.atomic import atomic_path, atomic_write_text
+from baselines.cli import Parser, run_main
+from baselines.errors import ConfigError
+from baselines.jobs import EVAL_FILE, REPO_ROOT, RUNS_DIR, SPEC_FILE, load_jobs, load_spec, read_eval
 
 RESULTS_JSON = Path(__file__).resolve().parent / "results" / "leaderboard.json"
 LEADERBOARD_MD = REPO_ROOT / "LEADERBOARD.md"
@@ -55,12 +63,15 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> tuple[list[dict], 
     """Every (job, evaluation tier) as a cell with its per-episode metrics; and the missing job names."""
     cells, missing = [], []
     for job in load_jobs(spec):
-        path = Path(root) / job.name / EVAL_FILE
+        path = job.folder(root) / EVAL_FILE
         if not path.is_file():
             missing.append(job.name)
             continue
-        rec = json.loads(path.read_text())
+        rec = read_eval(path)
         j = rec["job"]
+        if (j.get("policy"), j.get("task"), j.get("seed")) != (job.policy, job.task, job.seed):
+            raise ConfigError(f"{path} holds the result of another job ({j.get('policy')}, {j.get('task')}, seed "
+                              f"{j.get('seed')}); expected {job.name}")
         for tier, episodes in rec["eval"].items():
             cells.append({
                 "entry": entry_label(j), "policy": j["policy"], "action_mode": j["action_mode"], "task": j["task"],
@@ -230,7 +241,8 @@ def render_chart(data: dict, path: Path) -> None:
         ax.grid(True, axis="y", alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110, metadata={"Software": None})
+    with atomic_path(Path(path)) as tmp:
+        fig.savefig(tmp, format="png", dpi=110, metadata={"Software": None})
     plt.close(fig)
 
 
@@ -244,12 +256,10 @@ def _commit() -> str:
 
 
 def build(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> dict:
-    import yaml
-
-    s = yaml.safe_load(Path(spec).read_text())
+    s = load_spec(spec)
     cells, missing = collect(root, spec)
     if not cells:
-        raise SystemExit(f"no results under {root}; run python baselines/run_jobs.py first")
+        raise ConfigError(f"no results under {root}; run python baselines/run_jobs.py first")
     meta = {"command": COMMAND, "commit": _commit(), "date": _dt.date.today().isoformat(),
             "tasks": list(s["tasks"]), "tiers": list(s["evaluation"]["tiers"]),
             "episodes": int(s["evaluation"]["episodes"]), "eval_seed": int(s["evaluation"]["seed"]),
@@ -259,8 +269,79 @@ def build(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> dict:
     return {"meta": meta, "aggregates": aggregate(cells), "cells": cells}
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+_META_KEYS = {"command": str, "commit": str, "date": str, "tasks": list, "tiers": list, "episodes": int,
+              "eval_seed": int, "seeds": int, "bootstrap_reps": int, "poi_bootstrap_reps": int}
+_ROW_NUMBERS = ("rms_position_error_iqm", "crash_rate", "return_iqm")
+_ROW_CIS = ("rms_position_error_ci", "crash_rate_ci", "return_ci")
+
+
+def validate_data(data, source: str) -> dict:
+    """``data`` if it is a leaderboard JSON that renders, else ConfigError naming the first problem."""
+    def bad(what: str):
+        raise ConfigError(f"leaderboard JSON {source}: {what}; re-create it with python baselines/leaderboard.py")
+
+    def number(v) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    if not isinstance(data, dict):
+        bad(f"expected an object with meta, aggregates and cells, got {type(data).__name__}")
+    for key in ("meta", "aggregates", "cells"):
+        if key not in data:
+            bad(f"{key} is missing")
+    meta = data["meta"]
+    if not isinstance(meta, dict):
+        bad("meta must be an object")
+    for key, typ in _META_KEYS.items():
+        if not isinstance(meta.get(key), typ) or isinstance(meta.get(key), bool):
+            bad(f"meta.{key} must be a {typ.__name__}, got {meta.get(key)!r}")
+    if not isinstance(data["aggregates"], list) or not isinstance(data["cells"], list):
+        bad("aggregates and cells must be lists")
+    for i, r in enumerate(data["aggregates"]):
+        where = f"aggregates[{i}]"
+        if not isinstance(r, dict):
+            bad(f"{where} must be an object")
+        for key in ("task", "tier", "entry"):
+            if not isinstance(r.get(key), str):
+                bad(f"{where}.{key} must be a string, got {r.get(key)!r}")
+        if r["tier"] not in meta["tiers"]:
+            bad(f"{where}.tier {r['tier']!r} is not one of meta.tiers {meta['tiers']}")
+        if not isinstance(r.get("runs"), int):
+            bad(f"{where}.runs must be an integer")
+        for key in _ROW_NUMBERS + (("prob_improvement",) if "prob_improvement" in r else ()):
+            if not number(r.get(key)):
+                bad(f"{where}.{key} must be a finite number, got {r.get(key)!r}")
+        for key in _ROW_CIS + (("prob_improvement_ci",) if "prob_improvement" in r else ()):
+            ci = r.get(key)
+            if not (isinstance(ci, list) and len(ci) == 2 and all(number(v) for v in ci)):
+                bad(f"{where}.{key} must be a list of two finite numbers, got {ci!r}")
+    return data
+
+
+def read_data(path: Path) -> dict:
+    if path.is_dir():
+        raise ConfigError(f"--json {path} is a directory; expected the leaderboard JSON file")
+    if not path.is_file():
+        raise ConfigError(f"no leaderboard JSON at {path}")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ConfigError(f"leaderboard JSON {path} is not valid JSON ({exc}); re-create it with python "
+                          f"baselines/leaderboard.py") from None
+    return validate_data(data, str(path))
+
+
+def _check_output(path: Path, option: str) -> None:
+    if path.is_dir():
+        raise ConfigError(f"{option} {path} is a directory; expected a file name")
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise ConfigError(f"{option} {path}: {parent} is not a writable directory")
+
+
+def _main(argv=None) -> int:
+    ap = Parser(prog="leaderboard.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--from-json", action="store_true", help="only re-render from the committed JSON")
     ap.add_argument("--json", type=Path, default=RESULTS_JSON)
     ap.add_argument("--markdown", type=Path, default=LEADERBOARD_MD)
@@ -268,18 +349,27 @@ def main(argv=None) -> int:
     ap.add_argument("--root", type=Path, default=RUNS_DIR)
     ap.add_argument("--spec", type=Path, default=SPEC_FILE)
     args = ap.parse_args(argv)
+    for path, option in ((args.markdown, "--markdown"), (args.chart, "--chart")) + (
+            () if args.from_json else ((args.json, "--json"),)):
+        _check_output(path, option)
     if args.from_json:
-        if not args.json.is_file():
-            ap.error(f"no leaderboard JSON at {args.json}")
-        data = json.loads(args.json.read_text())
+        data = read_data(args.json)
     else:
+        if not args.root.is_dir():
+            ap.error(f"--root {args.root} is not a directory")
         data = build(args.root, args.spec)
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(data, indent=1))
-    args.markdown.write_text(render_markdown(data))
+        atomic_write_text(args.json, json.dumps(data, indent=1))
+    atomic_write_text(args.markdown, render_markdown(data))
     render_chart(data, args.chart)
     print(f"wrote {args.markdown} and {args.chart}" + ("" if args.from_json else f" from {args.json}"))
     return 0
+
+
+def main(argv=None) -> int:
+    from baselines._extras import require
+
+    require("leaderboard.py")
+    return run_main(_main, argv, prog="leaderboard.py")
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ import json
 import time
 from pathlib import Path
 
+from baselines.atomic import atomic_write_text
 from baselines.evaluation import evaluate
 from softpvtol_gym import PassivityPolicy
 from softpvtol_gym.envs.core import TASKS, TIERS
@@ -40,11 +41,10 @@ def main(argv=None) -> int:
             cells[f"{task}/{tier}"] = m = run_cell(task, tier, args.episodes, args.seed)
             print(f"{task:13s} {tier:9s} rms {m['rms_position_error_m']:.3f} m  crash {m['crash_rate']:.2f}",
                   flush=True)
-    args.json.parent.mkdir(parents=True, exist_ok=True)
     command = "python baselines/passivity_metrics.py" + (f" --episodes {args.episodes}" if args.episodes != 10 else "")
     report = {"command": command, "seed": args.seed, "action_mode": "actuators", "cells": cells,
               "wall_time_s": round(time.perf_counter() - t0, 1)}
-    args.json.write_text(json.dumps(report, indent=2))
+    atomic_write_text(args.json, json.dumps(report, indent=2))
     return 0
 
 

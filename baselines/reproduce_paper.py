@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from baselines.atomic import atomic_path, atomic_write_text
 from softpvtol_gym import SoftPVTOLParams
 from softpvtol_gym.control import PassivityGains, simulate_closed_loop
 
@@ -95,8 +96,8 @@ def plot_all(results: dict[str, dict], out: Path) -> list[str]:
 
     def save(fig, name):
         fig.tight_layout()
-        path = out / name
-        fig.savefig(path, dpi=110)
+        with atomic_path(out / name) as tmp:
+            fig.savefig(tmp, format="png", dpi=110)
         plt.close(fig)
         files.append(name)
 
@@ -200,8 +201,7 @@ def run(out: Path, t_final: float = 40.0, plots: bool = True) -> dict:
         },
         "loops": metrics,
     }
-    with open(out / "metrics.json", "w") as f:
-        json.dump(report, f, indent=2)
+    atomic_write_text(out / "metrics.json", json.dumps(report, indent=2))
     if plots:
         report["figures"] = plot_all(results, out)
     return report

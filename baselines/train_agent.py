@@ -8,10 +8,15 @@
 Hyperparameters come from ``baselines/hyperparams/<algo>.yml`` (entry ``SoftPVTOL-v0/<action mode>``);
 CLI overrides are recorded in the run's ``config.yaml``. Training runs on the native vector env through
 the SB3 adapter with ``torch.set_num_threads(1)``; TensorBoard logs go to ``<out>/tb``; checkpoints
-(model + VecNormalize statistics + config + env/RNG state) are written atomically every
-``--checkpoint-freq`` steps. The run ends by evaluating the agent and the passivity controller on the
-same held-out seeded episodes (seeds from 1,000,000 on; training uses seeds below) and prints both.
-Exit codes: 0 done, 2 bad input (nothing overwritten).
+(model weights + VecNormalize statistics + config + env/RNG state, in a format that cannot run code)
+are written atomically every ``--checkpoint-freq`` steps. The run ends by evaluating the agent and the
+passivity controller on the same held-out seeded episodes (seeds from 1,000,000 on; training uses seeds
+below) and prints both.
+
+``--resume`` continues the run in ``--out`` (options left out take the run's saved values; ``--timesteps``
+may extend it); a run killed before its first checkpoint starts over with the same command; on a finished
+run it says so and exits 0. Exit codes: 0 done, 2 bad input or a run directory in use (one line, nothing
+written or overwritten), 130 interrupted.
 """
 
 from __future__ import annotations
@@ -23,96 +28,165 @@ from pathlib import Path
 
 from softpvtol_gym.envs.core import ACTION_MODES, TASKS, TIERS
 
-from .config import ALGOS, ConfigError, RunConfig, apply_overrides, load_hyperparams
-from .evaluation import EVAL_SEED_OFFSET, evaluate
+from .cli import Parser, int_arg, run_main
+from .config import (
+    ALGOS,
+    CONFIG_FILE_NAME,
+    MAX_EPISODES,
+    MAX_N_ENVS,
+    MAX_TIMESTEPS,
+    TRAIN_SEED_LIMIT,
+    ConfigError,
+    RunConfig,
+    apply_overrides,
+    load_hyperparams,
+)
+from .evaluation import EVAL_SEED_OFFSET
 
 RESULT_FILE = "result.json"
+DEFAULTS = {"algo": "ppo", "action_mode": "residual", "task": "hover", "tier": "nominal", "seed": 0,
+            "checkpoint_freq": 100_000, "eval_freq": 100_000, "eval_episodes": 10}
 
 
-def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="train.py", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--algo", default="ppo", choices=ALGOS)
-    ap.add_argument("--action-mode", default="residual", choices=ACTION_MODES)
-    ap.add_argument("--task", default="hover", choices=TASKS)
-    ap.add_argument("--tier", default="nominal", choices=TIERS)
-    ap.add_argument("--timesteps", type=int, default=None, help="default: n_timesteps of the YAML entry")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--n-envs", type=int, default=None, help="default: n_envs of the YAML entry")
+def build_parser() -> Parser:
+    ap = Parser(prog="train.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--algo", default=None, choices=ALGOS, help="default: ppo")
+    ap.add_argument("--action-mode", default=None, choices=ACTION_MODES, help="default: residual")
+    ap.add_argument("--task", default=None, choices=TASKS, help="default: hover")
+    ap.add_argument("--tier", default=None, choices=TIERS, help="default: nominal")
+    ap.add_argument("--timesteps", type=int_arg(), default=None,
+                    help=f"default: n_timesteps of the YAML entry (at most {MAX_TIMESTEPS:,})")
+    ap.add_argument("--seed", type=int_arg(), default=None,
+                    help=f"training seed in [0, {TRAIN_SEED_LIMIT:,}), default 0")
+    ap.add_argument("--n-envs", type=int_arg(), default=None,
+                    help=f"default: n_envs of the YAML entry (at most {MAX_N_ENVS:,})")
     ap.add_argument("--out", type=Path, default=None,
                     help="run directory (default runs/<algo>_<mode>_<task>_<tier>_s<seed>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out from its newest checkpoint")
     ap.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE", help="override a YAML hyperparameter")
-    ap.add_argument("--checkpoint-freq", type=int, default=100_000, help="env steps between checkpoints")
-    ap.add_argument("--eval-freq", type=int, default=100_000, help="env steps between periodic evaluations")
-    ap.add_argument("--eval-episodes", type=int, default=10, help="episodes per evaluation (0: none)")
+    ap.add_argument("--checkpoint-freq", type=int_arg(), default=None, help="env steps between checkpoints (100,000)")
+    ap.add_argument("--eval-freq", type=int_arg(), default=None,
+                    help="env steps between periodic evaluations (100,000)")
+    ap.add_argument("--eval-episodes", type=int_arg(), default=None,
+                    help=f"episodes per evaluation (10; 0: none; at most {MAX_EPISODES:,})")
     ap.add_argument("--no-progress-bar", action="store_true")
     return ap
 
 
-def make_config(args: argparse.Namespace, ap: argparse.ArgumentParser) -> RunConfig:
-    for name in ("timesteps", "n_envs", "checkpoint_freq", "eval_freq"):
+def _saved_config(out: Path) -> RunConfig | None:
+    """The config of an existing run (its config.yaml, else its newest checkpoint's), or None."""
+    from .checkpoints import checkpoint_candidates
+
+    for path in [out / CONFIG_FILE_NAME, *(c / CONFIG_FILE_NAME for c in checkpoint_candidates(out))]:
+        if path.is_file():
+            try:
+                return RunConfig.load(path)
+            except ConfigError:
+                continue
+    return None
+
+
+def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
+    """The run's config and directory from the command line (and, with --resume, the run's saved config)."""
+    for name, lo in (("timesteps", 1), ("n_envs", 1), ("checkpoint_freq", 1), ("eval_freq", 1), ("eval_episodes", 0)):
         v = getattr(args, name)
-        if v is not None and v < 1:
-            ap.error(f"--{name.replace('_', '-')} must be >= 1, got {v}")
-    if args.eval_episodes < 0:
-        ap.error(f"--eval-episodes must be >= 0, got {args.eval_episodes}")
-    if args.seed < 0 or args.seed >= EVAL_SEED_OFFSET // 2:
-        ap.error(f"--seed must be in [0, {EVAL_SEED_OFFSET // 2}) (evaluation seeds start at {EVAL_SEED_OFFSET}), "
+        if v is not None and v < lo:
+            ap.error(f"--{name.replace('_', '-')} must be >= {lo}, got {v}")
+    if args.seed is not None and not 0 <= args.seed < TRAIN_SEED_LIMIT:
+        ap.error(f"--seed must be in [0, {TRAIN_SEED_LIMIT}) (evaluation seeds start at {EVAL_SEED_OFFSET}), "
                  f"got {args.seed}")
-    try:
-        hp = apply_overrides(load_hyperparams(args.algo, args.action_mode), args.hp)
-    except ConfigError as exc:
-        ap.error(str(exc))
-    overrides = list(args.hp)
-    if args.n_envs is not None:
-        overrides.append(f"n_envs={args.n_envs}")
-        hp["n_envs"] = args.n_envs
-    if args.timesteps is not None:
-        overrides.append(f"n_timesteps={args.timesteps}")
-    timesteps = int(args.timesteps if args.timesteps is not None else hp.get("n_timesteps", 1_000_000))
-    try:
-        return RunConfig(algo=args.algo, action_mode=args.action_mode, task=args.task, tier=args.tier,
-                         timesteps=timesteps,
-                         seed=args.seed, n_envs=int(hp.get("n_envs", 16)), hyperparams=hp, overrides=overrides,
-                         checkpoint_freq=args.checkpoint_freq, eval_freq=args.eval_freq,
-                         eval_episodes=args.eval_episodes)
-    except ConfigError as exc:
-        ap.error(str(exc))
+    given = {k: getattr(args, k) for k in DEFAULTS if getattr(args, k) is not None}
+    pick = {**DEFAULTS, **given}
+    out = args.out or Path("runs") / "{algo}_{action_mode}_{task}_{tier}_s{seed}".format(**pick)
+    if out.exists() and not out.is_dir():
+        ap.error(f"--out {out} is a file; expected a run directory")
+    saved = None
+    if args.resume:
+        if not out.is_dir():
+            ap.error(f"--resume: run directory {out} does not exist")
+        saved = _saved_config(out)
+    if saved is not None:
+        for key in ("algo", "action_mode", "task", "tier", "seed"):
+            if key in given and given[key] != getattr(saved, key):
+                raise ConfigError(f"--resume: {key} of the run in {out} is {getattr(saved, key)!r}, the command asks "
+                                  f"for {given[key]!r}; resume with the run's own settings (or leave the option out)")
+        pick = {**{k: getattr(saved, k) for k in DEFAULTS}, **given}
+        hp = apply_overrides(saved.hyperparams, args.hp)
+        overrides = list(saved.overrides)
+        if args.n_envs is not None and args.n_envs != saved.n_envs:
+            hp["n_envs"] = args.n_envs  # refused below (a run keeps its n_envs), naming both
+        timesteps = args.timesteps if args.timesteps is not None else saved.timesteps
+        if args.timesteps is not None and args.timesteps != saved.timesteps:
+            overrides.append(f"n_timesteps={args.timesteps}")
+        n_envs = args.n_envs if args.n_envs is not None else saved.n_envs
+    else:
+        hp = apply_overrides(load_hyperparams(pick["algo"], pick["action_mode"]), args.hp)
+        overrides = list(args.hp)
+        if args.n_envs is not None:
+            overrides.append(f"n_envs={args.n_envs}")
+            hp["n_envs"] = args.n_envs
+        if args.timesteps is not None:
+            overrides.append(f"n_timesteps={args.timesteps}")
+        n_envs = hp.get("n_envs", 16)
+        timesteps = args.timesteps if args.timesteps is not None else hp.get("n_timesteps", 1_000_000)
+    config = RunConfig(algo=pick["algo"], action_mode=pick["action_mode"], task=pick["task"], tier=pick["tier"],
+                       timesteps=timesteps, seed=pick["seed"], n_envs=n_envs, hyperparams=hp, overrides=overrides,
+                       checkpoint_freq=pick["checkpoint_freq"], eval_freq=pick["eval_freq"],
+                       eval_episodes=pick["eval_episodes"])
+    return config, out
 
 
-def main(argv: list[str] | None = None) -> int:
+def _print_comparison(config: RunConfig, out: Path, report: dict) -> None:
+    episodes = report[config.algo]["summary"]["episodes"]
+    seed = report["eval_seed"]
+    print(f"\n{config.algo.upper()} vs passivity, {config.action_mode} / {config.task} / {config.tier}, "
+          f"{episodes} held-out episodes (seed {seed}); run in {out}")
+    print(f"{'policy':10s} {'return':>9s} {'rms pos [m]':>12s} {'rms att [rad]':>14s} {'effort':>8s} {'crash':>6s}")
+    for name, m in ((config.algo, report[config.algo]["summary"]), ("passivity", report["passivity"]["summary"])):
+        print(f"{name:10s} {m['mean_return']:9.1f} {m['mean_rms_position_error']:12.3f} "
+              f"{m['mean_rms_attitude_error']:14.3f} {m['mean_control_effort']:8.3f} {m['crash_rate']:6.2f}")
+
+
+def _main(argv: list[str] | None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
-    config = make_config(args, ap)
-    out = args.out or Path("runs") / f"{config.algo}_{config.action_mode}_{config.task}_{config.tier}_s{config.seed}"
-    if args.resume and not out.is_dir():
-        ap.error(f"--resume: run directory {out} does not exist")
+    config, out = make_config(args, ap)
 
+    from .atomic import atomic_write_text
+    from .evaluation import evaluate
+    from .locks import DirectoryLock
+    from .training import LearnedPolicy, prepare, train
+
+    prepared = prepare(config, out)  # bad hyperparameters end here: nothing written yet
     from softpvtol_gym import PassivityPolicy
     from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
-    from .training import LearnedPolicy, train
-
-    try:
-        run = train(config, out, resume=args.resume, progress_bar=not args.no_progress_bar)
-    except ConfigError as exc:
-        ap.error(str(exc))
-    cell = (config.action_mode, config.task, config.tier)
-    episodes = max(config.eval_episodes, 1)
-    learned = evaluate(LearnedPolicy(run["model"], run["vecnorm"]), *cell, episodes, EVAL_SEED_OFFSET + config.seed)
-    probe = SoftPVTOLVectorEnv(num_envs=1, **config.env_kwargs())
-    passivity = evaluate(PassivityPolicy.from_env(probe), *cell, episodes, EVAL_SEED_OFFSET + config.seed)
-    report = {"config": config.to_dict(), "train_seconds": round(run["seconds"], 1),
-              "eval_seed": EVAL_SEED_OFFSET + config.seed, config.algo: learned, "passivity": passivity}
-    (out / RESULT_FILE).write_text(json.dumps(report, indent=2))
-    print(f"\n{config.algo.upper()} vs passivity, {config.action_mode} / {config.task} / {config.tier}, "
-          f"{episodes} held-out episodes (seed {EVAL_SEED_OFFSET + config.seed}); run in {out}")
-    print(f"{'policy':10s} {'return':>9s} {'rms pos [m]':>12s} {'rms att [rad]':>14s} {'effort':>8s} {'crash':>6s}")
-    for name, m in ((config.algo, learned["summary"]), ("passivity", passivity["summary"])):
-        print(f"{name:10s} {m['mean_return']:9.1f} {m['mean_rms_position_error']:12.3f} "
-              f"{m['mean_rms_attitude_error']:14.3f} {m['mean_control_effort']:8.3f} {m['crash_rate']:6.2f}")
+    with DirectoryLock(out, "run directory"):
+        run = train(config, out, resume=args.resume, progress_bar=not args.no_progress_bar, prepared=prepared)
+        if run["status"] == "finished":
+            if (out / RESULT_FILE).is_file():
+                print(f"{out} is a finished run ({run['num_timesteps']:,} steps, --timesteps "
+                      f"{config.timesteps:,}): nothing to train. Its result: {out / RESULT_FILE}")
+                return 0
+            print(f"{out} is a finished run ({run['num_timesteps']:,} steps); its {RESULT_FILE} is missing: "
+                  f"evaluating it again")
+        cell = (config.action_mode, config.task, config.tier)
+        episodes = max(config.eval_episodes, 1)
+        learned = evaluate(LearnedPolicy(run["model"], run["vecnorm"]), *cell, episodes, EVAL_SEED_OFFSET + config.seed)
+        probe = SoftPVTOLVectorEnv(num_envs=1, **config.env_kwargs())
+        passivity = evaluate(PassivityPolicy.from_env(probe), *cell, episodes, EVAL_SEED_OFFSET + config.seed)
+        report = {"config": config.to_dict(), "train_seconds": round(run["seconds"], 1),
+                  "eval_seed": EVAL_SEED_OFFSET + config.seed, config.algo: learned, "passivity": passivity}
+        atomic_write_text(out / RESULT_FILE, json.dumps(report, indent=2))
+    _print_comparison(config, out, report)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from ._extras import require
+
+    require("train.py")
+    return run_main(_main, argv, prog="train.py")
 
 
 if __name__ == "__main__":

@@ -6,32 +6,48 @@
     checkpoints/           atomic checkpoints (see :mod:`baselines.checkpoints`), the newest two kept
     tb/                    TensorBoard logs (``tensorboard --logdir <run>/tb``)
     evaluations.json       periodic evaluations on held-out seeded episodes
-    model.zip, vecnormalize.pkl   the final model and normalisation statistics
+    model.safetensors, model.json, vecnormalize.json, checkpoint.json   the final model (a checkpoint
+                           folder: the manifest checkpoint.json is written last and marks the run finished)
+    .softpvtol.lock        held while a process works on the run (a second one gets exit 2)
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
+import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_write_text
 from .checkpoints import (
     CONFIG_FILE,
-    MODEL_FILE,
-    REPLAY_FILE,
-    VECNORM_FILE,
-    latest_checkpoint,
-    load_resume_state,
-    restore_rng,
+    MANIFEST_FILE,
+    CheckpointError,
+    checkpoint_candidates,
+    clean_run_dir,
+    find_checkpoint,
+    legacy_files,
+    load_folder,
+    load_for_resume,
+    read_manifest,
+    read_verified,
     save_checkpoint,
+    warn,
+    write_model_files,
 )
-from .config import ConfigError, RunConfig, algo_kwargs
+from .config import ConfigError, RunConfig
 from .evaluation import EVAL_SEED_OFFSET, run_episodes, summarize
+from .locks import DirectoryLock
+from .models import algo_class, build_model, make_env, make_vecnorm
 
 EVALUATIONS_FILE = "evaluations.json"
+#: what a command may change on --resume (everything else must match the run's saved config)
+RESUME_MAY_CHANGE = ("timesteps", "overrides", "checkpoint_freq", "eval_freq", "eval_episodes")
 
 
 class LearnedPolicy:
@@ -48,54 +64,70 @@ class LearnedPolicy:
         return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
 
     @classmethod
-    def load(cls, path: Path) -> tuple[LearnedPolicy, RunConfig]:
-        """Load from a run directory, a checkpoint directory or a ``model.zip`` next to its
-        ``vecnormalize.pkl`` and ``config.yaml``."""
-        path = Path(path)
-        if path.is_file() and path.suffix == ".zip":
-            folder, model_path = path.parent, path
-        elif path.is_dir():
-            folder, model_path = path, path / MODEL_FILE
-            if not model_path.is_file():
-                ck = latest_checkpoint(path)
-                if ck is None:
-                    raise FileNotFoundError(f"no {MODEL_FILE} and no checkpoint in {path}")
-                folder, model_path = ck, ck / MODEL_FILE
-        else:
-            raise FileNotFoundError(f"checkpoint {path} does not exist (expected a run directory, a checkpoint "
-                                    f"directory or a model.zip)")
-        config_path = folder / CONFIG_FILE
-        if not config_path.is_file():
-            config_path = folder.parent / CONFIG_FILE
-        config = RunConfig.load(config_path)
-        algo_cls = _algo_class(config.algo)
-        model = algo_cls.load(model_path, device="cpu")
-        vecnorm = None
-        if (folder / VECNORM_FILE).is_file():
-            from stable_baselines3.common.vec_env import VecNormalize
+    def load(cls, path: Path, trust_pickle: bool = False) -> tuple[LearnedPolicy, RunConfig]:
+        """Load from a run directory, a checkpoint directory or a file in one (``model.safetensors``), in the
+        safe format (nothing is unpickled). ``trust_pickle=True`` also accepts pickle-based files (an SB3
+        ``model.zip``, ``vecnormalize.pkl``: they can run code) where no safe checkpoint is found, with a
+        warning."""
+        try:
+            folder = find_checkpoint(path)
+        except CheckpointError:
+            if not trust_pickle:
+                raise
+            from .export import load_pickled
 
-            vecnorm = VecNormalize.load(str(folder / VECNORM_FILE), _dummy_venv(config))
-            vecnorm.training = False
-            vecnorm.norm_reward = False
+            return load_pickled(Path(path))
+        model, vecnorm, config, _ = load_folder(folder)
         return cls(model, vecnorm), config
 
 
-def _algo_class(algo: str):
-    from stable_baselines3 import PPO, SAC
-
-    return {"ppo": PPO, "sac": SAC}[algo]
+def _algo_class(algo: str):  # kept for callers of earlier versions
+    return algo_class(algo)
 
 
-def _dummy_venv(config: RunConfig):
-    from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
+class _ProgressBar:
+    """A progress bar over the env steps that ``learn`` will really run (PPO trains whole rollouts), which
+    therefore ends at its total."""
 
-    return SoftPVTOLSB3VecEnv(num_envs=1, **config.env_kwargs())
+    @staticmethod
+    def planned_steps(model, remaining: int) -> int:
+        chunk = model.n_envs
+        if hasattr(model, "n_steps") and hasattr(model, "rollout_buffer"):  # on-policy: whole rollouts
+            chunk = model.n_steps * model.n_envs
+        elif getattr(getattr(model, "train_freq", None), "unit", None) is not None:
+            tf = model.train_freq
+            if tf.unit.value == "step":
+                chunk = tf.frequency * model.n_envs
+        return int(math.ceil(remaining / chunk) * chunk)
 
+    @staticmethod
+    def callback(total: int):
+        from stable_baselines3.common.callbacks import BaseCallback
 
-def _make_env(config: RunConfig):
-    from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
+        class ProgressBar(BaseCallback):
+            def __init__(self):
+                super().__init__()
+                self.total, self.n, self.pbar = total, 0, None
 
-    return SoftPVTOLSB3VecEnv(num_envs=config.n_envs, **config.env_kwargs())
+            def _on_training_start(self) -> None:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # tqdm.rich is "experimental"
+                    from tqdm.rich import tqdm
+
+                    self.pbar = tqdm(total=self.total, unit="step")
+
+            def _on_step(self) -> bool:
+                inc = min(self.training_env.num_envs, self.total - self.n)
+                if inc > 0:
+                    self.n += inc
+                    self.pbar.update(inc)
+                return True
+
+            def _on_training_end(self) -> None:
+                self.pbar.refresh()
+                self.pbar.close()
+
+        return ProgressBar()
 
 
 def _callbacks(run_dir: Path, config: RunConfig, vecnorm, start_step: int):
@@ -136,83 +168,166 @@ def _callbacks(run_dir: Path, config: RunConfig, vecnorm, start_step: int):
             for key in ("mean_return", "mean_rms_position_error", "crash_rate"):
                 self.logger.record(f"eval/{key}", s[key])
             self.history.append({"step": int(step), **s})
-            _write_json_atomic(run_dir / EVALUATIONS_FILE, self.history)
+            atomic_write_text(run_dir / EVALUATIONS_FILE, json.dumps(self.history, indent=2))
 
     return CheckpointAndEval()
 
 
-def train(config: RunConfig, run_dir: Path, resume: bool = False, progress_bar: bool = False,
-          verbose: int = 0) -> dict:
-    """Train (or resume) a run in ``run_dir``; returns ``{"model": ..., "vecnorm": ..., "seconds": ...}``.
+def finished_run(run_dir: Path) -> dict | None:
+    """The verified manifest of a run directory's final model, or None if the run is not finished."""
+    run_dir = Path(run_dir)
+    if not (run_dir / MANIFEST_FILE).is_file():
+        return None
+    try:
+        manifest = read_manifest(run_dir)
+        for name in manifest["files"]:
+            read_verified(run_dir, manifest, name)
+    except CheckpointError as exc:
+        warn(f"{exc}; the run is treated as unfinished")
+        return None
+    return manifest
 
-    Fresh runs refuse a ``run_dir`` that already holds a run (nothing is overwritten). ``resume=True``
-    continues from the newest checkpoint with the saved config (``config`` must then match it in
-    algo, action mode, task, tier, seed and n_envs) up to ``config.timesteps``.
+
+def _check_same_run(saved: RunConfig, config: RunConfig, where: str) -> None:
+    for key in ("algo", "action_mode", "task", "tier", "seed", "n_envs", "hyperparams"):
+        if getattr(saved, key) != getattr(config, key):
+            raise ConfigError(f"--resume: {key} of {where} is {getattr(saved, key)!r}, the command asks for "
+                              f"{getattr(config, key)!r}; resume with the run's own settings (or leave the option "
+                              f"out)")
+
+
+def _say(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def torch_threads() -> int:
+    """``SOFTPVTOL_TORCH_THREADS`` (default 1), checked."""
+    raw = os.environ.get("SOFTPVTOL_TORCH_THREADS", "1")
+    try:
+        n = int(raw)
+    except ValueError:
+        n = 0
+    if not 1 <= n <= 1024:
+        raise ConfigError(f"SOFTPVTOL_TORCH_THREADS must be an integer in [1, 1024], got {raw!r}")
+    return n
+
+
+def prepare(config: RunConfig, run_dir: Path, verbose: int = 0) -> tuple:
+    """The env, VecNormalize and model of a fresh run, built in memory: everything stable-baselines3 would
+    refuse is refused here (ConfigError), before anything is written."""
+    run_dir = Path(run_dir)
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ConfigError(f"run directory {run_dir} is a file; choose a directory for --out")
+    torch_threads()
+    env = make_env(config)
+    vecnorm = make_vecnorm(config, env)
+    return env, vecnorm, build_model(config, vecnorm or env, tensorboard_log=str(run_dir / "tb"), verbose=verbose)
+
+
+def train(config: RunConfig, run_dir: Path, resume: bool = False, progress_bar: bool = False,
+          verbose: int = 0, prepared: tuple | None = None) -> dict:
+    """Train (or resume) a run in ``run_dir``; returns ``{"model", "vecnorm", "seconds", "status"}`` with
+    status ``"trained"`` or ``"finished"`` (``resume=True`` on a run already trained to ``config.timesteps``:
+    nothing is trained, the final model is loaded).
+
+    Before anything is written, the env and the model are built in memory (so that bad hyperparameters
+    fail with a ConfigError and leave nothing behind) and the run directory is locked (a second process
+    gets a ConfigError naming the holder). Fresh runs refuse a ``run_dir`` that holds a checkpoint or a
+    finished model (nothing is overwritten); a directory without a complete checkpoint (a run killed
+    before its first one) starts over. ``resume=True`` continues from the newest checkpoint that verifies
+    (falling back to the previous one, with a warning), with the saved config (``config`` must match it
+    in algo, action mode, task, tier, seed, n_envs and hyperparameters) up to ``config.timesteps``.
     """
     import torch
-    from stable_baselines3.common.vec_env import VecNormalize
 
     run_dir = Path(run_dir)
-    algo_cls = _algo_class(config.algo)
-    hp = config.hyperparams
-    norm = hp.get("normalize") or None
-    ckpt = latest_checkpoint(run_dir) if resume else None
-    if resume and ckpt is None:
-        raise ConfigError(f"--resume: no checkpoint in {run_dir / 'checkpoints'} (start without --resume)")
-    if not resume and ((run_dir / CONFIG_FILE).exists() or (run_dir / MODEL_FILE).exists()):
-        raise ConfigError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --out "
-                          f"(nothing was overwritten)")
-    torch.set_num_threads(int(os.environ.get("SOFTPVTOL_TORCH_THREADS", "1")))
-    run_dir.mkdir(parents=True, exist_ok=True)
-    if ckpt is None:
-        config.save(run_dir / CONFIG_FILE)
-        env = _make_env(config)
-        env.seed(config.seed)
-        vecnorm = VecNormalize(env, **norm) if norm else None
-        model = algo_cls(hp.get("policy", "MlpPolicy"), vecnorm or env, seed=config.seed, device="cpu",
-                         verbose=verbose, tensorboard_log=str(run_dir / "tb"), **algo_kwargs(hp))
+    torch.set_num_threads(torch_threads())
+    env, vecnorm, model = prepared if prepared is not None else prepare(config, run_dir, verbose)
+    with DirectoryLock(run_dir, "run directory"):
+        clean_run_dir(run_dir)
+        finished = finished_run(run_dir)
+        candidates = checkpoint_candidates(run_dir)
+        legacy = legacy_files(run_dir) + [f"{c.name}/{n}" for c in candidates for n in legacy_files(c)]
+        if not resume:
+            if finished is not None or candidates or legacy:
+                raise ConfigError(f"{run_dir} already holds a run; pass --resume to continue it or choose another "
+                                  f"--out (nothing was overwritten)")
+            if (run_dir / CONFIG_FILE).exists():
+                _say(f"{run_dir} holds a run that never reached its first checkpoint: starting it over")
+        restore_rng = None
         start = 0
-    else:
-        saved = RunConfig.load(ckpt / CONFIG_FILE)
-        for key in ("algo", "action_mode", "task", "tier", "seed", "n_envs", "hyperparams"):
-            if getattr(saved, key) != getattr(config, key):
-                raise ConfigError(f"--resume: {key} of the checkpoint is {getattr(saved, key)!r}, the command asks "
-                                  f"for {getattr(config, key)!r}; resume with the run's own settings")
-        state = load_resume_state(ckpt)
-        from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
-
-        env = SoftPVTOLSB3VecEnv(vector_env=state["vector_env"])
-        vecnorm = None
-        if norm:
-            vecnorm = VecNormalize.load(str(ckpt / VECNORM_FILE), env)
-            vecnorm.returns = state["vecnormalize_returns"].copy()
-        model = algo_cls.load(ckpt / MODEL_FILE, env=vecnorm or env, device="cpu", force_reset=False,
-                              tensorboard_log=str(run_dir / "tb"), verbose=verbose)
-        if (ckpt / REPLAY_FILE).is_file():
-            model.load_replay_buffer(ckpt / REPLAY_FILE)
-        restore_rng(state)
-        start = int(state["num_timesteps"])
+        if resume:
+            if finished is not None:
+                try:
+                    saved = RunConfig.load(run_dir / CONFIG_FILE)
+                except ConfigError:
+                    saved = None
+                if saved is not None:
+                    _check_same_run(saved, config, f"the run in {run_dir}")
+                if finished["num_timesteps"] >= config.timesteps:
+                    model, vecnorm, _, _ = load_folder(run_dir)
+                    return {"model": model, "vecnorm": vecnorm, "seconds": 0.0, "status": "finished",
+                            "num_timesteps": finished["num_timesteps"]}
+            errors = []
+            for cand in candidates:
+                try:
+                    saved = RunConfig.load(cand / CONFIG_FILE)
+                except ConfigError as exc:
+                    errors.append(str(exc))
+                    warn(f"skipping a checkpoint: {exc}")
+                    continue
+                _check_same_run(saved, config, f"checkpoint {cand}")
+                try:
+                    model, vecnorm, restore_rng = load_for_resume(cand, config, run_dir, verbose=verbose)
+                except CheckpointError as exc:
+                    errors.append(str(exc))
+                    warn(f"skipping a checkpoint: {exc}")
+                    continue
+                if errors:
+                    warn(f"resuming from the previous checkpoint {cand}")
+                start = int(model.num_timesteps)
+                break
+            else:
+                if errors:
+                    raise ConfigError(f"--resume: no checkpoint of {run_dir} is usable ({'; '.join(errors)}); "
+                                      f"remove {run_dir / 'checkpoints'} to start the run over")
+                if legacy:
+                    raise ConfigError(f"--resume: {run_dir} holds only pickle-based checkpoint files of an earlier "
+                                      f"version ({', '.join(legacy[:4])}), which this version does not load (they can "
+                                      f"run code); start the run over in another --out")
+                if (run_dir / CONFIG_FILE).exists():
+                    _say(f"{run_dir} has no complete checkpoint yet (the run was stopped before its first one): "
+                         f"starting from step 0")
+        if finished is not None:  # continuing a finished run beyond its steps: it is unfinished until the end
+            (run_dir / MANIFEST_FILE).unlink()
         config.save(run_dir / CONFIG_FILE)
-    remaining = config.timesteps - start
-    t0 = time.perf_counter()
-    if remaining > 0:
-        model.learn(total_timesteps=remaining, callback=_callbacks(run_dir, config, vecnorm, start),
-                    reset_num_timesteps=ckpt is None, tb_log_name=config.algo.upper(), progress_bar=progress_bar)
-    seconds = time.perf_counter() - t0
-    model.save(run_dir / MODEL_FILE)
-    if vecnorm is not None:
-        vecnorm.save(str(run_dir / VECNORM_FILE))
-    return {"model": model, "vecnorm": vecnorm, "seconds": seconds}
+        remaining = config.timesteps - start
+        t0 = time.perf_counter()
+        if remaining > 0:
+            callbacks = [_callbacks(run_dir, config, vecnorm, start)]
+            planned = _ProgressBar.planned_steps(model, remaining)
+            if progress_bar:
+                if planned != remaining:
+                    _say(f"{config.algo.upper()} trains whole rollouts: {planned:,} steps for the {remaining:,} asked")
+                callbacks.append(_ProgressBar.callback(planned))
+            if restore_rng is not None:
+                restore_rng()
+            model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=start == 0,
+                        tb_log_name=config.algo.upper(), progress_bar=False)
+        seconds = time.perf_counter() - t0
+        save_checkpoint(run_dir, model, vecnorm, config)  # the end state: a longer --resume continues from it
+        write_model_files(run_dir, model, vecnorm, config, "run")
+    return {"model": model, "vecnorm": vecnorm, "seconds": seconds, "status": "trained",
+            "num_timesteps": int(model.num_timesteps)}
 
 
 def _load_evaluations(run_dir: Path, max_step: int) -> list[dict]:
     path = run_dir / EVALUATIONS_FILE
     if not path.is_file():
         return []
-    return [e for e in json.loads(path.read_text()) if e["step"] <= max_step]
-
-
-def _write_json_atomic(path: Path, data) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(data, indent=2))
-    os.replace(tmp, path)
+    try:
+        data = json.loads(path.read_text())
+        return [e for e in data if isinstance(e, dict) and isinstance(e.get("step"), int) and e["step"] <= max_step]
+    except (OSError, ValueError, TypeError):
+        warn(f"{path} is unreadable; the periodic evaluations start a new list")
+        return []

@@ -39,6 +39,8 @@ os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 
 import numpy as np  # noqa: E402
 
+from baselines.atomic import atomic_write_text  # noqa: E402  (standard library only)
+
 ROOT = Path(__file__).resolve().parent.parent
 
 import gymnasium as gym  # noqa: E402
@@ -530,7 +532,7 @@ def update_readme(payload: dict, path: Path = README) -> bool:
         return False
     a = text.index(README_START) + len(README_START)
     b = text.index(README_END)
-    path.write_text(text[:a] + "\n" + readme_table(payload) + "\n" + text[b:])
+    atomic_write_text(path, text[:a] + "\n" + readme_table(payload) + "\n" + text[b:])
     return True
 
 
@@ -581,11 +583,10 @@ def main(argv=None) -> int:
     ]
     for res in results.values():
         md += [f"## {res['title']}", "", res["text"], ""]
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "RESULTS.md").write_text("\n".join(md))
+    atomic_write_text(args.out / "RESULTS.md", "\n".join(md))
     payload = {"command": command, "date": date, "quick": args.quick, "machine": facts,
                "items": {k: {kk: vv for kk, vv in v.items() if kk != "text"} for k, v in results.items()}}
-    (args.out / "results.json").write_text(json.dumps(payload, indent=2, default=float) + "\n")
+    atomic_write_text(args.out / "results.json", json.dumps(payload, indent=2, default=float) + "\n")
     print(f"wrote {args.out / 'RESULTS.md'} and {args.out / 'results.json'}")
     if not args.quick and not args.only and args.out.resolve() == (ROOT / "benchmarks").resolve():
         if update_readme(json.loads((args.out / "results.json").read_text())):

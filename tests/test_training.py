@@ -72,12 +72,14 @@ def test_smoke_training_saves_checkpoints_and_compares_with_passivity(tmp_path):
     out = tmp_path / "run"
     r = run("train.py", "--timesteps", "1024", *SHORT, "--out", out)
     assert r.returncode == 0, r.stderr[-3000:]
-    for name in ("model.zip", "vecnormalize.pkl", "config.yaml", "result.json", "evaluations.json"):
+    for name in ("model.safetensors", "model.json", "vecnormalize.json", "checkpoint.json", "config.yaml",
+                 "result.json", "evaluations.json"):
         assert (out / name).stat().st_size > 0, name
+    assert not list(out.rglob("*.pkl")) and not list(out.rglob("*.zip"))  # nothing pickle-based is written
     assert list((out / "tb").glob("PPO_*/events.out.tfevents.*"))
     ckpts = sorted(p.name for p in (out / "checkpoints").glob("step_*"))
-    assert ckpts == ["step_0000000512", "step_0000000768"]  # every 256 steps, newest two kept
-    assert (out / "checkpoints" / "latest").read_text() == "step_0000000768"
+    assert ckpts == ["step_0000000768", "step_0000001024"]  # every 256 steps and at the end, newest two kept
+    assert (out / "checkpoints" / "latest").read_text() == "step_0000001024"
     res = json.loads((out / "result.json").read_text())
     assert res["config"]["overrides"][:3] == ["n_steps=64", "batch_size=64", "n_epochs=2"]
     assert res["config"]["hyperparams"]["n_steps"] == 64
@@ -87,8 +89,9 @@ def test_smoke_training_saves_checkpoints_and_compares_with_passivity(tmp_path):
 
 @pytest.mark.slow  # three train.py runs in subprocesses
 def test_killed_run_resumes_bit_for_bit(tmp_path):
-    """SIGKILL a run after a checkpoint; --resume finishes it with the same weights as an uninterrupted run."""
-    from stable_baselines3 import PPO
+    """SIGKILL a run after a checkpoint; --resume finishes it with the same weights (and optimizer state,
+    counters, last observation) as an uninterrupted run."""
+    from safetensors.torch import load_file
 
     args = ["--timesteps", "4096", *SHORT]
     ref = run("train.py", *args, "--out", tmp_path / "ref")
@@ -102,13 +105,15 @@ def test_killed_run_resumes_bit_for_bit(tmp_path):
         time.sleep(0.02)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    assert not (out / "model.zip").exists(), "the run finished before it could be killed"
+    assert not (out / "checkpoint.json").exists(), "the run finished before it could be killed"
     r = run("train.py", *args, "--out", out, "--resume")
     assert r.returncode == 0, r.stderr[-3000:]
-    a, b = PPO.load(tmp_path / "ref" / "model.zip"), PPO.load(out / "model.zip")
-    assert a.num_timesteps == b.num_timesteps == 4096
-    for (ka, va), (kb, vb) in zip(a.policy.state_dict().items(), b.policy.state_dict().items()):
-        assert ka == kb and (va == vb).all(), ka
+    a, b = load_file(tmp_path / "ref" / "model.safetensors"), load_file(out / "model.safetensors")
+    assert sorted(a) == sorted(b) and any(k.startswith("policy.optimizer/") for k in a)
+    for key in a:
+        assert (a[key] == b[key]).all(), key
+    assert [json.loads((d / "model.json").read_text())["counters"]["num_timesteps"] for d in (tmp_path / "ref", out)] \
+        == [4096, 4096]
     steps = [e["step"] for e in json.loads((out / "evaluations.json").read_text())]
     assert steps == sorted(set(steps)) and steps[-1] == 4096
 
@@ -130,7 +135,7 @@ def test_bad_train_input_exits_2_and_writes_nothing(args, message, tmp_path, cap
 
 
 def test_existing_run_is_not_overwritten(tmp_path, capsys):
-    (tmp_path / "model.zip").write_bytes(b"keep")
+    (tmp_path / "model.zip").write_bytes(b"keep")  # even a run of the earlier, pickle-based format
     assert_exit_2(train_main, ["--timesteps", "256", *SHORT, "--out", str(tmp_path)], "nothing was overwritten", capsys)
     assert (tmp_path / "model.zip").read_bytes() == b"keep"
 
@@ -169,9 +174,16 @@ def test_sac_option_trains_checkpoints_its_replay_buffer_and_resumes(tmp_path):
     r = run("train.py", "--timesteps", "256", *args, "--out", out)
     assert r.returncode == 0, r.stderr[-3000:]
     ck = sorted((out / "checkpoints").glob("step_*"))[-1]
-    assert (ck / "replay_buffer.pkl").stat().st_size > 0
+    assert (ck / "replay_buffer.npz").stat().st_size > 0
     r = run("train.py", "--timesteps", "384", *args, "--out", out, "--resume")
     assert r.returncode == 0, r.stderr[-3000:]
-    from stable_baselines3 import SAC
+    newest = out / "checkpoints" / (out / "checkpoints" / "latest").read_text()
+    assert json.loads((newest / "replay_buffer.json").read_text())["pos"] == 384 // 2
+    # the extended run is bit for bit an uninterrupted 384-step run (the replay buffer was restored)
+    r = run("train.py", "--timesteps", "384", *args, "--out", tmp_path / "ref")
+    assert r.returncode == 0, r.stderr[-3000:]
+    from safetensors.torch import load_file
 
-    assert SAC.load(out / "model.zip").num_timesteps == 384
+    a, b = load_file(tmp_path / "ref" / "model.safetensors"), load_file(out / "model.safetensors")
+    assert sorted(a) == sorted(b) and any(k.startswith("variables/log_ent_coef") for k in a)
+    assert [k for k in a if not (a[k] == b[k]).all()] == []

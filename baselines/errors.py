@@ -1,0 +1,19 @@
+"""The errors the baselines raise for things a user must fix (bad input, unusable files, a busy run).
+
+Scripts turn every one of them into exit code 2 and a one-line message (:mod:`baselines.cli`). This module
+imports nothing beyond the standard library, so that a missing optional dependency can still be reported.
+"""
+
+from __future__ import annotations
+
+
+class ConfigError(ValueError):
+    """A bad configuration value or input: the message names what was received and what is expected."""
+
+
+class CheckpointError(ConfigError):
+    """A checkpoint that cannot be used: missing, incomplete, corrupt, or in a format that could run code."""
+
+
+class LockedError(ConfigError):
+    """A run directory or job root that another process is using (the message names it)."""

@@ -1,0 +1,52 @@
+"""Building the SB3 pieces of a run from its :class:`~baselines.config.RunConfig`: the vector env, the
+VecNormalize wrapper and the algorithm. Checkpoint loading builds the same objects and then fills in the
+saved weights and state (:mod:`baselines.checkpoints`), so nothing of a model is ever unpickled."""
+
+from __future__ import annotations
+
+import warnings
+
+from .config import RunConfig, algo_kwargs, normalize_kwargs
+from .errors import ConfigError
+
+
+def algo_class(algo: str):
+    from stable_baselines3 import PPO, SAC
+
+    try:
+        return {"ppo": PPO, "sac": SAC}[algo]
+    except KeyError:
+        raise ConfigError(f"algo must be 'ppo' or 'sac', got {algo!r}") from None
+
+
+def make_env(config: RunConfig, n_envs: int | None = None):
+    """The SB3 adapter over a native vector env of the run's cell (``n_envs`` sub-envs, default the run's)."""
+    from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
+
+    return SoftPVTOLSB3VecEnv(num_envs=config.n_envs if n_envs is None else n_envs, **config.env_kwargs())
+
+
+def make_vecnorm(config: RunConfig, env, training: bool = True):
+    """``VecNormalize(env, **normalize)`` of the run's hyperparameters, or None without normalisation."""
+    norm = normalize_kwargs(config.hyperparams)
+    if not norm:
+        return None
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    return VecNormalize(env, training=training, **norm)
+
+
+def build_model(config: RunConfig, env, tensorboard_log: str | None = None, verbose: int = 0):
+    """The SB3 algorithm of ``config`` on ``env`` (seeded with the run's seed, on the CPU). What SB3 refuses
+    (an assertion or a bad argument of the policy) becomes a ConfigError naming it."""
+    cls = algo_class(config.algo)
+    hp = config.hyperparams
+    try:
+        with warnings.catch_warnings():
+            # the mini-batch size not dividing the rollout is legal (SB3 warns; train.py says so itself)
+            warnings.filterwarnings("ignore", message=".*mini-batch size.*")
+            return cls(hp.get("policy", "MlpPolicy"), env, seed=config.seed, device="cpu", verbose=verbose,
+                       tensorboard_log=tensorboard_log, **algo_kwargs(hp))
+    except (AssertionError, TypeError, ValueError, KeyError) as exc:
+        raise ConfigError(f"stable-baselines3 refused the hyperparameters of this {config.algo.upper()} run: "
+                          f"{type(exc).__name__}: {exc}") from None

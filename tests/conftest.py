@@ -1,0 +1,69 @@
+"""Shared fixtures: a tiny trained run (in the safe checkpoint format) and a process holding a lock."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+#: 4 envs x 64 steps per rollout, a checkpoint every rollout: 512 steps train in a few seconds
+TINY = ["--n-envs", "4", "--hp", "n_steps=64", "--hp", "batch_size=64", "--hp", "n_epochs=2", "--eval-episodes", "1",
+        "--checkpoint-freq", "256", "--eval-freq", "1024", "--no-progress-bar"]
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory) -> Path:
+    """A finished 512-step PPO run (residual / hover / nominal) with checkpoints at 256 and 512. Read-only:
+    copy it (:func:`copy_run`) before changing anything."""
+    from baselines.train_agent import main
+
+    out = tmp_path_factory.mktemp("tiny") / "run"
+    assert main(["--timesteps", "512", *TINY, "--out", str(out)]) == 0
+    return out
+
+
+def copy_run(run: Path, dest: Path) -> Path:
+    shutil.copytree(run, dest, ignore=shutil.ignore_patterns(".softpvtol.lock*", "tb"))
+    return dest
+
+
+def rewrite_manifest(folder: Path) -> None:
+    """Make ``checkpoint.json`` match the folder's files again (what an attacker who edits a checkpoint can
+    always do: the manifest guards against corruption, not against a forger)."""
+    import hashlib
+
+    path = folder / "checkpoint.json"
+    manifest = json.loads(path.read_text())
+    files = {}
+    for name in manifest["files"]:
+        if (folder / name).is_file():
+            data = (folder / name).read_bytes()
+            files[name] = {"sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)}
+    manifest["files"] = files
+    path.write_text(json.dumps(manifest))
+
+
+@pytest.fixture
+def lock_holder():
+    """``lock_holder(directory)``: a separate process holds ``directory``'s lock until the test ends."""
+    procs = []
+
+    def hold(directory: Path) -> subprocess.Popen:
+        code = ("import sys, time; from baselines.locks import DirectoryLock; "
+                f"DirectoryLock({str(directory)!r}, 'directory').acquire(); print('held', flush=True); "
+                "sys.stdin.read()")
+        proc = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                text=True, env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
+        assert proc.stdout.readline().strip() == "held"
+        procs.append(proc)
+        return proc
+
+    yield hold
+    for proc in procs:
+        proc.stdin.close()
+        proc.wait(timeout=30)
