@@ -45,7 +45,9 @@ def run_main(main, argv=None, prog: str | None = None) -> int:
 
 
 # ------------------------------------------------------------------------- argparse value types
-def _int_type(lo: int | None = None, hi: int | None = None):
+def int_arg(lo: int | None = None, hi: int | None = None):
+    """An argparse type: a base-10 integer in [lo, hi] (errors name the bound)."""
+
     def parse(text: str) -> int:
         try:
             value = int(text, 10)
@@ -59,11 +61,6 @@ def _int_type(lo: int | None = None, hi: int | None = None):
 
     parse.__name__ = "integer"
     return parse
-
-
-def int_arg(lo: int | None = None, hi: int | None = None):
-    """An argparse type: a base-10 integer in [lo, hi] (errors name the bound)."""
-    return _int_type(lo, hi)
 
 
 def float_arg(lo: float | None = None, hi: float | None = None, lo_open: bool = False):
