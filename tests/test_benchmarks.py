@@ -35,10 +35,11 @@ class ReferenceController:
     """The actuated passivity controller composed from the public per-piece API in Python (the
     pre-fusion implementation): body rows of passivity_control -> allocate -> arm rows."""
 
-    def __init__(self, loop, input_map="paper", algebraic_iterations=1, dt=0.01, limits=(5.0, 50.0)):
+    def __init__(self, loop, input_map="paper", algebraic_iterations=100, dt=0.01, limits=(5.0, 50.0), tol=1e-10):
         self.allocation = LOOPS[loop]["allocation"]
         self.ff = LOOPS[loop]["arm_feedforward"]
         self.input_map, self.iters, self.dt, self.limits = input_map, algebraic_iterations, dt, limits
+        self.tol = tol
         self.history = self.warm = self.reseed = None
 
     def reset(self, mask=None):
@@ -70,15 +71,38 @@ class ReferenceController:
                 arm_d[self.reseed] = 0.0
                 arm_dd[self.reseed] = 0.0
         warm = self.warm
-        for _ in range(self.iters):
+        # the algebraic loop, row by row: passes until the allocated curvatures move by <= tol; a row
+        # whose change grew has its step halved (relaxation >= 1/1024); finished rows keep their values
+        n = q.shape[0]
+        live, relax, last = np.ones(n, bool), np.ones(n), np.full(n, np.inf)
+        tau = alloc = info = None
+        for it in range(1, self.iters + 1):
             q_ref[..., 3:5], qd_ref[..., 3:5], qdd_ref[..., 3:5] = arm, arm_d, arm_dd
-            tau = passivity_control(q, qd, q_ref, qd_ref, qdd_ref, P)
+            tau_it = passivity_control(q, qd, q_ref, qd_ref, qdd_ref, P)
             if res is not None:
-                tau = tau + res
-            alloc, info = allocate(tau, q, P, self.allocation, input_map=self.input_map, warm_start=warm,
-                                   return_info=True)
-            warm = alloc
-            arm = alloc[..., 2:4]
+                tau_it = tau_it + res
+            alloc_it, info_it = allocate(tau_it, q, P, self.allocation, input_map=self.input_map, warm_start=warm,
+                                         return_info=True)
+            if tau is None:
+                tau, alloc, info = tau_it.copy(), alloc_it.copy(), info_it
+            tau[live], alloc[live] = tau_it[live], alloc_it[live]
+            for field in ("residual", "iterations", "feasible"):
+                getattr(info, field)[live] = getattr(info_it, field)[live]
+            warm = alloc.copy()
+            change = np.max(np.abs(alloc_it[..., 2:4] - arm), axis=-1)
+            done = live & ((change <= self.tol) | (it == self.iters))
+            grew = live & ~done & (change > last)
+            relax[grew] = np.maximum(0.5 * relax[grew], 1.0 / 1024.0)
+            relax[done] = 1.0
+            last[live] = change[live]
+            step = live & (relax == 1.0)
+            damped = live & (relax != 1.0)
+            arm = arm.copy()
+            arm[step] = alloc_it[step, 2:4]
+            arm[damped] = arm[damped] + relax[damped, None] * (alloc_it[damped, 2:4] - arm[damped])
+            live &= ~done
+            if not live.any():
+                break
         if commit:
             self.warm = alloc.copy()
             if self.history is None:
@@ -104,13 +128,16 @@ class ReferenceController:
         return tau_cmd, act, arm, info
 
 
-@pytest.mark.parametrize("loop, input_map, iters", [("exact", "paper", 1), ("paper", "paper", 1),
-                                                      ("improved", "exact", 1), ("improved", "paper", 3)])
-def test_fused_controller_matches_per_piece_reference(loop, input_map, iters):
+@pytest.mark.parametrize("loop, input_map, iters, tol", [
+    ("exact", "paper", 1, 1e-10), ("paper", "paper", 1, 1e-10), ("improved", "exact", 1, 1e-10),
+    ("improved", "paper", 3, 0.0), ("exact", "paper", 100, 1e-10), ("paper", "paper", 100, 1e-10),
+    ("improved", "exact", 100, 1e-10), ("improved", "paper", 7, 1e-6)])
+def test_fused_controller_matches_per_piece_reference(loop, input_map, iters, tol):
     rng = np.random.default_rng(0)
     n = 40
-    fast = PassivityController.from_loop(loop, input_map=input_map, algebraic_iterations=iters)
-    ref = ReferenceController(loop, input_map=input_map, algebraic_iterations=iters)
+    fast = PassivityController.from_loop(loop, input_map=input_map, algebraic_iterations=iters,
+                                         algebraic_tolerance=tol)
+    ref = ReferenceController(loop, input_map=input_map, algebraic_iterations=iters, tol=tol)
     q = rng.uniform(-1, 1, (n, 5)) * [3, 3, 1, 0.8, 0.8]
     qd = rng.uniform(-1, 1, (n, 5))
     refs = [rng.uniform(-1, 1, (n, 5)) for _ in range(3)]

@@ -83,14 +83,16 @@ def test_exact_allocation_reproduces_body_force(input_map, case):
     np.testing.assert_allclose(realised[:, :3], tau[:, :3], rtol=0, atol=1e-10)
     assert np.all(info.residual <= 1e-10) and np.all(info.feasible)
     if case == "zero_horizontal":
-        assert np.all(np.abs(act[:, 2:4]) < 1e-12) or np.all(np.abs(np.abs(act[:, 2:4]) - np.pi) < 1e-12) or True
         # curvature 0 whenever both vertical components are positive
         pos = tau[:, 1] > 3 * np.abs(tau[:, 2]) / min(P.l_l, P.l_r)
         assert np.all(np.abs(act[pos, 2:4]) == 0.0)
 
 
-def paper_equations(act, tau, theta, p):
-    """The paper's eq. (solve_num), written independently of the package."""
+def paper_equations(act, tau, theta, p, printed=False):
+    """The paper's eq. (solve_num), written independently of the package. The paper prints the angles
+    as arctan(num / den); with T >= 0 the quadrant-correct angle is arctan2(num, den) (the package's
+    form, docs/model.md "The allocation's arctan"); ``printed=True`` checks the printed arctan."""
+    atan = (lambda a, b: np.arctan(a / b)) if printed else np.arctan2
     Tl, Tr, ql, qr = act.T
     ux, uz = rot_t(theta, tau[:, 0], tau[:, 1])
     tt = tau[:, 2]
@@ -100,8 +102,8 @@ def paper_equations(act, tau, theta, p):
         [
             Tl - np.sqrt((ux / 2) ** 2 + ((p.l_r * cr * uz - tt) / S) ** 2),
             Tr - np.sqrt((ux / 2) ** 2 + ((p.l_l * cl * uz + tt) / S) ** 2),
-            ql - np.arctan(ux * S / (2 * (p.l_r * cr * uz - tt))),
-            qr - np.arctan(-ux * S / (2 * (p.l_l * cl * uz + tt))),
+            ql - atan(ux * S, 2 * (p.l_r * cr * uz - tt)),
+            qr - atan(-ux * S, 2 * (p.l_l * cl * uz + tt)),
         ],
         axis=-1,
     )
@@ -120,6 +122,14 @@ def test_paper_allocation_satisfies_paper_equations(theta, horizontal):
     assert np.all(info.residual <= 1e-10)
     if horizontal == 0.0 and theta == 0.0:
         assert np.all(act[:, 2:4] == 0.0)
+    # the printed arctan agrees wherever both rotors' vertical components are positive (theta = -2:
+    # upside down, where it gives the opposite direction and arctan2 the right one)
+    printed = paper_equations(act, tau, q[:, 2], P, printed=True)
+    if theta != -2.0:
+        assert np.max(np.abs(printed)) <= 1e-10
+    else:  # each angle either agrees or is off by pi (a rotor whose vertical component is negative)
+        off = np.abs(np.abs(printed[:, 2:4]) - np.pi) <= 1e-10
+        assert np.all(off | (np.abs(printed[:, 2:4]) <= 1e-10)) and off.any()
 
 
 def test_allocation_warm_start_same_solution_fewer_iterations():

@@ -297,16 +297,6 @@ def allocate_exact_into(tau, theta, p, input_map, warm, use_warm, qmax, out, inf
 
 # ------------------------------------------------------------------------------ paper allocation
 @_jit
-def _atan_ratio(num, den):
-    """arctan(num/den) as printed (not atan2); 0/0 -> 0 instead of NaN."""
-    if den == 0.0:
-        if num == 0.0:
-            return 0.0
-        return math.copysign(0.5 * math.pi, num) * math.copysign(1.0, den)
-    return math.atan(num / den)
-
-
-@_jit
 def _paper_map(ql, qr, ux, uz, tt, ll, lr):
     """Right-hand sides of the paper's eq. (solve_num) for given desired curvatures."""
     cl = math.cos(0.5 * ql)
@@ -316,7 +306,11 @@ def _paper_map(ql, qr, ux, uz, tt, ll, lr):
     nr = ll * cl * uz + tt
     Tl = math.sqrt((0.5 * ux) ** 2 + (nl / S) ** 2)
     Tr = math.sqrt((0.5 * ux) ** 2 + (nr / S) ** 2)
-    return Tl, Tr, _atan_ratio(ux * S, 2.0 * nl), _atan_ratio(-ux * S, 2.0 * nr)
+    # the paper prints q = arctan(num / den); with T >= 0 the rotor's force components are
+    # T (sin q, cos q) = (num, den) / (2 S), so the quadrant-correct angle is atan2(num, den): the two
+    # agree while the rotor's vertical component is positive, and atan2 stays continuous (and right)
+    # when it is not (docs/model.md, "The allocation's arctan")
+    return Tl, Tr, math.atan2(ux * S, 2.0 * nl), math.atan2(-ux * S, 2.0 * nr)
 
 
 @_jit

@@ -29,11 +29,13 @@ _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 MEMORY = Layout("controller_memory", [("warm", 4), ("hist", 8), ("fresh", 1)])
 ST_WARM, ST_HIST, ST_FRESH = MEMORY.at
 ST_LEN = MEMORY.size
-#: constants: allocation code, input-map code, algebraic iterations, arm feedforward flag, dt, the
-#: feedforward limits (rad/s, rad/s^2), curvature limit, then params (10), Lambda (5), K (5)
-CONSTANTS = Layout("controller_constants", [("method", 1), ("imap", 1), ("iters", 1), ("ff", 1), ("dt", 1),
-                                            ("vmax", 1), ("amax", 1), ("qmax", 1), ("p", 10), ("lam", 5), ("kg", 5)])
-CC_METHOD, CC_IMAP, CC_ITERS, CC_FF, CC_DT, CC_VMAX, CC_AMAX, CC_QMAX, CC_P, CC_LAM, CC_KG = CONSTANTS.at
+#: constants: allocation code, input-map code, the algebraic loop's pass limit and tolerance, arm
+#: feedforward flag, dt, the feedforward limits (rad/s, rad/s^2), curvature limit, then params (10),
+#: Lambda (5), K (5)
+CONSTANTS = Layout("controller_constants", [("method", 1), ("imap", 1), ("iters", 1), ("tol", 1), ("ff", 1),
+                                            ("dt", 1), ("vmax", 1), ("amax", 1), ("qmax", 1), ("p", 10), ("lam", 5),
+                                            ("kg", 5)])
+CC_METHOD, CC_IMAP, CC_ITERS, CC_TOL, CC_FF, CC_DT, CC_VMAX, CC_AMAX, CC_QMAX, CC_P, CC_LAM, CC_KG = CONSTANTS.at
 CC_LEN = CONSTANTS.size
 #: row error codes: the allocation got a non-finite body force; an arm curvature is beyond 2 pi
 #: (``input_map="exact"``: the thrust-work compensation goes through the checked model API)
@@ -71,15 +73,16 @@ def lane_index(row, lane):
 #: offsets: LLVM then vectorises the branch-free lane loops). Inputs: q, qdot, body reference (arm
 #: entries ignored), its velocity and acceleration, tau residual; the row's memory before and after the
 #: step; outputs: error code (ERR_*), tau (5), actuators (4), arm references (2), allocation info (in
-#: this order: ``batch_controller`` copies them as one run); work: D, C, g entries (17), arm references
-#: with their derivatives (6), allocation (4), active flag
+#: this order: ``batch_controller`` copies them as one run), the algebraic loop's residual and passes;
+#: work: D, C, g entries (17), arm references with their derivatives (6), allocation (4), active flag,
+#: the algebraic loop's relaxation factor and previous residual
 BLOCK = Layout("controller_block", [
     ("q", 5), ("qd", 5), ("qr", 5), ("qdr", 5), ("qddr", 5), ("res", 5), ("st", ST_LEN), ("stn", ST_LEN),
-    ("err", 1), ("tau", 5), ("act", 4), ("arm", 2), ("info", N_INFO),
-    ("ents", 17), ("ref", 6), ("alloc", 4), ("active", 1),
+    ("err", 1), ("tau", 5), ("act", 4), ("arm", 2), ("info", N_INFO), ("loop", 2),
+    ("ents", 17), ("ref", 6), ("alloc", 4), ("active", 1), ("relax", 2),
 ])
-(CB_Q, CB_QD, CB_QR, CB_QDR, CB_QDDR, CB_RES, CB_ST, CB_STN, CB_ERR, CB_TAU, CB_ACT, CB_ARM, CB_INFO, CB_ENTS, CB_REF,
- CB_ALLOC, CB_ACTIVE) = BLOCK.at
+(CB_Q, CB_QD, CB_QR, CB_QDR, CB_QDDR, CB_RES, CB_ST, CB_STN, CB_ERR, CB_TAU, CB_ACT, CB_ARM, CB_INFO, CB_LOOP, CB_ENTS,
+ CB_REF, CB_ALLOC, CB_ACTIVE, CB_RELAX) = BLOCK.at
 CB_LEN = BLOCK.size
 
 
@@ -182,14 +185,15 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
     """One step of the actuated passivity controller for the rows of a block: lanes 0 .. m - 1 of
     B (``CB_*`` rows, inputs filled, see :func:`put_lane_inputs`); A: the allocation's work.
 
-    cfg: (method, input map, algebraic iterations, arm feedforward, dt, vmax, amax, curvature limit)
+    cfg: (method, input map, algebraic pass limit and tolerance, arm feedforward, dt, vmax, amax, curvature
+    limit)
     (see ``CC_*``); p, lam, kg: params and gains (tuples); the tau residual is added when ``has_res``;
     the memory after the step (into CB_STN) is the one before unless ``commit``. Outputs per lane:
     the error code (CB_ERR: ERR_NONE, or the row's outputs are zeros and its memory unchanged), tau (5:
     the commanded generalized force, arm rows: the arm torques asked for), actuators (T_l, T_r,
     tau_l, tau_r), arm references (2) and allocation info (N_INFO).
     """
-    method, imap, iters, ff, dt, vmax, amax, qmax = cfg
+    method, imap, iters, tol, ff, dt, vmax, amax, qmax = cfg
     for j in range(CTRL_LANES):  # D, C, g of every lane (unused ones too): polynomials only, SIMD
         d, cor, g = model_entries(lane5(B, CB_Q, j), lane5(B, CB_QD, j), p)
         put_lane4(B, CB_ENTS, j, d[:4])
@@ -216,17 +220,29 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
             B[lane_index(CB_ALLOC + k, j)] = B[lane_index(CB_ST + ST_WARM + k, j)]
         put_lane3(B, CB_INFO, j, (0.0, 0.0, 0.0))
         B[lane_index(CB_ERR, j)] = ERR_NONE
-    for _ in range(iters):
+    # The algebraic loop: the arm references enter the body rows (through D and C), the body rows give
+    # the allocation, the allocation the arm references. Passes until the allocated curvatures move by
+    # at most ``tol`` (rad) or ``iters`` passes; from the second pass on, a lane whose change grew has its
+    # step halved (relaxation), so that the iteration stays on the branch it started from (the last
+    # step's arm references, or the measured curvatures after a reset) instead of cycling between roots.
+    for j in range(m):
+        B[lane_index(CB_ACTIVE, j)] = 1.0 if B[lane_index(CB_ERR, j)] == ERR_NONE else 0.0
+        B[lane_index(CB_RELAX, j)], B[lane_index(CB_RELAX + 1, j)] = 1.0, math.inf
+        B[lane_index(CB_LOOP, j)], B[lane_index(CB_LOOP + 1, j)] = 0.0, 0.0
+    for it in range(1, iters + 1):
+        live = 0
         for j in range(m):
-            active = B[lane_index(CB_ERR, j)] == ERR_NONE
-            if active:
+            if B[lane_index(CB_ACTIVE, j)] != 0.0:
                 ents, q, qd, br, refs, res = _lane_inputs(B, j)
                 tau = _lane_tau(ents, q, qd, br, refs, res, lam, kg, has_res)
                 put_lane3(B, CB_TAU, j, tau)
-                if not (math.isfinite(tau[0]) and math.isfinite(tau[1]) and math.isfinite(tau[2])):
+                if math.isfinite(tau[0]) and math.isfinite(tau[1]) and math.isfinite(tau[2]):
+                    live += 1
+                else:
                     B[lane_index(CB_ERR, j)] = ERR_TAU
-                    active = False
-            B[lane_index(CB_ACTIVE, j)] = 1.0 if active else 0.0
+                    B[lane_index(CB_ACTIVE, j)] = 0.0
+        if live == 0:
+            break
         if method == ALLOC_PAPER:
             for j in range(m):
                 if B[lane_index(CB_ACTIVE, j)] != 0.0:
@@ -240,8 +256,22 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
                                  qmax)
         for j in range(m):
             if B[lane_index(CB_ACTIVE, j)] != 0.0:
-                B[lane_index(CB_REF, j)] = B[lane_index(CB_ALLOC + 2, j)]
-                B[lane_index(CB_REF + 1, j)] = B[lane_index(CB_ALLOC + 3, j)]
+                new_l, new_r = B[lane_index(CB_ALLOC + 2, j)], B[lane_index(CB_ALLOC + 3, j)]
+                old_l, old_r = B[lane_index(CB_REF, j)], B[lane_index(CB_REF + 1, j)]
+                change = max(abs(new_l - old_l), abs(new_r - old_r))
+                B[lane_index(CB_LOOP, j)], B[lane_index(CB_LOOP + 1, j)] = change, it
+                w = B[lane_index(CB_RELAX, j)]
+                if change <= tol or it == iters or not math.isfinite(change):
+                    B[lane_index(CB_ACTIVE, j)] = 0.0  # done: the arm rows use the allocated curvatures
+                    w = 1.0
+                elif change > B[lane_index(CB_RELAX + 1, j)]:
+                    w = max(0.5 * w, 1.0 / 1024.0)
+                B[lane_index(CB_RELAX, j)], B[lane_index(CB_RELAX + 1, j)] = w, change
+                if w == 1.0:
+                    B[lane_index(CB_REF, j)], B[lane_index(CB_REF + 1, j)] = new_l, new_r
+                else:
+                    B[lane_index(CB_REF, j)] = old_l + w * (new_l - old_l)
+                    B[lane_index(CB_REF + 1, j)] = old_r + w * (new_r - old_r)
     for j in range(m):
         ents, q, qd, br, refs, res = _lane_inputs(B, j)
         err = B[lane_index(CB_ERR, j)]
@@ -252,7 +282,7 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
             B[lane_index(CB_STN + k, j)] = B[lane_index(CB_ST + k, j)]
         if err != ERR_NONE:  # zero outputs, memory unchanged
             B[lane_index(CB_ERR, j)] = err
-            for k in range(CB_INFO + N_INFO - CB_TAU):
+            for k in range(CB_LOOP + 2 - CB_TAU):
                 B[lane_index(CB_TAU + k, j)] = 0.0
             continue
         arm_l, arm_r, vl, vr, al, ar = refs
@@ -289,8 +319,8 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
 @_jit
 def config_tuples(cc):
     """(cfg, p, lam, kg) tuples of :func:`controller_lanes` from the constant vector ``cc``."""
-    cfg = (int(cc[CC_METHOD]), int(cc[CC_IMAP]), int(cc[CC_ITERS]), cc[CC_FF] > 0.0, cc[CC_DT], cc[CC_VMAX],
-           cc[CC_AMAX], cc[CC_QMAX])
+    cfg = (int(cc[CC_METHOD]), int(cc[CC_IMAP]), int(cc[CC_ITERS]), cc[CC_TOL], cc[CC_FF] > 0.0, cc[CC_DT],
+           cc[CC_VMAX], cc[CC_AMAX], cc[CC_QMAX])
     o = CC_P
     p = (cc[o], cc[o + 1], cc[o + 2], cc[o + 3], cc[o + 4], cc[o + 5], cc[o + 6], cc[o + 7], cc[o + 8], cc[o + 9])
     lam = (cc[CC_LAM], cc[CC_LAM + 1], cc[CC_LAM + 2], cc[CC_LAM + 3], cc[CC_LAM + 4])
@@ -310,9 +340,9 @@ INPUTS = Layout("controller_inputs", [("q", 5), ("qd", 5), ("qr", 5), ("qdr", 5)
 IN_Q, IN_QD, IN_QR, IN_QDR, IN_QDDR, IN_RES = INPUTS.at
 IN_LEN = INPUTS.size
 #: per-row outputs (out): tau (5), actuators (4), arm references (2), allocation info (residual,
-#: iterations, feasible), in the order of the block's output rows
-OUTPUTS = Layout("controller_outputs", [("tau", 5), ("act", 4), ("arm", 2), ("info", N_INFO)])
-OUT_TAU, OUT_ACT, OUT_ARM, OUT_INFO = OUTPUTS.at
+#: iterations, feasible), the algebraic loop's residual and passes, in the order of the block's output rows
+OUTPUTS = Layout("controller_outputs", [("tau", 5), ("act", 4), ("arm", 2), ("info", N_INFO), ("loop", 2)])
+OUT_TAU, OUT_ACT, OUT_ARM, OUT_INFO, OUT_LOOP = OUTPUTS.at
 OUT_LEN = OUTPUTS.size
 
 

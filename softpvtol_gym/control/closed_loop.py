@@ -55,12 +55,16 @@ class ControlOutput:
     tau: generalized force the controller asks for (5). For the ideal loop it is applied as is.
     actuators: (T_l, T_r, tau_l, tau_r) to apply through ``generalized_forces`` (None for ideal).
     arm_reference: (q_l^d, q_r^d) used by the arm rows. allocation: diagnostics (None for ideal).
+    loop_residual: the algebraic loop's last change of the allocated curvatures [rad] (batch; <= the
+    controller's ``algebraic_tolerance`` when solved; None for ideal). loop_iterations: its passes.
     """
 
     tau: np.ndarray
     actuators: np.ndarray | None
     arm_reference: np.ndarray
     allocation: AllocationInfo | None
+    loop_residual: np.ndarray | None = None
+    loop_iterations: np.ndarray | None = None
 
 
 class PassivityController:
@@ -75,8 +79,14 @@ class PassivityController:
         arm_feedforward: feed the arm references' velocity and acceleration (backward differences of
             the allocated curvatures over the last control steps) instead of zeros.
         dt: control period [s] (used by the feedforward differences).
-        algebraic_iterations: fixed-point passes over the algebraic loop body rows -> allocation ->
-            arm references per call (1: the body rows use the previous step's arm references).
+        algebraic_iterations: the most passes over the algebraic loop body rows -> allocation -> arm
+            references per call (each pass starts from the last one's arm references, the first from
+            the previous step's, or the measured curvatures after a reset: the solution continues the
+            branch of the last step).
+        algebraic_tolerance: the loop is solved when a pass moves the allocated curvatures by at most
+            this much (rad); 0 runs exactly ``algebraic_iterations`` passes (1: the body rows use the
+            previous step's arm references). The last pass's change is reported per call
+            (``ControlOutput.loop_residual``).
         feedforward_limits: bounds (rad/s, rad/s^2) on the fed-forward arm reference velocity and
             acceleration.
 
@@ -97,8 +107,9 @@ class PassivityController:
         input_map: str = "paper",
         arm_feedforward: bool = False,
         dt: float = 0.01,
-        algebraic_iterations: int = 1,
+        algebraic_iterations: int = 100,
         feedforward_limits: tuple[float, float] = (5.0, 50.0),
+        algebraic_tolerance: float = 1e-10,
     ) -> None:
         if allocation != "ideal" and allocation not in ALLOCATION_METHODS:
             raise ValueError(
@@ -116,11 +127,17 @@ class PassivityController:
         if int(algebraic_iterations) < 1:
             raise ValueError(f"algebraic_iterations must be >= 1, got {algebraic_iterations!r}")
         self.algebraic_iterations = int(algebraic_iterations)
+        if not (isinstance(algebraic_tolerance, (int, float, np.floating, np.integer))
+                and not isinstance(algebraic_tolerance, bool) and algebraic_tolerance >= 0):
+            raise ValueError(f"algebraic_tolerance must be a number >= 0 [rad] (0: exactly algebraic_iterations "
+                             f"passes), got {algebraic_tolerance!r}")
+        self.algebraic_tolerance = float(algebraic_tolerance)
         self.feedforward_limits = (float(feedforward_limits[0]), float(feedforward_limits[1]))
         cc = np.zeros(CK.CC_LEN)
         cc[CK.CC_METHOD] = ALLOCATION_METHODS.get(allocation, 0)
         cc[CK.CC_IMAP] = imap
         cc[CK.CC_ITERS] = self.algebraic_iterations
+        cc[CK.CC_TOL] = self.algebraic_tolerance
         cc[CK.CC_FF] = 1.0 if self.arm_feedforward else 0.0
         cc[CK.CC_DT] = self.dt
         cc[CK.CC_VMAX], cc[CK.CC_AMAX] = self.feedforward_limits
@@ -251,7 +268,8 @@ class PassivityController:
         allocation = AllocationInfo(residual=info[..., 0], iterations=info[..., 1].astype(np.int64),
                                     feasible=info[..., 2] > 0.5)
         return ControlOutput(tau=out[..., :5], actuators=out[..., 5:9], arm_reference=out[..., 9:11],
-                             allocation=allocation)
+                             allocation=allocation, loop_residual=out[..., CK.OUT_LOOP],
+                             loop_iterations=out[..., CK.OUT_LOOP + 1].astype(np.int64))
 
     def _call_single(self, ins, has_res: bool, commit: bool) -> ControlOutput:
         """__call__ for one state given as contiguous float64 arrays (5,) (the fast path)."""
@@ -264,7 +282,8 @@ class PassivityController:
             self.raise_for(np.array([code]), ins[0].reshape(1, 5))
         allocation = _allocation_info(out[..., CK.OUT_INFO], np.array(int(out[CK.OUT_INFO + 1])),
                                       np.array(out[CK.OUT_INFO + 2] > 0.5))
-        return ControlOutput(tau=out[0:5], actuators=out[5:9], arm_reference=out[9:11], allocation=allocation)
+        return ControlOutput(tau=out[0:5], actuators=out[5:9], arm_reference=out[9:11], allocation=allocation,
+                             loop_residual=out[CK.OUT_LOOP], loop_iterations=np.int64(out[CK.OUT_LOOP + 1]))
 
 
 HOLDS = ("stage", "step")
@@ -283,13 +302,13 @@ def simulate_closed_loop(
     input_map: str = "paper",
     plant_params: SoftPVTOLParams | None = None,
     hold: str = "stage",
-    algebraic_iterations: int | None = None,
+    algebraic_iterations: int = 100,
+    algebraic_tolerance: float = 1e-10,
 ) -> dict[str, np.ndarray]:
     """Simulate one of :data:`LOOPS` with fixed-step RK4 (defaults: the paper's case, Sec. 4).
 
     ``hold="stage"`` evaluates the controller at every RK4 stage, i.e. integrates the continuous-time
-    closed loop as the paper's Simulink model does, and solves the algebraic loop with 3 fixed-point
-    passes; the controller's memory (warm start, arm-reference history for the feedforward) advances
+    closed loop as the paper's Simulink model does; the controller's memory (warm start, arm-reference history for the feedforward) advances
     once per step. ``hold="step"`` holds the control over each step (zero-order hold), as the
     Gymnasium env does: the actuated loops hold the actuators (B(q) re-evaluated at every RK4 stage),
     the ideal loop holds tau.
@@ -297,16 +316,17 @@ def simulate_closed_loop(
     Returns time series: ``t`` (T+1,), ``q``, ``qdot``, ``q_ref``, ``qdot_ref`` (T+1, 5); per step, at
     its start: ``tau`` (commanded, T x 5), ``tau_applied`` (through the input map, T x 5),
     ``actuators`` (T x 4, NaN for the ideal loop), ``arm_reference`` (T x 2),
-    ``allocation_residual`` (T,); and ``storage`` (T+1,) along the trajectory.
+    ``allocation_residual`` (T,), ``algebraic_residual`` and ``algebraic_iterations`` (T,: the algebraic
+    loop's last change and passes, solved to ``algebraic_tolerance`` by default; 0 for the ideal loop);
+    and ``storage`` (T+1,) along the trajectory.
     """
     if hold not in HOLDS:
         raise ValueError(f"hold must be one of {HOLDS}, got {hold!r}")
     params = SoftPVTOLParams() if params is None else params
     plant = params if plant_params is None else plant_params
-    if algebraic_iterations is None:
-        algebraic_iterations = 3 if hold == "stage" else 1
     ctrl = PassivityController.from_loop(
-        loop, params=params, gains=gains, input_map=input_map, dt=dt, algebraic_iterations=algebraic_iterations
+        loop, params=params, gains=gains, input_map=input_map, dt=dt, algebraic_iterations=algebraic_iterations,
+        algebraic_tolerance=algebraic_tolerance,
     )
     n = int(round(t_final / dt))
     t = np.arange(n + 1) * dt
@@ -318,6 +338,7 @@ def simulate_closed_loop(
     act = np.full((n, 4), np.nan)
     arm_ref = np.empty((n, 2))
     resid = np.zeros(n)
+    loop_resid, loop_iters = np.zeros(n), np.zeros(n, dtype=np.int64)
     Q[0], V[0] = q, v
 
     def closed_loop(tk, qk, vk, commit):
@@ -331,6 +352,7 @@ def simulate_closed_loop(
         if out.actuators is not None:
             act[k] = out.actuators
             resid[k] = out.allocation.residual
+            loop_resid[k], loop_iters[k] = out.loop_residual, out.loop_iterations
         tau_cmd[k], tau_app[k], arm_ref[k] = out.tau, tau, out.arm_reference
         if hold == "step":  # zero-order hold of the command: the actuators (B(q) at every stage), or tau
             if out.actuators is None:
@@ -353,5 +375,6 @@ def simulate_closed_loop(
     storage = storage_function(Q, V, full_ref, qd_ref_all, params, ctrl.gains)
     return dict(
         t=t, q=Q, qdot=V, q_ref=q_ref_all, qdot_ref=qd_ref_all, tau=tau_cmd, tau_applied=tau_app,
-        actuators=act, arm_reference=arm_ref, allocation_residual=resid, storage=storage,
+        actuators=act, arm_reference=arm_ref, allocation_residual=resid, algebraic_residual=loop_resid,
+        algebraic_iterations=loop_iters, storage=storage,
     )
