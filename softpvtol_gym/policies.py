@@ -11,7 +11,7 @@ from ._batching import MAX_CURVATURE
 from ._parallel import row_ranges, run_split
 from .control import PassivityController
 from .control import _kernels as CK
-from .control.closed_loop import LOOPS
+from .control.closed_loop import LOOPS, MAX_HELD_CONTROL_PERIOD
 from .control.passivity import PassivityGains
 from .envs._validation import real_array, short_repr
 from .envs.config import EnvConfig
@@ -155,7 +155,14 @@ class PassivityPolicy:
             raise ValueError(f"loop must be one of {sorted(LOOPS)} or None (from the env's allocation), got "
                              f"{short_repr(loop)}")
         self.config = config
-        self.loop = config.controller_loop if loop is None else loop
+        self.loop = config.resolved_controller_loop if loop is None else loop
+        default_gains = gains is None or gains == PassivityGains()
+        if self.loop != "ideal" and default_gains and config.dt > MAX_HELD_CONTROL_PERIOD:
+            raise ValueError(
+                f"the analytic controller with the default gains diverges when its command is held longer than "
+                f"{MAX_HELD_CONTROL_PERIOD} s (the arm loop's K/D ~ 130 1/s), got a control period of "
+                f"{config.dt:g} s (frame_skip={config.frame_skip}); use frame_skip=1, or pass gains with smaller "
+                "arm gains k[3:5] (the limit scales roughly with 1/k)")
         if config.action_mode == "virtual" and config.resolved_allocation == "ideal" and self.loop != "ideal":
             raise ValueError("with allocation='ideal' the policy must use loop='ideal'")
         self.controller = PassivityController.from_loop(

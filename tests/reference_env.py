@@ -232,12 +232,16 @@ class StepResult:
 class ReferenceEnv:
     """One env, stepped in plain numpy from the docs. ``config`` is the env's EnvConfig (its
     constructor arguments are read: action_mode, task, params, input_map, allocation, residual_space,
-    residual_scale, frame_skip, max_episode_seconds, actuator_limits; and ``tier_values``)."""
+    residual_scale, frame_skip, max_episode_seconds, actuator_limits, controller_loop; and
+    ``tier_values``)."""
 
     def __init__(self, config):
         c = config
         self.mode, self.task, self.imap = c.action_mode, c.task, c.input_map
         self.allocation = c.allocation if c.allocation is not None else "exact"
+        # the residual base controller's loop (docs/env.md): controller_loop, or from the allocation
+        # ("paper" -> "paper", otherwise "bounded")
+        self.loop = c.controller_loop or ("paper" if self.allocation == "paper" else "bounded")
         self.residual_space = c.residual_space
         self.nominal = c.params
         p = c.params
@@ -283,7 +287,7 @@ class ReferenceEnv:
                                                   counter_normal(ep.key, 0, STREAM_WIND_Z)])
         self.controller = None
         if self.mode == "residual":
-            self.controller = PassivityController.from_loop(self.allocation, params=self.nominal,
+            self.controller = PassivityController.from_loop(self.loop, params=self.nominal,
                                                             input_map=self.imap, dt=self.dt)
         self.ref = reference(self.task, 0.0, ep.ref)
         self.obs = self._observe()

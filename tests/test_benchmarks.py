@@ -35,10 +35,12 @@ class ReferenceController:
     """The actuated passivity controller composed from the public per-piece API in Python (the
     pre-fusion implementation): body rows of passivity_control -> allocate -> arm rows."""
 
-    def __init__(self, loop, input_map="paper", algebraic_iterations=100, dt=0.01, limits=(5.0, 50.0), tol=1e-10):
+    def __init__(self, loop, input_map="paper", algebraic_iterations=100, dt=0.01, tol=1e-10):
         self.allocation = LOOPS[loop]["allocation"]
         self.ff = LOOPS[loop]["arm_feedforward"]
-        self.input_map, self.iters, self.dt, self.limits = input_map, algebraic_iterations, dt, limits
+        self.limits = LOOPS[loop].get("feedforward_limits", (5.0, 50.0))
+        self.qmax = LOOPS[loop].get("curvature_limit", np.pi)
+        self.input_map, self.iters, self.dt = input_map, algebraic_iterations, dt
         self.tol = tol
         self.history = self.warm = self.reseed = None
 
@@ -82,7 +84,8 @@ class ReferenceController:
             if res is not None:
                 tau_it = tau_it + res
             alloc_it, info_it = allocate(tau_it, q, P, self.allocation, input_map=self.input_map, warm_start=warm,
-                                         return_info=True)
+                                         return_info=True, **({} if self.allocation == "paper" else
+                                                              dict(curvature_limit=self.qmax)))
             if tau is None:
                 tau, alloc, info = tau_it.copy(), alloc_it.copy(), info_it
             tau[live], alloc[live] = tau_it[live], alloc_it[live]
@@ -131,7 +134,8 @@ class ReferenceController:
 @pytest.mark.parametrize("loop, input_map, iters, tol", [
     ("exact", "paper", 1, 1e-10), ("paper", "paper", 1, 1e-10), ("improved", "exact", 1, 1e-10),
     ("improved", "paper", 3, 0.0), ("exact", "paper", 100, 1e-10), ("paper", "paper", 100, 1e-10),
-    ("improved", "exact", 100, 1e-10), ("improved", "paper", 7, 1e-6)])
+    ("improved", "exact", 100, 1e-10), ("improved", "paper", 7, 1e-6), ("bounded", "paper", 100, 1e-10),
+    ("bounded", "exact", 100, 1e-10)])
 def test_fused_controller_matches_per_piece_reference(loop, input_map, iters, tol):
     rng = np.random.default_rng(0)
     n = 40
@@ -164,7 +168,7 @@ def test_residual_env_and_policy_run_the_fused_controller():
     n = 70
     venv = SoftPVTOLVectorEnv(num_envs=n, action_mode="residual", tier="mismatch", actuator_limits=(1e6, 1e6))
     venv.reset(seed=1)
-    ref = ReferenceController("exact")
+    ref = ReferenceController(venv.config.resolved_controller_loop)
     sim = venv._sim
     for _ in range(5):
         _, act, _, _ = ref(sim.qm.copy(), sim.qdm.copy(), sim.qr.copy(), sim.qdr.copy(), sim.qddr.copy())
@@ -173,7 +177,7 @@ def test_residual_env_and_policy_run_the_fused_controller():
         np.testing.assert_allclose(sim.applied[:, :4], act, **TOL)  # no saturation, no lag
     env = SoftPVTOLVectorEnv(num_envs=n, action_mode="actuators", task="track_random", actuator_limits=(102.9, 1e3))
     pol = PassivityPolicy.from_env(env)
-    ref = ReferenceController("exact")
+    ref = ReferenceController(pol.loop)
     obs, _ = env.reset(seed=2)
     for _ in range(5):
         a, _ = pol.predict(obs)

@@ -21,7 +21,7 @@ def test_residual_zero_is_passivity_controller_bit_for_bit(allocation, input_map
     env = SoftPVTOLEnv(action_mode="residual", task="track_paper", allocation=allocation, input_map=input_map,
                        actuator_limits=(1e6, 1e6))
     env.reset(seed=0)
-    ctrl = PassivityController.from_loop(env.config.controller_loop, params=env.config.params,
+    ctrl = PassivityController.from_loop(env.config.resolved_controller_loop, params=env.config.params,
                                          input_map=input_map, dt=0.01)
     p = env.config.params
     q = np.array(PAPER_Q0)[None, :]
@@ -44,7 +44,7 @@ def test_nonzero_residual_is_applied_once_in_its_own_space(space):
     q0 = np.array([0.4, 1.5, 0.1, 0.2, -0.1])
     env.reset(seed=0, options={"q0": q0, "qdot0": np.zeros(5), "setpoint": (0.0, 2.0, 0.0)})
     cfg, p = env.config, env.config.params
-    ctrl = PassivityController.from_loop(cfg.controller_loop, params=p, input_map=cfg.input_map, dt=0.01)
+    ctrl = PassivityController.from_loop(cfg.resolved_controller_loop, params=p, input_map=cfg.input_map, dt=0.01)
     ref = tuple(r[None, :] for r in hover_reference(0.0, 2.0, 0.0))
     q, v = q0[None, :], np.zeros((1, 5))
     u = np.array([0.3, -0.2, 0.1, 0.25, -0.15])[: cfg.action_dim]

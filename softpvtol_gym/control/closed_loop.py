@@ -6,15 +6,19 @@ controller's arm rows, with those curvatures as arm references, give the arm tor
 The plant is driven through ``generalized_forces`` with the *actual* curvatures, so arm lag is real.
 
 The paper closes an algebraic loop (the arm references enter the body rows through D and C) with
-Simulink's algebraic-constraint block; here the body rows use the arm references of the previous
-control step and the arm rows the new ones (one-step delay, documented in docs/control.md).
+Simulink's algebraic-constraint block; here every call solves it by passes body rows -> allocation
+-> arm references until the curvatures move by at most ``algebraic_tolerance`` (1e-10 rad), from
+the last step's arm references, so that the solution continues the branch it is on.
 
 Loops (``LOOPS``):
     ``"paper"``     paper allocation, arm references with zero velocity/acceleration (as printed).
-    ``"exact"``     exact allocation, arm references with zero velocity/acceleration: the robust
-                    choice under actuator saturation and zero-order hold (the env's base controller).
+    ``"exact"``     exact allocation, arm references with zero velocity/acceleration.
     ``"improved"``  exact allocation and arm references fed forward with their velocity and
-                    acceleration (second-order backward differences of q^d): converges (see README).
+                    acceleration (second-order backward differences of q^d, bounded by 5 rad/s and
+                    50 rad/s^2): a small tracking error, not zero (docs/control.md).
+    ``"bounded"``   the improved loop with its demands bounded to what the env's default actuators
+                    deliver: fed-forward arm rates within 1 rad/s and 5 rad/s^2, desired curvatures
+                    within 0.8 rad (the default of PassivityPolicy and of the residual base controller).
     ``"ideal"``     tau applied directly as the generalized force (the setting of Theorem 1).
 """
 
@@ -36,7 +40,14 @@ from .allocation import ALLOCATION_METHODS, AllocationInfo, _allocation_info
 from .passivity import PassivityGains, passivity_control, storage_function
 from .references import paper_reference
 
-__all__ = ["LOOPS", "ControlOutput", "PassivityController", "simulate_closed_loop"]
+__all__ = ["LOOPS", "ControlOutput", "PassivityController", "simulate_closed_loop", "MAX_HELD_CONTROL_PERIOD"]
+
+#: The longest zero-order-hold control period [s] under which the actuated loops with the default
+#: gains stay stable: the arm loop (K / D ~ 130 1/s) diverges from 0.013 s on (measured on the paper's
+#: case: ``simulate_closed_loop(loop, hold="step", dt=...)`` for "paper", "exact", "bounded": stable
+#: at 0.012 s, diverged at 0.013 s; tests/test_control_loops.py re-checks it). With other gains the
+#: limit scales roughly with 1 / K of the arms.
+MAX_HELD_CONTROL_PERIOD = 0.012
 
 _F64 = np.dtype(np.float64)
 
@@ -44,6 +55,7 @@ LOOPS: dict[str, dict] = {
     "paper": dict(allocation="paper", arm_feedforward=False),
     "exact": dict(allocation="exact", arm_feedforward=False),
     "improved": dict(allocation="exact", arm_feedforward=True),
+    "bounded": dict(allocation="exact", arm_feedforward=True, feedforward_limits=(1.0, 5.0), curvature_limit=0.8),
     "ideal": dict(allocation="ideal", arm_feedforward=False),
 }
 
@@ -87,6 +99,8 @@ class PassivityController:
             this much (rad); 0 runs exactly ``algebraic_iterations`` passes (1: the body rows use the
             previous step's arm references). The last pass's change is reported per call
             (``ControlOutput.loop_residual``).
+        curvature_limit: desired curvatures beyond it (rad, in (0, pi]) are clipped by the exact
+            allocation and reported infeasible.
         feedforward_limits: bounds (rad/s, rad/s^2) on the fed-forward arm reference velocity and
             acceleration.
 
@@ -110,6 +124,7 @@ class PassivityController:
         algebraic_iterations: int = 100,
         feedforward_limits: tuple[float, float] = (5.0, 50.0),
         algebraic_tolerance: float = 1e-10,
+        curvature_limit: float = math.pi,
     ) -> None:
         if allocation != "ideal" and allocation not in ALLOCATION_METHODS:
             raise ValueError(
@@ -132,6 +147,10 @@ class PassivityController:
             raise ValueError(f"algebraic_tolerance must be a number >= 0 [rad] (0: exactly algebraic_iterations "
                              f"passes), got {algebraic_tolerance!r}")
         self.algebraic_tolerance = float(algebraic_tolerance)
+        if not (isinstance(curvature_limit, (int, float, np.floating, np.integer))
+                and not isinstance(curvature_limit, bool) and 0.0 < curvature_limit <= math.pi):
+            raise ValueError(f"curvature_limit must be a number in (0, pi] [rad], got {curvature_limit!r}")
+        self.curvature_limit = float(curvature_limit)
         self.feedforward_limits = (float(feedforward_limits[0]), float(feedforward_limits[1]))
         cc = np.zeros(CK.CC_LEN)
         cc[CK.CC_METHOD] = ALLOCATION_METHODS.get(allocation, 0)
@@ -141,7 +160,7 @@ class PassivityController:
         cc[CK.CC_FF] = 1.0 if self.arm_feedforward else 0.0
         cc[CK.CC_DT] = self.dt
         cc[CK.CC_VMAX], cc[CK.CC_AMAX] = self.feedforward_limits
-        cc[CK.CC_QMAX] = math.pi
+        cc[CK.CC_QMAX] = self.curvature_limit
         cc[CK.CC_P:CK.CC_P + 10] = self.params.array
         cc[CK.CC_LAM:CK.CC_LAM + 5] = self.gains.lam_array
         cc[CK.CC_KG:CK.CC_KG + 5] = self.gains.k_array
@@ -152,7 +171,8 @@ class PassivityController:
 
     @classmethod
     def from_loop(cls, loop: str, **kwargs) -> PassivityController:
-        """A controller configured as one of :data:`LOOPS` (``"paper"``, ``"improved"``, ``"ideal"``)."""
+        """A controller configured as one of :data:`LOOPS` (``"paper"``, ``"exact"``, ``"improved"``,
+        ``"bounded"``, ``"ideal"``); keyword arguments override the loop's settings."""
         if loop not in LOOPS:
             raise ValueError(f"loop must be one of {sorted(LOOPS)}, got {loop!r}")
         return cls(**{**LOOPS[loop], **kwargs})
@@ -308,10 +328,10 @@ def simulate_closed_loop(
     """Simulate one of :data:`LOOPS` with fixed-step RK4 (defaults: the paper's case, Sec. 4).
 
     ``hold="stage"`` evaluates the controller at every RK4 stage, i.e. integrates the continuous-time
-    closed loop as the paper's Simulink model does; the controller's memory (warm start, arm-reference history for the feedforward) advances
-    once per step. ``hold="step"`` holds the control over each step (zero-order hold), as the
-    Gymnasium env does: the actuated loops hold the actuators (B(q) re-evaluated at every RK4 stage),
-    the ideal loop holds tau.
+    closed loop as the paper's Simulink model does; the controller's memory (warm start, arm-reference
+    history for the feedforward) advances once per step. ``hold="step"`` holds the control over each
+    step (zero-order hold), as the Gymnasium env does: the actuated loops hold the actuators (B(q)
+    re-evaluated at every RK4 stage), the ideal loop holds tau.
 
     Returns time series: ``t`` (T+1,), ``q``, ``qdot``, ``q_ref``, ``qdot_ref`` (T+1, 5); per step, at
     its start: ``tau`` (commanded, T x 5), ``tau_applied`` (through the input map, T x 5),

@@ -3,11 +3,13 @@
 
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 
 from .. import _kernels as MK
 from .._parallel import row_ranges, run_split
 from ..control import _kernels as CK
+from ..control.closed_loop import MAX_HELD_CONTROL_PERIOD, PassivityController
 from ._validation import real_array, short_repr
 from .config import EnvConfig
 from .episodes import apply_options, sample_episodes
@@ -37,8 +39,6 @@ class BatchSim:
     """
 
     def __init__(self, cfg: EnvConfig, n: int):
-        from ..control import PassivityController
-
         self.cfg = cfg
         self.n = n
         self.task = cfg.task_spec  # resolved once: the registry may change later
@@ -65,8 +65,13 @@ class BatchSim:
         self._expected = {b: f"an array of shape {shape} in [-1, 1]" for b, shape in self._shape.items()}
         self.controller = None
         if cfg.action_mode == "residual":
+            if cfg.dt > MAX_HELD_CONTROL_PERIOD and cfg.resolved_controller_loop != "ideal":
+                gym.logger.warn(
+                    f"residual mode with a control period of {cfg.dt:g} s (frame_skip={cfg.frame_skip}): the base "
+                    f"controller's arm loop diverges when held longer than {MAX_HELD_CONTROL_PERIOD} s, so the "
+                    "policy must also stabilise the arms; use frame_skip=1 for a stable base controller")
             self.controller = PassivityController.from_loop(
-                cfg.controller_loop, params=cfg.params, input_map=cfg.input_map, dt=cfg.dt
+                cfg.resolved_controller_loop, params=cfg.params, input_map=cfg.input_map, dt=cfg.dt
             )
             self.controller.state_rows(n)
 

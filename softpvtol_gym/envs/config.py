@@ -14,6 +14,7 @@ import numpy as np
 
 from .. import _kernels as MK
 from ..control import _kernels as CK
+from ..control.closed_loop import LOOPS
 from ..control.passivity import PassivityGains
 from ..params import SoftPVTOLParams
 from ..tasks import TaskSpec, get_task
@@ -45,6 +46,7 @@ class EnvConfig:
     tier_options: dict | None = None
     residual_scale: float = 0.2
     actuator_limits: tuple | None = None
+    controller_loop: str | None = None
 
     def __post_init__(self) -> None:
         if self.actuator_limits is not None:
@@ -84,6 +86,16 @@ class EnvConfig:
                 raise ValueError(f"max_episode_seconds must be at least one control step (dt = {self.dt:g} s with "
                                  f"frame_skip={fs}), got {self.max_episode_seconds!r}")
         positive_number("residual_scale", self.residual_scale)
+        if self.controller_loop is not None:
+            choice("controller_loop", self.controller_loop, tuple(LOOPS))
+            if self.controller_loop == "ideal" and self.action_mode != "virtual":
+                raise ValueError("controller_loop='ideal' (tau applied directly) needs action_mode='virtual' with "
+                                 f"allocation='ideal', got action_mode={self.action_mode!r}, allocation="
+                                 f"{self.allocation!r}")
+            loop_alloc = LOOPS[self.controller_loop]["allocation"]
+            if self.allocation is not None and loop_alloc != self.allocation:
+                raise ValueError(f"controller_loop={self.controller_loop!r} uses allocation={loop_alloc!r}, but "
+                                 f"allocation={self.allocation!r} was given; pass one of them, or both consistent")
         _tiers.check_tier_options(self.tier_options)
 
     @classmethod
@@ -104,13 +116,21 @@ class EnvConfig:
 
     @property
     def resolved_allocation(self) -> str:
-        """The allocation actually used: the argument, or "exact" by default."""
-        return "exact" if self.allocation is None else self.allocation
+        """The allocation actually used: the argument, that of ``controller_loop``, or "exact"."""
+        if self.allocation is not None:
+            return self.allocation
+        if self.controller_loop is not None:
+            return LOOPS[self.controller_loop]["allocation"]
+        return "exact"
 
     @property
-    def controller_loop(self) -> str:
-        """PassivityController loop of the residual base controller and of PassivityPolicy."""
-        return self.resolved_allocation  # "exact" -> "exact", "paper" -> "paper", "ideal" -> "ideal"
+    def resolved_controller_loop(self) -> str:
+        """PassivityController loop (:data:`~softpvtol_gym.control.LOOPS`) of the residual base controller
+        and the default of PassivityPolicy: ``controller_loop``, or from the allocation: "paper" ->
+        "paper", "ideal" -> "ideal", otherwise "bounded" (the strongest loop measured in the env)."""
+        if self.controller_loop is not None:
+            return self.controller_loop
+        return {"paper": "paper", "ideal": "ideal"}.get(self.resolved_allocation, "bounded")
 
     @property
     def dt(self) -> float:

@@ -141,6 +141,10 @@ class SoftPVTOLEnv(gym.Env):
     * ``input_map``: "paper" | "exact" (the plant's input map). ``allocation``: "exact" (default) |
       "paper" | "ideal" (virtual mode only). ``residual_space``: "virtual" | "actuators".
       ``residual_scale``: 0.2.
+    * ``controller_loop``: the analytic loop (:data:`softpvtol_gym.control.LOOPS`) of the residual
+      mode's base controller and the default of :class:`~softpvtol_gym.PassivityPolicy`; default
+      from the allocation: "bounded" (exact allocation), "paper", "ideal". A loop whose allocation
+      differs from a given ``allocation`` is refused.
     * ``frame_skip``: RK4 steps of 0.01 s per env step (default 1). ``max_episode_seconds``: override.
     * ``render_mode``: None | "rgb_array" | "human".
 
@@ -164,6 +168,10 @@ class SoftPVTOLEnv(gym.Env):
       ``truncated`` warns once per episode (as CartPole) and stays allowed; str/bool/complex actions,
       reset states q0 outside the position limits, ``tier_options["mismatch_scale"] >= 1`` and
       ``max_episode_seconds`` below one control step are refused; numpy integer seeds are accepted.
+    * v0, analytic control (issue 14, 2026-12-01; a behaviour change of the residual mode, committed
+      figures regenerated): the base controller solves the algebraic loop to 1e-10 rad every step (it
+      used the previous step's arm references), the paper allocation uses the quadrant-correct
+      atan2, and the default base loop is "bounded" (was "exact"); ``controller_loop=`` selects it.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 100}  # per instance: 1 / control period
