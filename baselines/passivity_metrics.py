@@ -13,6 +13,7 @@ import json
 import time
 from pathlib import Path
 
+from baselines import readme
 from baselines.atomic import atomic_write_text
 from baselines.evaluation import evaluate
 from softpvtol_gym import PassivityPolicy
@@ -25,6 +26,22 @@ def run_cell(task: str, tier: str, episodes: int, seed: int) -> dict:
     m = evaluate(PassivityPolicy.from_env(env), "actuators", task, tier, episodes, seed)["summary"]
     return {"rms_position_error_m": m["mean_rms_position_error"], "crash_rate": m["crash_rate"],
             "episodes": m["episodes"]}
+
+
+README_SOURCE = "baselines/results/passivity_metrics.json"
+
+
+def metrics_table(report: dict) -> str:
+    """The README's task x tier table (mean RMS position error [m] / crash rate) from a report."""
+    cells = report["cells"]
+    tasks = list(dict.fromkeys(k.split("/")[0] for k in cells))
+    tiers = list(dict.fromkeys(k.split("/")[1] for k in cells))
+    lines = ["| task | " + " | ".join(tiers) + " |", "|---|" + "---|" * len(tiers)]
+    for task in tasks:
+        row = [f"{cells[f'{task}/{tier}']['rms_position_error_m']:.2f} / {cells[f'{task}/{tier}']['crash_rate']:.2f}"
+               for tier in tiers]
+        lines.append(f"| {task} | " + " | ".join(row) + " |")
+    return "\n".join(lines)
 
 
 def main(argv=None) -> int:
@@ -42,9 +59,13 @@ def main(argv=None) -> int:
             print(f"{task:13s} {tier:9s} rms {m['rms_position_error_m']:.3f} m  crash {m['crash_rate']:.2f}",
                   flush=True)
     command = "python baselines/passivity_metrics.py" + (f" --episodes {args.episodes}" if args.episodes != 10 else "")
-    report = {"command": command, "seed": args.seed, "action_mode": "actuators", "cells": cells,
+    loop = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators")).loop
+    report = {"command": command, "seed": args.seed, "action_mode": "actuators", "loop": loop, "cells": cells,
               "wall_time_s": round(time.perf_counter() - t0, 1)}
     atomic_write_text(args.json, json.dumps(report, indent=2))
+    if args.json.resolve() == Path(__file__).resolve().parent / "results" / "passivity_metrics.json" \
+            and args.episodes == 10 and args.seed == 100:
+        readme.write_block("passivity_metrics.py", README_SOURCE, metrics_table(report))
     return 0
 
 

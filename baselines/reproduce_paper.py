@@ -1,13 +1,20 @@
 """Reproduce the simulation section of the Soft-PVTOL paper (Sec. 4) and write figures + metrics.
 
-    python baselines/reproduce_paper.py [--out baselines/results/paper_reproduction] [--t-final 40]
+    python baselines/reproduce_paper.py [--out baselines/results/paper_reproduction] [--t-final 40] [--no-steady]
 
 The paper's case: default parameters and gains, q(0) = (5, 0, 0.2 pi, 0.01 pi, -0.15 pi), qdot(0) = 0,
 reference x = 4 sin(t/2), z = 3 cos(-t/10) + 4, theta = 0, fixed step 0.01 s, 40 s. Loops: "ideal"
-(tau applied directly), "paper" (the paper's allocation and arm references as printed) and "improved"
-(exact allocation + fed-forward arm references). The controller is evaluated at every RK4 stage
-(continuous-time closed loop, as in the paper's Simulink model); the zero-order-hold variant that the
-Gymnasium env uses is reported too (``hold="step"``).
+(tau applied directly), "paper" (the paper's allocation and arm references as printed), "improved"
+(exact allocation + fed-forward arm references) and "bounded" (the improved loop with bounded demands,
+the env's default). The controller is evaluated at every RK4 stage (continuous-time closed loop, as
+in the paper's Simulink model); the zero-order-hold variant that the Gymnasium env uses is reported
+too (``hold="step"``).
+
+The steady-state study (``steady_state`` in metrics.json, ``steady_state.png``; skipped with
+``--no-steady``) runs the loops that feed the arm references forward, and the ideal loop, for 80 s
+from the paper's initial state and 5 perturbed ones, at dt = 0.01, 0.005 and 0.002 s and both holds,
+and reports the max |x|, |z| error and the RMS position error over 60-80 s: the error floor that is
+left after the transient.
 """
 
 from __future__ import annotations
@@ -20,11 +27,106 @@ from pathlib import Path
 
 import numpy as np
 
+from baselines import readme
 from baselines.atomic import atomic_path, atomic_write_text
 from softpvtol_gym import SoftPVTOLParams
 from softpvtol_gym.control import PassivityGains, simulate_closed_loop
 
-LOOP_NAMES = ("ideal", "paper", "improved")
+LOOP_NAMES = ("ideal", "paper", "improved", "bounded")
+PAPER_Q0 = (5.0, 0.0, 0.2 * np.pi, 0.01 * np.pi, -0.15 * np.pi)
+STEADY_LOOPS = ("ideal", "improved", "bounded")
+STEADY_DTS = (0.01, 0.005, 0.002)
+STEADY_T_FINAL, STEADY_WINDOW = 80.0, (60.0, 80.0)
+
+
+def steady_initial_states(n_perturbed: int = 5, seed: int = 0) -> list[tuple[float, ...]]:
+    """The paper's q(0) and ``n_perturbed`` others: x, z +- 0.5 m, theta +- 0.1 rad, curvatures +- 0.05 rad
+    (uniform, seeded)."""
+    rng = np.random.default_rng(seed)
+    spread = np.array([0.5, 0.5, 0.1, 0.05, 0.05])
+    return [PAPER_Q0] + [tuple(float(v) for v in np.array(PAPER_Q0) + rng.uniform(-1, 1, 5) * spread)
+                         for _ in range(n_perturbed)]
+
+
+def steady_state_study() -> dict:
+    """Error floors over 60-80 s (see the module docstring). Returns {loop: {hold: {dt: {...}}}}."""
+    lo, hi = STEADY_WINDOW
+    study = {"initial_states": steady_initial_states(), "t_final": STEADY_T_FINAL,
+             "window_s": list(STEADY_WINDOW), "loops": {}}
+    for loop in STEADY_LOOPS:
+        for hold in ("stage", "step"):
+            for dt in STEADY_DTS:
+                cells = []
+                for q0 in study["initial_states"]:
+                    r = simulate_closed_loop(loop, q0=q0, t_final=STEADY_T_FINAL, dt=dt, hold=hold)
+                    m = (r["t"] >= lo) & (r["t"] <= hi)
+                    err = r["q"][m, :2] - r["q_ref"][m, :2]
+                    cells.append({"max_abs_x": float(np.abs(err[:, 0]).max()),
+                                  "max_abs_z": float(np.abs(err[:, 1]).max()),
+                                  "rms_position": float(np.sqrt(np.mean(np.sum(err**2, axis=1))))})
+                study["loops"].setdefault(loop, {}).setdefault(hold, {})[f"{dt:g}"] = {
+                    "per_initial_state": cells,
+                    "worst_max_abs_xz": max(max(c["max_abs_x"], c["max_abs_z"]) for c in cells),
+                    "worst_rms_position": max(c["rms_position"] for c in cells),
+                }
+    return study
+
+
+def steady_state_table(study: dict) -> str:
+    """Markdown table of the steady-state study (README)."""
+    lines = ["| loop | hold | " + " | ".join(f"dt = {dt:g} s" for dt in STEADY_DTS) + " |",
+             "|---|---|" + "---|" * len(STEADY_DTS)]
+    for loop, holds in study["loops"].items():
+        for hold, by_dt in holds.items():
+            cells = [f"{by_dt[f'{dt:g}']['worst_max_abs_xz']:.1e} / {by_dt[f'{dt:g}']['worst_rms_position']:.1e}"
+                     for dt in STEADY_DTS]
+            lines.append(f"| `{loop}` | {hold} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def loops_table(report: dict) -> str:
+    """Markdown table of the 40 s runs (README): RMS errors per window, final |x err|, steady arm torques."""
+    lines = ["| loop | x 0–5 s | x 5–20 s | x 20–40 s | z 20–40 s | θ 20–40 s | \\|x err\\| at 40 s | "
+             "steady τ_l / τ_r [N m] | algebraic loop: max residual [rad] / mean passes |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for loop, m in report["loops"].items():
+        te = m["tracking_error"]
+        cells = [f"{te['0-5s']['x']['rms']:.2e}", f"{te['5-20s']['x']['rms']:.2e}", f"{te['20-40s']['x']['rms']:.2e}",
+                 f"{te['20-40s']['z']['rms']:.2e}", f"{te['20-40s']['theta']['rms']:.2e}",
+                 f"{m['final_abs_error']['x']:.1e}"]
+        arm = m.get("steady_arm_torques_Nm")
+        cells.append(f"{arm['tau_l_mean']:.3f} / {arm['tau_r_mean']:.3f}" if arm else "–")
+        alg = m.get("algebraic_loop")
+        cells.append(f"{alg['residual_max_rad']:.1e} / {alg['passes_mean']:.1f}" if alg else "–")
+        lines.append(f"| `{loop}` | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+README_SOURCE = "baselines/results/paper_reproduction/metrics.json"
+
+
+def plot_steady(study: dict, out: Path) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    colors = {"ideal": "tab:green", "improved": "tab:blue", "bounded": "tab:purple"}
+    for loop, holds in study["loops"].items():
+        for hold, by_dt in holds.items():
+            ys = [by_dt[f"{dt:g}"]["worst_max_abs_xz"] for dt in STEADY_DTS]
+            ax.loglog(STEADY_DTS, ys, marker="o" if hold == "stage" else "s", ls="-" if hold == "stage" else "--",
+                      color=colors[loop], label=f"{loop}, hold={hold}")
+    ax.set_xlabel("dt [s]")
+    ax.set_ylabel("max |x|, |z| error over 60-80 s [m] (worst of 6 ICs)")
+    ax.legend(fontsize=7)
+    ax.set_title("Error floor after the transient")
+    fig.tight_layout()
+    with atomic_path(out / "steady_state.png") as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)
+    return "steady_state.png"
 WINDOWS = ((0.0, 5.0), (5.0, 20.0), (20.0, 40.0))
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "paper_reproduction"
 
@@ -82,6 +184,9 @@ def loop_metrics(result: dict, t_final: float) -> dict:
     arm_err = result["q"][:-1, 3:5] - result["arm_reference"]
     metrics["arm_tracking_rms_rad_last_20s"] = float(np.sqrt(np.mean(arm_err[t >= t_final / 2] ** 2)))
     metrics["allocation_residual_max"] = float(np.max(result["allocation_residual"]))
+    metrics["algebraic_loop"] = {"residual_max_rad": float(np.max(result["algebraic_residual"])),
+                                 "passes_mean": float(np.mean(result["algebraic_iterations"])),
+                                 "passes_max": int(np.max(result["algebraic_iterations"]))}
     return metrics
 
 
@@ -91,7 +196,7 @@ def plot_all(results: dict[str, dict], out: Path) -> list[str]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    colors = {"ideal": "tab:green", "paper": "tab:red", "improved": "tab:blue"}
+    colors = {"ideal": "tab:green", "paper": "tab:red", "improved": "tab:blue", "bounded": "tab:purple"}
     files = []
 
     def save(fig, name):
@@ -175,7 +280,7 @@ def plot_all(results: dict[str, dict], out: Path) -> list[str]:
     return files
 
 
-def run(out: Path, t_final: float = 40.0, plots: bool = True) -> dict:
+def run(out: Path, t_final: float = 40.0, plots: bool = True, steady: bool = True) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     params, gains = SoftPVTOLParams(), PassivityGains()
     results, metrics = {}, {}
@@ -193,7 +298,7 @@ def run(out: Path, t_final: float = 40.0, plots: bool = True) -> dict:
         "case": {
             "params": {k: getattr(params, k) for k in params.__dataclass_fields__},
             "gains": {"lam": gains.lam, "k": gains.k},
-            "q0": [5.0, 0.0, 0.2 * np.pi, 0.01 * np.pi, -0.15 * np.pi],
+            "q0": list(PAPER_Q0),
             "dt": 0.01,
             "t_final": t_final,
             "integrator": "RK4, controller evaluated at every stage (loops without suffix) "
@@ -201,9 +306,15 @@ def run(out: Path, t_final: float = 40.0, plots: bool = True) -> dict:
         },
         "loops": metrics,
     }
+    if steady:
+        t0 = time.perf_counter()
+        report["steady_state"] = steady_state_study()
+        report["steady_state"]["wall_time_s"] = round(time.perf_counter() - t0, 1)
     atomic_write_text(out / "metrics.json", json.dumps(report, indent=2))
     if plots:
         report["figures"] = plot_all(results, out)
+        if steady:
+            report["figures"].append(plot_steady(report["steady_state"], out))
     return report
 
 
@@ -212,10 +323,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (PNG figures + metrics.json)")
     parser.add_argument("--t-final", type=float, default=40.0, help="simulated time [s] (paper: 40)")
     parser.add_argument("--no-plots", action="store_true", help="write metrics.json only")
+    parser.add_argument("--no-steady", action="store_true", help="skip the 80 s steady-state study (minutes)")
     args = parser.parse_args(argv)
     if not (np.isfinite(args.t_final) and args.t_final > 0):
         parser.error(f"--t-final must be > 0, got {args.t_final}")
-    report = run(args.out, args.t_final, plots=not args.no_plots)
+    report = run(args.out, args.t_final, plots=not args.no_plots, steady=not args.no_steady)
     for loop, m in report["loops"].items():
         last = list(m["tracking_error"])[-1]
         e = m["tracking_error"][last]
@@ -223,7 +335,14 @@ def main(argv: list[str] | None = None) -> int:
             f"{loop:26s} RMS over {last}: x {e['x']['rms']:.2e} m, z {e['z']['rms']:.2e} m, "
             f"theta {e['theta']['rms']:.2e} rad; final |x err| {m['final_abs_error']['x']:.1e} m"
         )
+    if "steady_state" in report:
+        print("steady state, worst over 6 initial states: max |x|,|z| error / RMS position error over 60-80 s [m]")
+        print(steady_state_table(report["steady_state"]))
     print(f"wrote {args.out}")
+    if args.out.resolve() == DEFAULT_OUT and args.t_final == 40.0 and "steady_state" in report:
+        readme.write_block("reproduce_paper.py loops", README_SOURCE, loops_table(report))
+        readme.write_block("reproduce_paper.py steady state", README_SOURCE, steady_state_table(report["steady_state"]))
+        print("updated the README tables")
     return 0
 
 
