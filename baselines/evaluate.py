@@ -3,8 +3,9 @@
     python baselines/evaluate.py --policy passivity --task hover --tier wind --episodes 20 --json out.json
     python baselines/evaluate.py --policy runs/ppo_residual_hover_nominal_s0 --tier mismatch --json out.json
 
-``--policy``: ``passivity`` (the analytic controller; ``--allocation paper|exact`` picks its allocation,
-default exact) or a checkpoint: a run directory, a checkpoint directory or its ``model.safetensors``.
+``--policy``: ``passivity`` (the analytic controller: its loop is the env's default, ``bounded``;
+``--controller-loop paper|exact|improved|bounded`` picks another, ``--allocation paper`` the paper's
+loop) or a checkpoint: a run directory, a checkpoint directory or its ``model.safetensors``.
 Checkpoints load in the project's safe format (docs/baselines.md, "Loading checkpoints"): nothing is
 unpickled. A pickle-based file (an SB3 ``model.zip``, a ``vecnormalize.pkl``) is refused unless
 ``--trust-pickle`` is given: loading one runs any code it contains, so pass it only for files you
@@ -30,6 +31,8 @@ from pathlib import Path
 from baselines.cli import Parser, int_arg, run_main
 from baselines.errors import ConfigError
 from baselines.evaluation import EVAL_SEED_OFFSET, evaluate
+from softpvtol_gym.control import LOOPS
+from softpvtol_gym.envs.config import EnvConfig
 from softpvtol_gym.envs.core import ACTION_MODES, TASKS, TIERS
 
 MAX_EPISODES = 10_000
@@ -43,8 +46,12 @@ def build_parser() -> Parser:
                     help="default: the checkpoint's; 'actuators' for passivity")
     ap.add_argument("--task", choices=TASKS, default=None, help="default: the checkpoint's; 'hover' for passivity")
     ap.add_argument("--tier", choices=TIERS, default=None, help="default: the checkpoint's; 'nominal' for passivity")
-    ap.add_argument("--allocation", choices=("exact", "paper"), default="exact",
-                    help="allocation of the passivity controller (and of the env in virtual/residual mode)")
+    ap.add_argument("--allocation", choices=("exact", "paper"), default=None,
+                    help="allocation of the passivity controller (and of the env in virtual/residual mode); "
+                         "default: that of --controller-loop, or exact")
+    ap.add_argument("--controller-loop", choices=[k for k in LOOPS if k != "ideal"], default=None,
+                    help="analytic loop of the passivity policy and of the residual base controller; default: "
+                         "the env's (bounded with the exact allocation, paper with the paper's)")
     ap.add_argument("--episodes", type=int_arg(), default=20, help=f"1 to {MAX_EPISODES:,} (default 20)")
     ap.add_argument("--seed", type=int_arg(), default=EVAL_SEED_OFFSET)
     ap.add_argument("--json", type=Path, default=None, help="write the results here (refuses to overwrite)")
@@ -80,7 +87,12 @@ def _main(argv) -> int:
         ap.error(f"--seed must be >= 0 and seed + episodes at most 2**63 - 1, got {args.seed}")
     if args.json is not None:
         check_output_file(args.json, args.force)
-    env_kwargs = {"allocation": args.allocation}
+    if args.allocation is not None and args.controller_loop is not None \
+            and LOOPS[args.controller_loop]["allocation"] != args.allocation:
+        ap.error(f"--controller-loop {args.controller_loop} uses the {LOOPS[args.controller_loop]['allocation']} "
+                 f"allocation, not --allocation {args.allocation}; pass one of them")
+    env_kwargs = {k: v for k, v in (("allocation", args.allocation), ("controller_loop", args.controller_loop))
+                  if v is not None}
     if args.policy == "passivity":
         from softpvtol_gym import PassivityPolicy
         from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
@@ -100,7 +112,9 @@ def _main(argv) -> int:
         source = str(path)
     result = evaluate(policy, mode, task, tier, args.episodes, args.seed, env_kwargs=env_kwargs)
     s = result["summary"]
-    report = {"policy": source, "action_mode": mode, "task": task, "tier": tier, "allocation": args.allocation,
+    cfg = EnvConfig(action_mode=mode, **env_kwargs)
+    report = {"policy": source, "action_mode": mode, "task": task, "tier": tier, "allocation": cfg.resolved_allocation,
+              "controller_loop": cfg.resolved_controller_loop,
               "seed": args.seed, **result}
     print(f"{source}: {mode} / {task} / {tier}, {args.episodes} episodes from seed {args.seed}")
     print(f"  return {s['mean_return']:.1f}  rms position {s['mean_rms_position_error']:.3f} m  "
