@@ -20,9 +20,10 @@ NEEDS = {
     "leaderboard.py": ("yaml", "filelock", "rliable", "matplotlib"),
     "passivity_metrics.py": (),
     "reproduce_paper.py": ("matplotlib",),
+    "render_gif.py": ("yaml", "filelock", "safetensors", "PIL"),
 }
 #: module name -> distribution name, where they differ
-_DIST = {"yaml": "pyyaml"}
+_DIST = {"yaml": "pyyaml", "PIL": "pillow"}
 
 
 def missing(modules) -> list[str]:
