@@ -23,7 +23,8 @@ from softpvtol_gym.envs.core import TASKS, TIERS
 def build_parser() -> argparse.ArgumentParser:
     ap = Parser(prog="render_gif.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--policy", required=True, help="'passivity' or a checkpoint path")
-    ap.add_argument("--task", choices=TASKS, default=None, help="default: the checkpoint's; 'track_paper' for passivity")
+    ap.add_argument("--task", choices=TASKS, default=None,
+                    help="default: the checkpoint's; 'track_paper' for passivity")
     ap.add_argument("--tier", choices=TIERS, default="nominal")
     ap.add_argument("--seed", type=int_arg(0, 2**62), default=1_000_000)
     ap.add_argument("--seconds", type=float_arg(0.1, 600.0), default=20.0, help="episode length to render [s]")

@@ -7,8 +7,13 @@ import numpy as np
 import pytest
 
 from softpvtol_gym import PassivityPolicy, SoftPVTOLEnv
-from softpvtol_gym.control import LOOPS, MAX_HELD_CONTROL_PERIOD, PassivityController, simulate_closed_loop
-from softpvtol_gym.control import paper_reference
+from softpvtol_gym.control import (
+    LOOPS,
+    MAX_HELD_CONTROL_PERIOD,
+    PassivityController,
+    paper_reference,
+    simulate_closed_loop,
+)
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
 

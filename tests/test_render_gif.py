@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
-import pytest
-from PIL import Image
+import os
 
-from baselines.render_gif import main
+os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+
+import pytest  # noqa: E402
+from PIL import Image  # noqa: E402
+
+from baselines.render_gif import main  # noqa: E402
 
 
 def test_gif_of_the_passivity_policy(tmp_path, capsys):
