@@ -92,7 +92,7 @@ def test_controller_loop_kwarg_and_defaults():
     assert PassivityPolicy.from_env(SoftPVTOLEnv()).loop == "bounded"
     assert PassivityPolicy.from_env(SoftPVTOLEnv(controller_loop="exact")).loop == "exact"
     c = PassivityController.from_loop("bounded")
-    assert c.curvature_limit == LOOPS["bounded"]["curvature_limit"] == 0.8
+    assert c.curvature_limit == LOOPS["bounded"]["curvature_limit"] == 0.6
 
 
 @pytest.mark.parametrize("kwargs, match", [

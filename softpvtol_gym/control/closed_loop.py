@@ -18,7 +18,7 @@ Loops (``LOOPS``):
                     50 rad/s^2): a small tracking error, not zero (docs/control.md).
     ``"bounded"``   the improved loop with its demands bounded to what the env's default actuators
                     deliver: fed-forward arm rates within 1 rad/s and 5 rad/s^2, desired curvatures
-                    within 0.8 rad (the default of PassivityPolicy and of the residual base controller).
+                    within 0.6 rad (the default of PassivityPolicy and of the residual base controller).
     ``"ideal"``     tau applied directly as the generalized force (the setting of Theorem 1).
 """
 
@@ -55,7 +55,7 @@ LOOPS: dict[str, dict] = {
     "paper": dict(allocation="paper", arm_feedforward=False),
     "exact": dict(allocation="exact", arm_feedforward=False),
     "improved": dict(allocation="exact", arm_feedforward=True),
-    "bounded": dict(allocation="exact", arm_feedforward=True, feedforward_limits=(1.0, 5.0), curvature_limit=0.8),
+    "bounded": dict(allocation="exact", arm_feedforward=True, feedforward_limits=(1.0, 5.0), curvature_limit=0.6),
     "ideal": dict(allocation="ideal", arm_feedforward=False),
 }
 
