@@ -5,7 +5,7 @@ A :class:`Job` is one (policy, action mode, task, training tier, seed): a learne
 only evaluated. :func:`run_job` is a pure function of the job and the output root (no shared state),
 so any executor can run the list: :func:`run_jobs` takes anything with ``concurrent.futures``'
 ``submit`` / ``Future.result`` interface: ``ProcessPoolExecutor`` locally, or
-:class:`baselines.distributed.RayExecutor` (Ray tasks on a local instance or a cluster, writing into a
+:class:`baselines.ray_backend.RayExecutor` (Ray tasks on a local instance or a cluster, writing into a
 file system that every node shares; ``check_root=True`` makes each task check that it does).
 
 Job outputs (``<root>/<job.name>/``): ``eval.json`` (per evaluation tier, the episode list of
@@ -345,7 +345,7 @@ def check_shared_root(root: Path, token: str) -> None:
 def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevaluate: bool = False,
              check_root: bool = False, progress: bool = True) -> list[str]:
     """Submit every job to ``executor`` (anything with ``submit`` returning futures: a process pool, a
-    :class:`baselines.distributed.RayExecutor`); returns the names of the jobs that finished, in
+    :class:`baselines.ray_backend.RayExecutor`); returns the names of the jobs that finished, in
     completion order, printing one line per job (and a progress bar on a terminal, ``progress``). A job
     that fails on a :class:`~baselines.errors.ConfigError` (an unusable checkpoint, a busy folder) is
     reported in one line and the others go on; a ConfigError listing the failed jobs is raised at the end.

@@ -82,7 +82,7 @@ def _main(argv=None) -> int:
     progress = not args.no_progress_bar
     with DirectoryLock(args.root, "job root"):
         if args.executor == "ray":
-            from baselines.distributed import RayExecutor, start_ray
+            from baselines.ray_backend import RayExecutor, start_ray
 
             with start_ray(address=args.address, num_cpus=args.workers) as resources:
                 print(f"Ray: {len(jobs)} jobs on {resources.get('CPU', 0):g} CPUs", flush=True)

@@ -106,7 +106,7 @@ class RayExecutor:
         import ray
 
         if not ray.is_initialized():
-            raise ConfigError("RayExecutor needs a running Ray (baselines.distributed.start_ray)")
+            raise ConfigError("RayExecutor needs a running Ray (baselines.ray_backend.start_ray)")
         self._ray = ray
         self._options = {"num_cpus": num_cpus, "num_gpus": num_gpus, "max_retries": 0}
         self._remote = {}

@@ -5,6 +5,7 @@ best configuration with its provenance. Ray runs locally with 2 CPUs (no dashboa
 from __future__ import annotations
 
 import json
+import math
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -148,3 +149,111 @@ def test_an_unreachable_cluster_is_one_line(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err
     assert exc.value.code == 2 and "cannot connect to a Ray cluster at 'auto'" in err and "ray start --head" in err
     assert len(err.strip().splitlines()) == 1, err
+
+
+# ----------------------------------------------------------------------------------------- tune.py
+TINY_SPACE = "ppo:\n  learning_rate: {loguniform: [1.0e-4, 1.0e-3]}\n  n_epochs: {randint: [1, 2]}\n"
+#: small rollouts, so that a trial is two PPO updates of 128 steps
+TINY = ["--hp", "n_envs=4", "--hp", "n_steps=32", "--hp", "batch_size=64", "--timesteps", "256", "--reports", "2",
+        "--eval-episodes", "2"]
+
+
+@pytest.mark.slow  # 2 trials of 2 x 128 PPO steps on a 2-CPU local Ray: ~25 s on a busy 2-core machine
+def test_a_tiny_search_writes_a_valid_best_configuration(tmp_path, capsys):
+    import subprocess
+
+    import yaml
+
+    from baselines.config import RunConfig, apply_overrides, load_hyperparams
+    from baselines.tune import FORMAT, main
+
+    space, out = tmp_path / "space.yml", tmp_path / "best" / "best.yml"
+    space.write_text(TINY_SPACE)
+    assert main(["--trials", "2", "--workers", "2", "--space", str(space), "--out", str(out), *TINY]) == 0
+    printed = capsys.readouterr().out
+    assert "[2/2] trial" in printed and f"written to {out}" in printed, printed
+    text = out.read_text()
+    record = yaml.safe_load(text)
+    assert "!!python" not in text and record["format"] == FORMAT
+    assert record["cell"] == {"algo": "ppo", "env_id": "SoftPVTOL-v0", "action_mode": "residual", "task": "hover",
+                              "tier": "nominal"}
+    best = record["best"]
+    assert set(best["searched"]) == {"learning_rate", "n_epochs"}
+    assert 1e-4 <= best["searched"]["learning_rate"] <= 1e-3 and best["searched"]["n_epochs"] in (1, 2)
+    base = apply_overrides(load_hyperparams("ppo", "residual"), ["n_envs=4", "n_steps=32", "batch_size=64"])
+    # the written entry is the YAML entry + overrides + the searched values, and train.py --hp gives it back
+    assert best["hyperparameters"] == {**base, **best["searched"]}
+    assert apply_overrides(base, best["train_py_hp"]) == best["hyperparameters"]
+    RunConfig(hyperparams=best["hyperparameters"], n_envs=4)  # a valid configuration
+    assert record["objective"]["metric"] == "mean_return" and record["objective"]["eval_seed"] == 3_000_000
+    trials = record["trials"]
+    assert len(trials) == 2 and all(t["error"] is None for t in trials)
+    finished = [t for t in trials if t["reports"] == 2]
+    assert finished and best["objective"] == max(t["mean_return"] for t in finished)
+    assert best["timesteps"] == 256 and math.isfinite(best["objective"])
+    assert record["budget"]["trials"] == 2 and record["budget"]["timesteps_per_trial"] == 256
+    assert record["budget"]["reports_per_trial"] == 2 and record["budget"]["trials_run_to_the_end"] == len(finished)
+    assert record["search"]["scheduler"]["ASHAScheduler"]["max_t"] == 2 and record["seed"] == 0
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parents[1], capture_output=True, text=True)
+    assert record["git"]["commit"] == (head.stdout.strip() or None)
+    assert record["versions"]["ray"] and record["versions"]["optuna"] and record["date"].endswith("+00:00")
+
+
+def _space(tmp_path: Path, text: str) -> str:
+    path = tmp_path / "space.yml"
+    path.write_text(text)
+    return str(path)
+
+
+BAD_TUNE_INPUT = [
+    ("ppo:\n  n_epoch: {randint: [1, 2]}\n", [], "not a searchable PPO hyperparameter"),
+    ("ppo:\n  policy_kwargs: {choice: [a]}\n", [], "not a searchable PPO hyperparameter"),
+    ("ppo:\n  learning_rate: {loguniform: [0, 1.0e-3]}\n", [], "loguniform needs [low, high]"),
+    ("ppo:\n  learning_rate: {uniform: [1.0e-3, 1.0e-4]}\n", [], "with low < high"),
+    ("ppo:\n  n_epochs: {randint: [1.5, 3]}\n", [], "randint needs [low, high] with low < high, integers"),
+    ("ppo:\n  batch_size: {choice: [1, 64]}\n", [], "ppo.batch_size: 1 is not a valid value"),
+    ("ppo:\n  gamma: {choice: []}\n", [], "choice must be a non-empty list"),
+    ("ppo:\n  gamma: {normal: [0.9, 1]}\n", [], "must be one of"),
+    ("sac:\n  tau: {choice: [0.01]}\n", [], "have an entry 'ppo'"),
+    (TINY_SPACE, ["--hp", "n_epochs=0"], "n_epochs must be an integer >= 1"),
+    (TINY_SPACE, ["--workers", "1", "--cpus-per-trial", "2"], "fewer than --cpus-per-trial"),
+    (TINY_SPACE, ["--address", "auto", "--workers", "2"], "--workers with --address"),
+    (TINY_SPACE, ["--trials", "0"], "must be >= 1"),
+    (TINY_SPACE, ["--eval-seed", "5"], "must be >= 1,000,000"),
+]
+
+
+@pytest.mark.parametrize("space, extra, message", BAD_TUNE_INPUT, ids=[m for _, _, m in BAD_TUNE_INPUT])
+def test_bad_tune_input_exits_2_before_ray_starts(space, extra, message, tmp_path, capsys, monkeypatch):
+    import ray
+
+    from baselines.tune import main
+
+    monkeypatch.setattr(ray, "init", lambda **kw: pytest.fail("Ray was started"))
+    with pytest.raises(SystemExit) as exc:
+        main(["--space", _space(tmp_path, space), "--out", str(tmp_path / "best.yml"), *extra])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and len(err.strip().splitlines()) == 1 and message in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["space.yml"]
+
+
+def test_tune_does_not_overwrite_its_output(tmp_path, capsys):
+    from baselines.tune import main
+
+    out = tmp_path / "best.yml"
+    out.write_text("kept\n")
+    with pytest.raises(SystemExit) as exc:
+        main(["--space", _space(tmp_path, TINY_SPACE), "--out", str(out)])
+    assert exc.value.code == 2 and "pass --force" in capsys.readouterr().err
+    assert out.read_text() == "kept\n"
+
+
+def test_the_default_search_space_is_valid_for_every_algorithm_and_mode():
+    from baselines.config import load_hyperparams
+    from baselines.tune import SPACE_FILE, load_space, stage_steps, tune_domains
+
+    for algo in ("ppo", "sac"):
+        for mode in ("residual", "virtual", "actuators"):
+            space = load_space(SPACE_FILE, algo, load_hyperparams(algo, mode))
+            assert set(tune_domains(space)) == set(space) and len(space) >= 4
+    assert stage_steps(1000, 4) == [250, 500, 750, 1000] and stage_steps(3, 4) == [1, 1, 2, 3]
