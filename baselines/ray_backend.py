@@ -63,7 +63,8 @@ def start_ray(address: str | None = None, num_cpus: int | None = None, num_gpus:
     if ray.is_initialized():
         raise ConfigError("Ray is already initialised in this process; call ray.shutdown() first")
     temp_dir = None
-    kwargs = dict(runtime_env=runtime_env(), log_to_driver=False, configure_logging=False)
+    # log_to_driver: what a task prints (warnings of a resumed run, say) reaches this terminal, as with the pool
+    kwargs = dict(runtime_env=runtime_env(), log_to_driver=True, configure_logging=False)
     if address is None:
         temp_dir = _short_temp_dir()
         kwargs.update(num_cpus=num_cpus, num_gpus=num_gpus, include_dashboard=False, _temp_dir=temp_dir)
