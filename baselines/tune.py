@@ -156,7 +156,7 @@ def run_trial(sampled: dict, context: dict) -> None:
     from baselines.evaluation import run_episodes, summarize
     from baselines.training import LearnedPolicy, train
 
-    torch.set_num_threads(1)
+    torch.set_num_threads(1)  # one CPU per trial: one torch thread, and one numba thread (the runtime env)
     searched = {k: _plain(v) for k, v in sampled.items()}
     hp = {**context["hyperparams"], **searched}
     run_dir = Path(tune.get_context().get_trial_dir()) / "run"
@@ -278,7 +278,6 @@ def build_parser() -> Parser:
                     help="search space YAML (default baselines/tune_space.yml)")
     ap.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE",
                     help="override a YAML hyperparameter for every trial (as train.py --hp)")
-    ap.add_argument("--cpus-per-trial", type=int_arg(1, 256), default=1)
     ap.add_argument("--workers", type=int_arg(1, 4096), default=None,
                     help="CPUs of the local Ray instance (default: all); not with --address")
     ap.add_argument("--address", default=None, help="an existing Ray cluster: 'auto' or HOST:PORT")
@@ -309,8 +308,6 @@ def _main(argv=None) -> int:
         ap.error("--workers with --address: the cluster's CPUs (its `ray start --num-cpus`) are used")
     if args.address is not None and not args.address.strip():
         ap.error("--address must be 'auto' or HOST:PORT, got an empty string")
-    if args.workers is not None and args.workers < args.cpus_per_trial:
-        ap.error(f"--workers {args.workers} is fewer than --cpus-per-trial {args.cpus_per_trial}: no trial could run")
     out = args.out or Path("runs") / f"tune_{args.algo}_{args.action_mode}_{args.task}_{args.tier}.yml"
     _check_out(ap, out, args.force)
     if args.storage is not None and args.storage.exists() and not args.storage.is_dir():
@@ -343,10 +340,10 @@ def _main(argv=None) -> int:
     try:
         with start_ray(address=args.address, num_cpus=args.workers) as resources:
             print(f"Ray Tune: {args.trials} trials x {args.timesteps:,} steps ({args.reports} reports each) on "
-                  f"{resources.get('CPU', 0):g} CPUs, {args.cpus_per_trial} per trial; objective {args.metric} "
+                  f"{resources.get('CPU', 0):g} CPUs, one per trial; objective {args.metric} "
                   f"({mode}) on {args.eval_episodes} episodes from seed {args.eval_seed:,}", flush=True)
             trainable = tune.with_resources(tune.with_parameters(run_trial, context=context),
-                                            {"cpu": args.cpus_per_trial})
+                                            {"cpu": 1})
             tuner = tune.Tuner(
                 trainable,
                 param_space=tune_domains(space),
@@ -380,7 +377,7 @@ def _main(argv=None) -> int:
                       "(deterministic policy, the evaluation of train.py), mean over episodes",
                       "episodes": args.eval_episodes, "eval_seed": args.eval_seed},
         "budget": {"trials": args.trials, "timesteps_per_trial": args.timesteps, "reports_per_trial": args.reports,
-                   "cpus_per_trial": args.cpus_per_trial, "trials_failed": sum(t["error"] is not None for t in trials),
+                   "cpus_per_trial": 1, "trials_failed": sum(t["error"] is not None for t in trials),
                    "trials_run_to_the_end": sum(t["reports"] == args.reports for t in trials),
                    "total_timesteps": int(sum(t["timesteps"] or 0 for t in trials)),
                    "wall_seconds": round((_dt.datetime.now(_dt.timezone.utc) - started).total_seconds(), 1)},

@@ -216,7 +216,7 @@ BAD_TUNE_INPUT = [
     ("ppo:\n  gamma: {normal: [0.9, 1]}\n", [], "must be one of"),
     ("sac:\n  tau: {choice: [0.01]}\n", [], "have an entry 'ppo'"),
     (TINY_SPACE, ["--hp", "n_epochs=0"], "n_epochs must be an integer >= 1"),
-    (TINY_SPACE, ["--workers", "1", "--cpus-per-trial", "2"], "fewer than --cpus-per-trial"),
+    (TINY_SPACE, ["--workers", "0"], "must be >= 1"),
     (TINY_SPACE, ["--address", "auto", "--workers", "2"], "--workers with --address"),
     (TINY_SPACE, ["--trials", "0"], "must be >= 1"),
     (TINY_SPACE, ["--eval-seed", "5"], "must be >= 1,000,000"),
