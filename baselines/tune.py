@@ -323,6 +323,9 @@ def _main(argv=None) -> int:
     RunConfig(algo=args.algo, action_mode=args.action_mode, task=args.task, tier=args.tier, timesteps=args.timesteps,
               seed=args.seed, n_envs=int(base.get("n_envs", 16)), hyperparams=base, eval_episodes=0)
 
+    # Tune's default console output names trial folders that are removed at the end (without --storage) and
+    # repeats what the one line per trial below says; verbose=0 with the older reporter prints nothing
+    os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
     import optuna
     from ray import tune
     from ray.tune.schedulers import ASHAScheduler

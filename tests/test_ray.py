@@ -257,3 +257,29 @@ def test_the_default_search_space_is_valid_for_every_algorithm_and_mode():
             space = load_space(SPACE_FILE, algo, load_hyperparams(algo, mode))
             assert set(tune_domains(space)) == set(space) and len(space) >= 4
     assert stage_steps(1000, 4) == [250, 500, 750, 1000] and stage_steps(3, 4) == [1, 1, 2, 3]
+
+
+@pytest.mark.parametrize("argv", [["--executor", "ray"], None])
+def test_without_the_distributed_extra_the_ray_paths_name_it(argv, tmp_path, capsys, monkeypatch):
+    """run_jobs.py --executor ray and tune.py without Ray: exit 2 naming the extra, before anything runs."""
+    import importlib
+
+    import baselines._extras
+    from baselines.tune import main as tune_main
+
+    real = importlib.import_module
+
+    def no_ray(name, *args, **kwargs):
+        if name.split(".")[0] in ("ray", "optuna"):
+            raise ImportError(f"No module named {name!r}")
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(baselines._extras.importlib, "import_module", no_ray)
+    with pytest.raises(SystemExit) as exc:
+        if argv is None:
+            tune_main(["--out", str(tmp_path / "best.yml")])
+        else:
+            run_jobs_main([*argv, "--spec", str(_spec(tmp_path)), "--root", str(tmp_path / "root")])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "'distributed' extra" in err and "softpvtol-gym[distributed]" in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "root").exists()
