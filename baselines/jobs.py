@@ -3,10 +3,10 @@
 A :class:`Job` is one (policy, action mode, task, training tier, seed): a learned policy is trained
 (:func:`baselines.training.train`) and then evaluated on every evaluation tier; an analytic policy is
 only evaluated. :func:`run_job` is a pure function of the job and the output root (no shared state),
-so any executor can run the list: :func:`run_jobs` takes a ``concurrent.futures.Executor``
-(``ProcessPoolExecutor`` locally); a cluster engine with the same ``submit`` / ``Future.result``
-interface (for example Ray's ``ray.util.ActorPool`` adaptors or Dask's ``distributed.Client``) can run
-the same list unchanged, writing into a shared file system.
+so any executor can run the list: :func:`run_jobs` takes anything with ``concurrent.futures``'
+``submit`` / ``Future.result`` interface: ``ProcessPoolExecutor`` locally, or
+:class:`baselines.ray_backend.RayExecutor` (Ray tasks on a local instance or a cluster, writing into a
+file system that every node shares; ``check_root=True`` makes each task check that it does).
 
 Job outputs (``<root>/<job.name>/``): ``eval.json`` (per evaluation tier, the episode list of
 :func:`baselines.evaluation.run_episodes`), and for learned policies the run directory contents that
@@ -22,11 +22,14 @@ checked to stay under the root.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import shutil
+import socket
 import sys
 import time
+import uuid
 from concurrent.futures import Executor, as_completed
 from pathlib import Path
 
@@ -37,6 +40,8 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 SPEC_FILE = Path(__file__).resolve().parent / "leaderboard.yml"
 RUNS_DIR = Path(__file__).resolve().parent / "results" / "leaderboard_runs"
 EVAL_FILE = "eval.json"
+#: written into the job root while run_jobs(check_root=True) runs (see check_shared_root)
+ROOT_TOKEN_FILE = ".run_jobs.token"
 #: the spec's keys, and those of its entries (anything else is an error, not ignored)
 SPEC_KEYS = ("evaluation", "passivity", "tasks", "trained", "seeds")
 EVALUATION_KEYS = ("episodes", "seed", "tiers")
@@ -292,34 +297,81 @@ def reevaluate_job(job: Job, root: Path = RUNS_DIR) -> dict:
     return run_job(job, root, reevaluate=True)
 
 
-def _run_job_entry(job: Job, root: str, reevaluate: bool = False) -> tuple[str, float]:
-    """Process-pool entry point: one thread for torch per worker process."""
+def _run_job_entry(job: Job, root: str, reevaluate: bool = False, root_token: str | None = None) -> tuple[str, float]:
+    """Executor entry point (process pool, Ray task): one thread for torch per worker process; with
+    ``root_token``, first check that ``root`` is the driver's (:func:`check_shared_root`)."""
     import torch
 
+    if root_token is not None:
+        check_shared_root(Path(root), root_token)
     torch.set_num_threads(1)
     t0 = time.perf_counter()
     run_job(job, Path(root), reevaluate=reevaluate)
     return job.name, time.perf_counter() - t0
 
 
-def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevaluate: bool = False) -> list[str]:
-    """Submit every job to ``executor`` (anything with ``submit`` returning futures); returns the
-    names of the jobs that finished, in completion order, printing progress. A job that fails on a
-    :class:`~baselines.errors.ConfigError` (an unusable checkpoint, a busy folder) is reported in one line
-    and the others go on; a ConfigError listing the failed jobs is raised at the end."""
+# ------------------------------------------------------------------------------ a shared job root
+@contextlib.contextmanager
+def shared_root_token(root: Path):
+    """Write a random token into ``<root>/.run_jobs.token`` while a run lasts (removed afterwards) and
+    yield it; tasks check it with :func:`check_shared_root`."""
+    from .atomic import atomic_write_text
+
+    token = uuid.uuid4().hex
+    path = Path(root) / ROOT_TOKEN_FILE
+    atomic_write_text(path, token)
+    try:
+        yield token
+    finally:
+        with contextlib.suppress(OSError):
+            path.unlink()
+
+
+def check_shared_root(root: Path, token: str) -> None:
+    """ConfigError unless ``root`` as seen by this process is the driver's (it holds the driver's token):
+    on a cluster, a node that does not mount the driver's file system would otherwise write its results
+    where nobody looks."""
+    try:
+        seen = (Path(root) / ROOT_TOKEN_FILE).read_text().strip()
+    except OSError:
+        seen = None
+    if seen != token:
+        state = "missing" if seen is None else "another run's"
+        raise ConfigError(f"the job root {root} on host {socket.gethostname()} is not the driver's (its "
+                          f"{ROOT_TOKEN_FILE} is {state}): on a cluster --root must be on a file system that every "
+                          f"node mounts at the same path")
+
+
+def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevaluate: bool = False,
+             check_root: bool = False, progress: bool = True) -> list[str]:
+    """Submit every job to ``executor`` (anything with ``submit`` returning futures: a process pool, a
+    :class:`baselines.ray_backend.RayExecutor`); returns the names of the jobs that finished, in
+    completion order, printing one line per job (and a progress bar on a terminal, ``progress``). A job
+    that fails on a :class:`~baselines.errors.ConfigError` (an unusable checkpoint, a busy folder) is
+    reported in one line and the others go on; a ConfigError listing the failed jobs is raised at the end.
+    ``check_root``: every job first checks that it sees the same ``root`` as this process (for executors
+    on other machines)."""
+    from tqdm import tqdm
+
     for job in jobs:
         job.folder(root)  # every output path checked before anything runs
-    futures = {executor.submit(_run_job_entry, job, str(root), reevaluate): job for job in jobs}
-    done, failed = [], []
-    for fut in as_completed(futures):
-        try:
-            name, seconds = fut.result()
-        except ConfigError as exc:
-            failed.append(futures[fut].name)
-            print(f"[failed] {futures[fut].name}: {' '.join(str(exc).split())}", file=sys.stderr, flush=True)
-            continue
-        done.append(name)
-        print(f"[{len(done)}/{len(jobs)}] {name} ({seconds:.0f} s)", flush=True)
+    with contextlib.ExitStack() as stack:
+        token = stack.enter_context(shared_root_token(root)) if check_root else None
+        futures = {executor.submit(_run_job_entry, job, str(root), reevaluate, token): job for job in jobs}
+        # disable=None: a bar on a terminal only (logs get the one line per job below)
+        bar = stack.enter_context(tqdm(total=len(jobs), unit="job", file=sys.stderr,
+                                       disable=None if progress else True))
+        done, failed = [], []
+        for fut in as_completed(futures):
+            bar.update(1)
+            try:
+                name, seconds = fut.result()
+            except ConfigError as exc:
+                failed.append(futures[fut].name)
+                bar.write(f"[failed] {futures[fut].name}: {' '.join(str(exc).split())}", file=sys.stderr)
+                continue
+            done.append(name)
+            bar.write(f"[{len(done)}/{len(jobs)}] {name} ({seconds:.0f} s)", file=sys.stdout)
     if failed:
         raise ConfigError(f"{len(failed)} of {len(jobs)} jobs failed (see above): {', '.join(sorted(failed))}")
     return done

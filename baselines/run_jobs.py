@@ -1,12 +1,16 @@
-"""Run the leaderboard's job list (``baselines/leaderboard.yml``) in parallel local processes.
+"""Run the leaderboard's job list (``baselines/leaderboard.yml``) in parallel local processes or on Ray.
 
     python baselines/run_jobs.py [--workers 2] [--spec baselines/leaderboard.yml] [--only ppo_residual] [--list]
+    python baselines/run_jobs.py --executor ray [--workers 8]     # a local Ray instance with 8 CPUs
+    python baselines/run_jobs.py --executor ray --address auto    # the Ray cluster of `ray start`
 
 Jobs already done (their ``eval.json`` exists under ``baselines/results/leaderboard_runs/``) are
 skipped, so an interrupted run is continued by running the command again. ``--reevaluate``
 re-runs every evaluation with the committed models (after a change of env or controller code).
-Each worker process runs with one numba and one torch thread. Afterwards
-``python baselines/leaderboard.py`` builds LEADERBOARD.md from the results.
+Each worker process (each Ray task: one CPU) runs with one numba and one torch thread. The same jobs
+and seeds give the same result files with either executor; on a Ray cluster ``--root`` must be on a
+file system that every node mounts at the same path (each task checks it, see docs/baselines.md).
+Afterwards ``python baselines/leaderboard.py`` builds LEADERBOARD.md from the results.
 
 The spec is validated first (unknown keys, bad values and job names that would leave ``--root`` are
 errors); the root is locked while the jobs run (a second run_jobs.py on it gets exit 2 naming the
@@ -22,24 +26,39 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+from baselines._extras import DISTRIBUTED, require
 from baselines.cli import Parser, int_arg, run_main
 from baselines.jobs import RUNS_DIR, SPEC_FILE, load_jobs, pending, run_jobs
 
 MAX_WORKERS = 256
+EXECUTORS = ("pool", "ray")
 
 
 def _main(argv=None) -> int:
     ap = Parser(prog="run_jobs.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--workers", type=int_arg(), default=os.cpu_count() or 1, help=f"1 to {MAX_WORKERS}")
+    ap.add_argument("--executor", choices=EXECUTORS, default="pool",
+                    help="pool: local processes (default); ray: Ray tasks, one CPU each (the 'distributed' extra)")
+    ap.add_argument("--address", default=None,
+                    help="with --executor ray: an existing Ray cluster, 'auto' (the one `ray start` started on this "
+                         "machine) or HOST:PORT; default: a local Ray instance with --workers CPUs")
+    ap.add_argument("--workers", type=int_arg(), default=None,
+                    help=f"parallel jobs, 1 to {MAX_WORKERS} (default: the number of CPUs; not with --address)")
     ap.add_argument("--spec", type=Path, default=SPEC_FILE)
     ap.add_argument("--root", type=Path, default=RUNS_DIR)
     ap.add_argument("--only", default=None, help="run only jobs whose name contains this string")
     ap.add_argument("--list", action="store_true", help="print the pending jobs and exit")
     ap.add_argument("--reevaluate", action="store_true",
                     help="re-run the evaluation of finished jobs with their committed models (no training)")
+    ap.add_argument("--no-progress-bar", action="store_true", help="no progress bar (one line per job stays)")
     args = ap.parse_args(argv)
-    if not 1 <= args.workers <= MAX_WORKERS:
+    if args.workers is not None and not 1 <= args.workers <= MAX_WORKERS:
         ap.error(f"--workers must be in [1, {MAX_WORKERS}], got {args.workers}")
+    if args.address is not None and args.executor != "ray":
+        ap.error("--address needs --executor ray")
+    if args.address is not None and args.workers is not None:
+        ap.error("--workers with --address: the cluster's CPUs (its `ray start --num-cpus`) set the parallelism")
+    if args.address is not None and not args.address.strip():
+        ap.error("--address must be 'auto' or HOST:PORT, got an empty string")
     if not args.spec.is_file():
         ap.error(f"no leaderboard spec at {args.spec}" + (" (it is a directory)" if args.spec.is_dir() else ""))
     if args.root.exists() and not args.root.is_dir():
@@ -56,19 +75,29 @@ def _main(argv=None) -> int:
             print(j.name)
         print(f"{len(jobs)} pending jobs")
         return 0
+    if args.executor == "ray":
+        require("run_jobs.py", DISTRIBUTED)
     from baselines.locks import DirectoryLock
 
+    progress = not args.no_progress_bar
     with DirectoryLock(args.root, "job root"):
-        # numba's threading layer per worker would oversubscribe the cores: one thread per worker process
-        os.environ.setdefault("NUMBA_NUM_THREADS", "1")
-        with ProcessPoolExecutor(max_workers=args.workers, mp_context=mp.get_context("spawn")) as ex:
-            run_jobs(jobs, ex, args.root, reevaluate=args.reevaluate)
+        if args.executor == "ray":
+            from baselines.ray_backend import RayExecutor, start_ray
+
+            with start_ray(address=args.address, num_cpus=args.workers) as resources:
+                print(f"Ray: {len(jobs)} jobs on {resources.get('CPU', 0):g} CPUs", flush=True)
+                run_jobs(jobs, RayExecutor(num_cpus=1), args.root, reevaluate=args.reevaluate, check_root=True,
+                         progress=progress)
+        else:
+            # numba's threading layer per worker would oversubscribe the cores: one thread per worker process
+            os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+            workers = args.workers or os.cpu_count() or 1
+            with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
+                run_jobs(jobs, ex, args.root, reevaluate=args.reevaluate, progress=progress)
     return 0
 
 
 def main(argv=None) -> int:
-    from baselines._extras import require
-
     require("run_jobs.py")
     return run_main(_main, argv, prog="run_jobs.py")
 
