@@ -45,7 +45,7 @@ ROOT_TOKEN_FILE = ".run_jobs.token"
 #: the spec's keys, and those of its entries (anything else is an error, not ignored)
 SPEC_KEYS = ("evaluation", "passivity", "tasks", "trained", "seeds")
 EVALUATION_KEYS = ("episodes", "seed", "tiers")
-PASSIVITY_KEYS = ("name", "allocation")
+PASSIVITY_KEYS = ("name", "allocation", "loop")  # loop: optional, default the loop named as the allocation
 TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps")
 ALLOCATIONS = ("paper", "exact")
 
@@ -64,6 +64,7 @@ class Job:
     eval_seed: int
     timesteps: int = 0
     allocation: str | None = None   # passivity variants: the allocation of their controller
+    loop: str | None = None         # passivity variants: their PassivityController loop (control.LOOPS)
 
     @property
     def name(self) -> str:
@@ -143,12 +144,17 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
         raise ConfigError(f"{source}: tasks lists a task twice: {tasks}")
     names = set()
     for i, p in enumerate(_list(spec["passivity"], f"{source}: passivity")):
-        _mapping(p, PASSIVITY_KEYS, f"{source}: passivity[{i}]")
+        _mapping(p, PASSIVITY_KEYS, f"{source}: passivity[{i}]", required=("name", "allocation"))
         check_slug(p["name"], f"{source}: passivity[{i}].name")
         if p["name"] == "ppo" or p["name"] in names:
             raise ConfigError(f"{source}: passivity[{i}].name {p['name']!r} is taken (names must be unique, not 'ppo')")
         names.add(p["name"])
         _choice(p["allocation"], ALLOCATIONS, f"{source}: passivity[{i}].allocation")
+        if "loop" in p:
+            from softpvtol_gym.control import LOOPS
+
+            _choice(p["loop"], [k for k in LOOPS if LOOPS[k]["allocation"] == p["allocation"]],
+                    f"{source}: passivity[{i}].loop (a loop with the {p['allocation']} allocation)")
     cells = set()
     for i, c in enumerate(_list(spec["trained"], f"{source}: trained")):
         _mapping(c, TRAINED_KEYS, f"{source}: trained[{i}]")
@@ -187,7 +193,7 @@ def load_jobs(spec_path: Path = SPEC_FILE) -> list[Job]:
     for task in spec["tasks"]:
         for p in spec["passivity"]:
             jobs.append(Job(policy=p["name"], action_mode="actuators", task=task, train_tier=None, seed=0,
-                            allocation=p["allocation"], **common))
+                            allocation=p["allocation"], loop=p.get("loop", p["allocation"]), **common))
     for cell in spec["trained"]:
         for seed in spec["seeds"]:
             jobs.append(Job(policy="ppo", action_mode=cell["action_mode"], task=cell["task"], train_tier=cell["tier"],
@@ -274,7 +280,7 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
                 atomic_copy(run_dir / fname, out / fname)
         shutil.rmtree(run_dir, ignore_errors=True)  # checkpoints and TensorBoard logs are not kept
     else:
-        env_kwargs = {"allocation": job.allocation}
+        env_kwargs = {"allocation": job.allocation, "controller_loop": job.loop or job.allocation}
         probe = SoftPVTOLVectorEnv(num_envs=1, action_mode=job.action_mode, task=job.task, **env_kwargs)
         policy = PassivityPolicy.from_env(probe)
     results = {}
