@@ -58,7 +58,7 @@ def test_consistent_plant_is_rk4_of_the_consistent_model(kw, frame_skip):
         _, _, _, _, info = env.step(rng.uniform(-0.3, 0.3, env.action_space.shape))
         applied = sim.applied[0].copy()
 
-        def force(qs):
+        def force(qs, applied=applied, wind=wind, p=p):
             if ideal:
                 return applied + wind
             return generalized_forces(qs, applied[:4], p, model="consistent") + wind
