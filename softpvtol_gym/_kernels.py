@@ -11,6 +11,11 @@ rollouts (many temporaries). ``njit(cache=True)`` compiles the scalar code once 
 copy of the physics for single and batched use, and ``fastmath`` stays off so that results are bit for
 bit identical between the single env and every sub-env of the vector env.
 
+Two models: the paper's (the functions without prefix; its rotor masses on tips that do not rotate
+with theta) and the consistent one (``consistent_*``: the same energy terms with the tips rotated by
+theta; docs/model.md). The env's SIMD lane step is the paper model's; the consistent one runs lane by
+lane (:func:`rk4_lanes_consistent`).
+
 Conventions: q = (x, z, theta, q_l, q_r); p in ``PARAM_FIELDS`` order
 (m, m_l, m_r, I, I_l, I_r, l_l, l_r, g, epsilon); actuators a = (T_l, T_r, tau_l, tau_r).
 

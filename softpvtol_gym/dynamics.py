@@ -4,8 +4,10 @@ Pure functions of arrays and a :class:`~softpvtol_gym.SoftPVTOLParams`, float64,
 leading axes (inputs broadcast against each other). q = (x_v, z_v, theta, q_l, q_r) with x, z in m
 and angles/curvatures in rad; actuators a = (T_l, T_r, tau_l, tau_r) in (N, N, N m, N m).
 
-All of them call the compiled kernels in :mod:`softpvtol_gym._kernels`, the only place the
-physics is written. See ``docs/model.md`` for the equations and every difference from the paper.
+Every function takes ``model``: "paper" (default; the paper's Lagrangian as printed) or "consistent"
+(the same energy terms with the rotor masses on the tips rotated by theta). All of them call the
+compiled kernels in :mod:`softpvtol_gym._kernels`, the only place the physics is written. See
+``docs/model.md`` for the equations and every difference from the paper.
 """
 
 from __future__ import annotations

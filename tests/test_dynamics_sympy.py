@@ -320,9 +320,23 @@ def test_models_agree_where_they_should(seed):
     keep = [0, 1, 3, 4]
     np.testing.assert_allclose(Dc[np.ix_(keep, keep)], Dp[np.ix_(keep, keep)], rtol=1e-14, atol=1e-14)
     assert np.abs(Dc[2] - Dp[2]).max() > 1e-3  # the coupling the paper's model drops
+    np.testing.assert_allclose(dynamics.gravity_vector(q, p, model="consistent")[[0, 1, 3, 4]],
+                               dynamics.gravity_vector(q, p)[[0, 1, 3, 4]], rtol=1e-14, atol=1e-12)
+    np.testing.assert_allclose(dynamics.generalized_forces(q, a, p, model="consistent"),
+                               dynamics.generalized_forces(q, a, p, "exact"), rtol=0, atol=0)
     light = p.replace(m_l=1e-12, m_r=1e-12)
     np.testing.assert_allclose(dynamics.mass_matrix(q, light, model="consistent"),
                                dynamics.mass_matrix(q, light, model="paper"), rtol=0, atol=1e-10)
+
+
+def test_consistent_body_inertia_with_straight_arms():
+    """D_theta_theta = I + sum m_i |r_i|^2 = 1 + 2 x 1 kg x (0.5 m)^2 = 1.5 with the paper's parameters
+    (eps = 0) and straight arms, at any attitude; the paper's model has I = 1."""
+    p = SoftPVTOLParams()
+    for theta in (0.0, 0.8, -2.5):
+        q = np.array([0.3, 1.0, theta, 0.0, 0.0])
+        assert dynamics.mass_matrix(q, p, model="consistent")[2, 2] == pytest.approx(1.5, rel=1e-15)
+        assert dynamics.mass_matrix(q, p)[2, 2] == 1.0
 
 
 @pytest.mark.parametrize("bad", ["Paper", "exact", "", None, 1])
