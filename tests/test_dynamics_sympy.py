@@ -15,7 +15,7 @@ The reference is built here from scratch, following Sec. 2 / Appendix A of the p
 Every reference value is evaluated with mpmath at ``_DPS`` significant digits from the *closed forms*
 (which lose up to ~50 digits to cancellation near q = 0, far less than ``_DPS``), and at exactly
 q = 0 from the exact symbolic limit (series expansion, ``limit_at_zero``, checked against
-``sympy.limit``). The package is then required to agree to 1e-10
+``sympy.limit``). The package is then required to agree to 1e-12
 relative to max(1, |reference entry|).
 """
 
@@ -33,7 +33,7 @@ import sympy as sp
 from softpvtol_gym import SoftPVTOLParams, dynamics, integrators
 
 _DPS = 110  # working precision of the reference: 1/q^5 at q = 1e-9 costs ~45 digits
-RTOL = 1e-10
+RTOL = 1e-12  # the worst entry over these tests is 8.2e-15 relative (either model)
 
 SPECIAL_Q = [0.0, 1e-9, 1e-6, 0.1 - 1e-9, 0.1, 0.1 + 1e-9, np.pi, -np.pi, 1.0]
 
