@@ -137,3 +137,22 @@ def test_committed_passivity_metrics_model_gap_column_is_reproduced():
         assert cell == data["cells"][f"{task}/model_gap"], (task, cell)
     nominal = run_cell("hover", "nominal", 10, data["seed"])
     assert nominal == data["cells"]["hover/nominal"]
+
+
+def test_pickled_env_keeps_its_plant_and_refuses_old_constants():
+    """The constants (with the plant-model flag) are pickled with their layout's signature: a model_gap
+    env round-trips; state saved under the previous constants layout (no flag) is refused, not misread."""
+    import pickle
+
+    env = SoftPVTOLEnv(tier="model_gap", task="hover")
+    env.reset(seed=4)
+    a = np.zeros(4, dtype=np.float32)
+    env.step(a)
+    clone = pickle.loads(pickle.dumps(env))
+    for e in (env, clone):
+        e.step(a)
+    np.testing.assert_array_equal(env.state[0], clone.state[0])
+    state = env.sim.__getstate__()
+    state["layouts"] = state["layouts"][:2]
+    with pytest.raises(ValueError, match="saved state was packed with layout"):
+        type(env.sim).__new__(type(env.sim)).__setstate__(state)
