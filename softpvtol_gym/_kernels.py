@@ -513,13 +513,14 @@ def consistent_bias_arm(w, v, arm, mi):
     return mi * bx, mi * bz, mi * (-rz * bx + rx * bz), mi * (ex * bx + ez * bz)
 
 
-@_inline
+@_jit
 def consistent_qddot(st, ct, q, qd, tau, p):
     """qddot = D^-1 (tau - C qdot - g) of the consistent model as a 5-tuple (st, ct = sin, cos of theta).
 
     D = [[M I2, B], [B^T, E]] with B = D[0:2, 2:5]: the body block M I2 is eliminated (Schur complement
     S = E - B^T B / M, 3x3 SPD), S is solved by a written-out Cholesky factorisation, then the body rows.
-    Allocation-free (scalars only)."""
+    Allocation-free (scalars only). A compiled call, not inlined: the consistent model does not run in
+    the SIMD lane loops, and one copy instead of one per RK4 stage keeps the env's cold compile short."""
     al, ar = consistent_arms(q[3], q[4], p)
     M, b0, b1, c0, c1, d0, d1, e22, e23, e24, e33, e44 = consistent_mass_entries(st, ct, al, ar, p)
     g1, g2, g3, g4 = consistent_gravity_entries(st, ct, al, ar, p)
@@ -702,6 +703,13 @@ def rk4_step_into(q, qd, u, ext, p, dt, input_map, q_out, qd_out):
     qd_out[0], qd_out[1], qd_out[2], qd_out[3], qd_out[4] = vn
 
 
+@_jit
+def consistent_stage(st, ct, q, qd, u, ext, p, held):
+    """qddot of the consistent model at one RK4 stage under the held command (:func:`held_force`);
+    one compiled copy shared by the four stages."""
+    return consistent_qddot(st, ct, q, qd, held_force(st, ct, q, u, ext, p, held), p)
+
+
 @_inline
 def consistent_rk4_step(q, qd, u, ext, p, dt, held):
     """:func:`rk4_step` of the consistent model: the same classical RK4 stages with the command held
@@ -710,16 +718,16 @@ def consistent_rk4_step(q, qd, u, ext, p, dt, held):
     h = 0.5 * dt
     v1 = (qd[0], qd[1], qd[2], qd[3], qd[4])
     s1, c1 = math.sin(q[2]), math.cos(q[2])
-    k1 = consistent_qddot(s1, c1, q, v1, held_force(s1, c1, q, u, ext, p, held), p)
+    k1 = consistent_stage(s1, c1, q, v1, u, ext, p, held)
     q2, v2 = _axpy5(q, h, v1), _axpy5(v1, h, k1)
     s2, c2 = math.sin(q2[2]), math.cos(q2[2])
-    k2 = consistent_qddot(s2, c2, q2, v2, held_force(s2, c2, q2, u, ext, p, held), p)
+    k2 = consistent_stage(s2, c2, q2, v2, u, ext, p, held)
     q3, v3 = _axpy5(q, h, v2), _axpy5(v1, h, k2)
     s3, c3 = math.sin(q3[2]), math.cos(q3[2])
-    k3 = consistent_qddot(s3, c3, q3, v3, held_force(s3, c3, q3, u, ext, p, held), p)
+    k3 = consistent_stage(s3, c3, q3, v3, u, ext, p, held)
     q4, v4 = _axpy5(q, dt, v3), _axpy5(v1, dt, k3)
     s4, c4 = math.sin(q4[2]), math.cos(q4[2])
-    k4 = consistent_qddot(s4, c4, q4, v4, held_force(s4, c4, q4, u, ext, p, held), p)
+    k4 = consistent_stage(s4, c4, q4, v4, u, ext, p, held)
     c = dt / 6.0
     x0, w0 = _rk4_combine(q[0], qd[0], k1[0], k2[0], k3[0], k4[0], h, dt, c)
     x1, w1 = _rk4_combine(q[1], qd[1], k1[1], k2[1], k3[1], k4[1], h, dt, c)
