@@ -148,8 +148,12 @@ def test_committed_rk4_step_error_of_the_paper_loop():
     data = json.loads((Path(__file__).resolve().parents[1] / "baselines/results/model_figures.json").read_text())
     committed = data["comparisons"]["rk4_0.01_vs_rk4_0.0005"]
     assert committed["t_of_max_x_s"] <= 2.0 and committed["t_of_max_z_s"] <= 2.0
-    now = compare(2.0, data["passes"], steps=(0.01, 0.0005))["rk4_0.01_vs_rk4_0.0005"]
+    now_all = compare(2.0, data["passes"], steps=(0.01, 0.0005))
+    now = now_all["rk4_0.01_vs_rk4_0.0005"]
     assert now == committed
+    # the arm reference's largest jump per 0.01 s step (q_r^d: 2.7 rad) happens in those 2 s too
+    jumps = data["arm_reference_jumps"]["largest_arm_reference_change_per_0.01_s_step_rad"]
+    assert now_all["largest_arm_reference_change_per_0.01_s_step_rad"] == jumps and round(max(jumps), 1) == 2.7
     assert round(now["max_abs_x_m"], 3) == 0.127 and round(now["max_abs_z_m"], 3) == 0.016
     # the reference is converged far below that: 0.001 s vs 0.0005 s
     ref = data["comparisons"]["rk4_0.001_vs_rk4_0.0005"]
