@@ -9,7 +9,7 @@ import numpy as np
 from . import _kernels as K
 from ._batching import broadcast_batch, check_curvature, param_matrix
 from ._parallel import run_rows
-from .dynamics import input_map_code
+from .dynamics import input_map_code, model_code, resolve_input_map
 from .params import SoftPVTOLParams
 
 __all__ = ["rk4_step", "rk4_step_actuated", "rollout"]
@@ -21,47 +21,55 @@ def _check_dt(dt: float) -> float:
     return float(dt)
 
 
-def rk4_step(q, qdot, tau, params: SoftPVTOLParams, dt: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
-    """Classical RK4 step of (q, qdot) over ``dt`` seconds with the generalized force tau held.
+def rk4_step(q, qdot, tau, params: SoftPVTOLParams, dt: float = 0.01,
+             model: str = "paper") -> tuple[np.ndarray, np.ndarray]:
+    """Classical RK4 step of (q, qdot) over ``dt`` seconds with the generalized force tau held, of the
+    ``model`` ("paper" or "consistent", see :mod:`softpvtol_gym.dynamics`).
 
     Shapes: q, qdot, tau (..., 5), broadcast together. Returns (q_next, qdot_next), each (..., 5).
     """
     dt = _check_dt(dt)
+    mcode = model_code(model)
     lead, (qf, vf, tf) = broadcast_batch(q=(q, 5), qdot=(qdot, 5), tau=(tau, 5))
-    return _step(lead, qf, vf, tf, np.zeros((1, 2)), params, dt, K.HELD_TAU)
+    return _step(lead, qf, vf, tf, np.zeros((1, 2)), params, dt, K.HELD_TAU, mcode)
 
 
-def rk4_step_actuated(q, qdot, actuators, params: SoftPVTOLParams, dt: float = 0.01, input_map: str = "paper",
-                      external_force=None) -> tuple[np.ndarray, np.ndarray]:
+def rk4_step_actuated(q, qdot, actuators, params: SoftPVTOLParams, dt: float = 0.01, input_map: str | None = None,
+                      external_force=None, model: str = "paper") -> tuple[np.ndarray, np.ndarray]:
     """Classical RK4 step of (q, qdot) over ``dt`` seconds with the actuators held (zero-order hold).
 
     The actuators a = (T_l, T_r, tau_l, tau_r) are held, not the generalized force: at every RK4 stage
     tau = B(q_stage) a (:func:`~softpvtol_gym.dynamics.generalized_forces` with ``input_map``), plus the
     held ``external_force`` (f_x, f_z) [N] on the body (default none). This is the env's physics step.
+    ``model``: "paper" or "consistent"; ``input_map`` None is the model's own map ("paper", resp.
+    "exact"; the consistent model accepts only "exact": see
+    :func:`~softpvtol_gym.dynamics.resolve_input_map`).
 
     Shapes: q, qdot (..., 5), actuators (..., 4), external_force (..., 2), broadcast together.
     Returns (q_next, qdot_next), each (..., 5).
     """
     dt = _check_dt(dt)
-    code = input_map_code(input_map)
+    code = input_map_code(resolve_input_map(input_map, model))
+    mcode = model_code(model)
     ext = np.zeros(2) if external_force is None else external_force
     lead, (qf, vf, af, ef) = broadcast_batch(q=(q, 5), qdot=(qdot, 5), actuators=(actuators, 4),
                                              external_force=(ext, 2))
     u = np.zeros((af.shape[0], 5))
     u[:, :4] = af
-    return _step(lead, qf, vf, u, ef, params, dt, code)
+    return _step(lead, qf, vf, u, ef, params, dt, code, mcode)
 
 
-def _step(lead, qf, vf, u, ef, params, dt, code):
+def _step(lead, qf, vf, u, ef, params, dt, code, mcode):
     check_curvature(qf)
     q_out = np.empty_like(qf)
     v_out = np.empty_like(vf)
-    run_rows(K.batch_rk4_step, qf.shape[0], qf, vf, u, ef, param_matrix(params), dt, code, q_out, v_out)
+    run_rows(K.batch_rk4_step, qf.shape[0], qf, vf, u, ef, param_matrix(params), dt, code, mcode, q_out, v_out)
     return q_out.reshape(lead + (5,)), v_out.reshape(lead + (5,))
 
 
-def rollout(q0, qdot0, tau, params: SoftPVTOLParams, dt: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
-    """Integrate from (q0, qdot0) under a sequence of held generalized forces.
+def rollout(q0, qdot0, tau, params: SoftPVTOLParams, dt: float = 0.01,
+            model: str = "paper") -> tuple[np.ndarray, np.ndarray]:
+    """Integrate the ``model`` from (q0, qdot0) under a sequence of held generalized forces.
 
     tau: (T, ..., 5), one force per step. Returns the trajectories q, qdot of shape (T + 1, ..., 5),
     starting with the initial state.
@@ -71,7 +79,7 @@ def rollout(q0, qdot0, tau, params: SoftPVTOLParams, dt: float = 0.01) -> tuple[
     v = np.asarray(qdot0, dtype=np.float64)
     qs, vs = [q], [v]
     for k in range(tau.shape[0]):
-        q, v = rk4_step(q, v, tau[k], params, dt)
+        q, v = rk4_step(q, v, tau[k], params, dt, model)
         qs.append(q)
         vs.append(v)
     return np.stack(qs), np.stack(vs)

@@ -1,19 +1,21 @@
-"""The model core against an independent symbolic derivation (sympy) of the paper's Lagrangian.
+"""The model core against an independent symbolic derivation (sympy) of both Lagrangians.
 
 The reference is built here from scratch, following Sec. 2 / Appendix A of the paper:
 
-* positions in the inertial frame (NOT rotated by theta, as in the paper's Lagrangian)
-  p_v = (x, z), p_l = p_v + (-eps - l_l sin q_l / q_l, l_l (1 - cos q_l)/q_l),
-  p_r = p_v + (eps + l_r sin q_r / q_r, l_r (1 - cos q_r)/q_r);
+* body-frame tip offsets r_l = (-eps - l_l sin q_l / q_l, l_l (1 - cos q_l)/q_l),
+  r_r = (eps + l_r sin q_r / q_r, l_r (1 - cos q_r)/q_r), p_v = (x, z);
+* model "paper": tips p_i = p_v + r_i (NOT rotated by theta, as in the paper's Lagrangian);
+  model "consistent": tips p_i = p_v + R(theta) r_i;
 * K = 1/2 m |p_v'|^2 + 1/2 m_l |p_l'|^2 + 1/2 m_r |p_r'|^2 + 1/2 I th'^2 + 1/2 I_l q_l'^2 + 1/2 I_r q_r'^2,
   P = g (m z + m_l z_l + m_r z_r);
 * D = Hessian of K in qdot, C_kj = sum_i 1/2 (dD_kj/dq_i + dD_ki/dq_j - dD_ij/dq_k) qdot_i, g = dP/dq;
-* input maps: "paper" as printed; "exact" = J^T F with the thrusts applied at the body-rotated tips.
+* input maps: "paper" as printed; "exact" = J^T F with the thrusts applied at the body-rotated tips
+  along their rotated directions (virtual work), the consistent model's own map.
 
 Every reference value is evaluated with mpmath at ``_DPS`` significant digits from the *closed forms*
 (which lose up to ~50 digits to cancellation near q = 0, far less than ``_DPS``), and at exactly
 q = 0 from the exact symbolic limit (series expansion, ``limit_at_zero``, checked against
-``sympy.limit``). The package is then required to agree to 1e-10
+``sympy.limit``). The package is then required to agree to 1e-12
 relative to max(1, |reference entry|).
 """
 
@@ -28,10 +30,10 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from softpvtol_gym import SoftPVTOLParams, dynamics
+from softpvtol_gym import SoftPVTOLParams, dynamics, integrators
 
 _DPS = 110  # working precision of the reference: 1/q^5 at q = 1e-9 costs ~45 digits
-RTOL = 1e-10
+RTOL = 1e-12  # the worst entry over these tests is 8.2e-15 relative (either model)
 
 SPECIAL_Q = [0.0, 1e-9, 1e-6, 0.1 - 1e-9, 0.1, 0.1 + 1e-9, np.pi, -np.pi, 1.0]
 
@@ -73,9 +75,15 @@ def limit_at_zero(expr, var):
     return coeffs.get(_MAX_POLE, sp.Integer(0))
 
 
+MODELS = ("paper", "consistent")
+#: the input maps each model accepts (the consistent model: only its own virtual-work map)
+MODEL_INPUT_MAPS = {"paper": ("paper", "exact"), "consistent": ("exact",)}
+
+
 @functools.cache
-def _symbolic_model():
-    """Derive everything symbolically once; return mpmath-lambdified evaluators per q = 0 pattern."""
+def _symbolic_model(model: str = "paper"):
+    """Derive everything symbolically once per model; return mpmath-lambdified evaluators per q = 0
+    pattern."""
     x, z, th, ql, qr = sp.symbols("x z theta q_l q_r", real=True)
     xd, zd, thd, qld, qrd = sp.symbols("xd zd thd qld qrd", real=True)
     m, ml, mr, I, Il, Ir, ll, lr, g, eps = sp.symbols("m m_l m_r I I_l I_r l_l l_r g epsilon", positive=True)
@@ -89,8 +97,13 @@ def _symbolic_model():
     r_l = sp.Matrix([-eps - ll * sp.sin(ql) / ql, ll * (1 - sp.cos(ql)) / ql])
     r_r = sp.Matrix([eps + lr * sp.sin(qr) / qr, lr * (1 - sp.cos(qr)) / qr])
     p_v = sp.Matrix([x, z])
-    p_l = p_v + r_l
-    p_r = p_v + r_r
+    R = sp.Matrix([[sp.cos(th), -sp.sin(th)], [sp.sin(th), sp.cos(th)]])
+    if model == "paper":
+        p_l = p_v + r_l
+        p_r = p_v + r_r
+    else:
+        p_l = p_v + R * r_l
+        p_r = p_v + R * r_r
 
     def vel(p):
         return p.jacobian(q) * sp.Matrix(qd)
@@ -119,7 +132,6 @@ def _symbolic_model():
     G = sp.Matrix([sp.diff(P, qi) for qi in q])
 
     # physical tips: p_v + R(theta) r_i
-    R = sp.Matrix([[sp.cos(th), -sp.sin(th)], [sp.sin(th), sp.cos(th)]])
     tip_l = p_v + R * r_l
     tip_r = p_v + R * r_r
 
@@ -146,10 +158,11 @@ def _symbolic_model():
         "g": list(G),
         "K": [K],
         "P": [P],
-        "tips": [tip_l[0], tip_l[1], tip_r[0], tip_r[1]],
-        "paper": list(paper),
+        "tips": [p_l[0], p_l[1], p_r[0], p_r[1]],  # the model's own (where its Lagrangian puts the masses)
         "exact": list(exact),
     }
+    if model == "paper":
+        blocks["paper"] = list(paper)
     names = list(blocks)
     flat = [e for n in names for e in blocks[n]]
     sizes = [len(blocks[n]) for n in names]
@@ -175,9 +188,9 @@ def _symbolic_model():
     return names, sizes, evaluators
 
 
-def reference(q, qd, p: SoftPVTOLParams, a):
+def reference(q, qd, p: SoftPVTOLParams, a, model: str = "paper"):
     """High-precision reference values (as float64 arrays) of every block at one state."""
-    names, sizes, evaluators = _symbolic_model()
+    names, sizes, evaluators = _symbolic_model(model)
     q = [float(v) for v in q]
     fn = evaluators[(q[3] == 0.0, q[4] == 0.0)]
     values = [mpmath.mpf(float(v)) for v in (*q, *qd, *(getattr(p, n) for n in PARAM_NAMES), *a)]
@@ -196,17 +209,21 @@ def reference(q, qd, p: SoftPVTOLParams, a):
     return out
 
 
-def package(q, qd, p, a):
-    return {
-        "D": dynamics.mass_matrix(q, p),
-        "C": dynamics.coriolis_matrix(q, qd, p),
-        "g": dynamics.gravity_vector(q, p),
-        "K": dynamics.kinetic_energy(q, qd, p),
-        "P": dynamics.potential_energy(q, p),
-        "tips": dynamics.arm_tip_positions(q, p),
-        "paper": dynamics.generalized_forces(q, a, p, input_map="paper"),
-        "exact": dynamics.generalized_forces(q, a, p, input_map="exact"),
+def package(q, qd, p, a, model: str = "paper"):
+    out = {
+        "D": dynamics.mass_matrix(q, p, model=model),
+        "C": dynamics.coriolis_matrix(q, qd, p, model=model),
+        "g": dynamics.gravity_vector(q, p, model=model),
+        "K": dynamics.kinetic_energy(q, qd, p, model=model),
+        "P": dynamics.potential_energy(q, p, model=model),
+        "tips": dynamics.arm_tip_positions(q, p, model=model),
     }
+    for input_map in MODEL_INPUT_MAPS[model]:
+        out[input_map] = dynamics.generalized_forces(q, a, p, input_map=input_map, model=model)
+    # the model's own map (input_map=None) is "paper" for the paper's model, "exact" for the consistent one
+    own = dynamics.generalized_forces(q, a, p, model=model)
+    assert np.array_equal(own, out[dynamics.NATURAL_INPUT_MAP[model]])
+    return out
 
 
 def assert_matches(got, ref, context):
@@ -248,12 +265,14 @@ def random_state(rng):
 
 
 # ------------------------------------------------------------------------------------------- tests
+@pytest.mark.parametrize("model", MODELS)
 @pytest.mark.parametrize("seed", range(20))
-def test_matches_sympy_at_random_states(seed):
+def test_matches_sympy_at_random_states(seed, model):
     rng = np.random.default_rng(1000 + seed)
     p = random_params(rng)
     q, qd, a = random_state(rng)
-    assert_matches(package(q, qd, p, a), reference(q, qd, p, a), f"q={q.tolist()}, qd={qd.tolist()}, {p}")
+    assert_matches(package(q, qd, p, a, model), reference(q, qd, p, a, model),
+                   f"model={model}, q={q.tolist()}, qd={qd.tolist()}, {p}")
 
 
 # each special curvature appears on both arms, paired with a different one on the other arm
@@ -261,13 +280,97 @@ _SPECIAL_PAIRS = [(SPECIAL_Q[i], SPECIAL_Q[(i + 4) % len(SPECIAL_Q)]) for i in r
 _SPECIAL_PAIRS += [(b, a) for a, b in _SPECIAL_PAIRS] + [(0.0, 0.0), (np.pi, -np.pi)]
 
 
+@pytest.mark.parametrize("model", MODELS)
 @pytest.mark.parametrize(("q_l", "q_r"), _SPECIAL_PAIRS)
-def test_matches_sympy_at_special_curvatures(q_l, q_r):
+def test_matches_sympy_at_special_curvatures(q_l, q_r, model):
     rng = np.random.default_rng(zlib.crc32(repr((q_l, q_r)).encode()))
     p = random_params(rng)
     q, qd, a = random_state(rng)
     q[3], q[4] = q_l, q_r
-    assert_matches(package(q, qd, p, a), reference(q, qd, p, a), f"q_l={q_l!r}, q_r={q_r!r}, {p}")
+    assert_matches(package(q, qd, p, a, model), reference(q, qd, p, a, model),
+                   f"model={model}, q_l={q_l!r}, q_r={q_r!r}, {p}")
+
+
+@pytest.mark.parametrize("theta", [0.0, np.pi, -np.pi, 0.5 * np.pi, -2.0])
+def test_consistent_model_matches_sympy_at_special_attitudes(theta):
+    """The consistent model depends on theta: at theta = 0, +-pi, pi/2 and with both arms at 0 / +-pi."""
+    rng = np.random.default_rng(zlib.crc32(repr(theta).encode()))
+    p = random_params(rng)
+    for q_l, q_r in [(0.0, 0.0), (np.pi, -np.pi), (0.0, np.pi), (1e-9, -1.0)]:
+        q, qd, a = random_state(rng)
+        q[2], q[3], q[4] = theta, q_l, q_r
+        assert_matches(package(q, qd, p, a, "consistent"), reference(q, qd, p, a, "consistent"),
+                       f"theta={theta!r}, q_l={q_l!r}, q_r={q_r!r}, {p}")
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_models_agree_where_they_should(seed):
+    """At theta = 0 the two models' tips, potential energy and input map coincide; their mass matrices
+    differ only by the theta row and column (the rotor masses' coupling with the attitude), which the
+    paper's model lacks; with m_l, m_r -> 0 the difference vanishes."""
+    rng = np.random.default_rng(50 + seed)
+    p = random_params(rng)
+    q, qd, a = random_state(rng)
+    q[2] = 0.0
+    np.testing.assert_allclose(dynamics.arm_tip_positions(q, p, model="consistent"),
+                               dynamics.arm_tip_positions(q, p, model="paper"), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(dynamics.potential_energy(q, p, model="consistent"),
+                               dynamics.potential_energy(q, p, model="paper"), rtol=1e-14, atol=1e-12)
+    Dc, Dp = dynamics.mass_matrix(q, p, model="consistent"), dynamics.mass_matrix(q, p, model="paper")
+    keep = [0, 1, 3, 4]
+    np.testing.assert_allclose(Dc[np.ix_(keep, keep)], Dp[np.ix_(keep, keep)], rtol=1e-14, atol=1e-14)
+    assert np.abs(Dc[2] - Dp[2]).max() > 1e-3  # the coupling the paper's model drops
+    np.testing.assert_allclose(dynamics.gravity_vector(q, p, model="consistent")[[0, 1, 3, 4]],
+                               dynamics.gravity_vector(q, p)[[0, 1, 3, 4]], rtol=1e-14, atol=1e-12)
+    np.testing.assert_allclose(dynamics.generalized_forces(q, a, p, model="consistent"),
+                               dynamics.generalized_forces(q, a, p, "exact"), rtol=0, atol=0)
+    light = p.replace(m_l=1e-12, m_r=1e-12)
+    np.testing.assert_allclose(dynamics.mass_matrix(q, light, model="consistent"),
+                               dynamics.mass_matrix(q, light, model="paper"), rtol=0, atol=1e-10)
+
+
+def test_consistent_body_inertia_with_straight_arms():
+    """D_theta_theta = I + sum m_i |r_i|^2 = 1 + 2 x 1 kg x (0.5 m)^2 = 1.5 with the paper's parameters
+    (eps = 0) and straight arms, at any attitude; the paper's model has I = 1."""
+    p = SoftPVTOLParams()
+    for theta in (0.0, 0.8, -2.5):
+        q = np.array([0.3, 1.0, theta, 0.0, 0.0])
+        assert dynamics.mass_matrix(q, p, model="consistent")[2, 2] == pytest.approx(1.5, rel=1e-15)
+        assert dynamics.mass_matrix(q, p)[2, 2] == 1.0
+
+
+@pytest.mark.parametrize("bad", ["Paper", "exact", "", None, 1])
+def test_unknown_model_raises(bad):
+    p = SoftPVTOLParams()
+    calls = [
+        lambda: dynamics.mass_matrix(np.zeros(5), p, model=bad),
+        lambda: dynamics.coriolis_matrix(np.zeros(5), np.zeros(5), p, model=bad),
+        lambda: dynamics.gravity_vector(np.zeros(5), p, model=bad),
+        lambda: dynamics.generalized_forces(np.zeros(5), np.ones(4), p, model=bad),
+        lambda: dynamics.forward_dynamics(np.zeros(5), np.zeros(5), np.zeros(5), p, model=bad),
+        lambda: dynamics.kinetic_energy(np.zeros(5), np.zeros(5), p, model=bad),
+        lambda: dynamics.potential_energy(np.zeros(5), p, model=bad),
+        lambda: dynamics.total_energy(np.zeros(5), np.zeros(5), p, model=bad),
+        lambda: dynamics.arm_tip_positions(np.zeros(5), p, model=bad),
+        lambda: integrators.rk4_step(np.zeros(5), np.zeros(5), np.zeros(5), p, 0.01, model=bad),
+        lambda: integrators.rk4_step_actuated(np.zeros(5), np.zeros(5), np.ones(4), p, 0.01, model=bad),
+        lambda: integrators.rollout(np.zeros(5), np.zeros(5), np.zeros((2, 5)), p, 0.01, model=bad),
+    ]
+    for call in calls:
+        with pytest.raises(ValueError) as info:
+            call()
+        msg = str(info.value)
+        assert "model must be one of ['consistent', 'paper']" in msg and repr(bad) in msg, msg
+
+
+def test_consistent_model_refuses_the_papers_printed_input_map():
+    p = SoftPVTOLParams()
+    for call in (lambda: dynamics.generalized_forces(np.zeros(5), np.ones(4), p, "paper", model="consistent"),
+                 lambda: integrators.rk4_step_actuated(np.zeros(5), np.zeros(5), np.ones(4), p, 0.01,
+                                                       input_map="paper", model="consistent")):
+        with pytest.raises(ValueError, match=r"input_map='paper' is not an input map of model='consistent'.*"
+                                             r"input_map='exact'"):
+            call()
 
 
 def test_reference_is_not_the_naive_closed_form_near_zero():
@@ -283,13 +386,14 @@ def test_reference_is_not_the_naive_closed_form_near_zero():
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_tips_at_theta_zero_are_the_papers_positions(seed):
-    """At theta = 0 the world-frame tips are the paper's eq. (coords) p_l, p_r."""
+@pytest.mark.parametrize("model", MODELS)
+def test_tips_at_theta_zero_are_the_papers_positions(seed, model):
+    """At theta = 0 the world-frame tips of either model are the paper's eq. (coords) p_l, p_r."""
     rng = np.random.default_rng(seed)
     p = random_params(rng)
     q, _, _ = random_state(rng)
     q[2] = 0.0
-    tips = dynamics.arm_tip_positions(q, p)
+    tips = dynamics.arm_tip_positions(q, p, model=model)
     x, z, _, ql, qr = q
     expected = np.array(
         [

@@ -13,7 +13,7 @@ from ..control.closed_loop import MAX_HELD_CONTROL_PERIOD, PassivityController
 from ._validation import real_array, short_repr
 from .config import EnvConfig
 from .episodes import apply_options, sample_episodes
-from .layout import ISTATE, STATE, S
+from .layout import CONST, ISTATE, STATE, S
 from .observation import OBS_DIM
 from .step import (
     STEP_BAD_ACTION,
@@ -85,13 +85,15 @@ class BatchSim:
     def __getstate__(self) -> dict:
         # the views (pickle would turn them into independent copies) and the kernel are rebuilt on unpickling
         state = {k: v for k, v in self.__dict__.items() if k not in self._VIEWS and k != "_step_serial"}
-        state["layouts"] = (STATE.signature, ISTATE.signature)
+        state["layouts"] = (STATE.signature, ISTATE.signature, CONST.signature)  # C is pickled too
         return state
 
     def __setstate__(self, state: dict) -> None:
         layouts = state.pop("layouts", (("env_state", 1, None), None))
         STATE.check(layouts[0])
         ISTATE.check(layouts[1])
+        # (state saved before the constants' layout was recorded has the constants' version 1)
+        CONST.check(layouts[2] if len(layouts) > 2 else ("env_constants", 1, None))
         self.__dict__.update(state)
         self._make_views()
         self._step_serial = serial_step_kernel(self.n, self.cfg.action_mode == "residual")

@@ -25,6 +25,7 @@ from .layout import CODES, CONST, SC, SK
 
 PHYSICS_DT = 0.01  # s, the paper's RK4 step
 INPUT_MAPS = ("paper", "exact")
+MODELS = (None, "paper", "consistent")
 ALLOCATIONS = ("paper", "exact", "ideal")
 RESIDUAL_SPACES = ("virtual", "actuators")
 RENDER_MODES = (None, "rgb_array", "human")
@@ -47,6 +48,7 @@ class EnvConfig:
     residual_scale: float = 0.2
     actuator_limits: tuple | None = None
     controller_loop: str | None = None
+    model: str | None = None
 
     def __post_init__(self) -> None:
         if self.actuator_limits is not None:
@@ -62,6 +64,10 @@ class EnvConfig:
         get_task(self.task)
         _tiers.get_tier(self.tier)
         choice("input_map", self.input_map, INPUT_MAPS)
+        choice("model", self.model, MODELS)
+        if self.model == "paper" and "consistent_plant" in _tiers.get_tier(self.tier).effects:
+            raise ValueError(f"tier={self.tier!r} integrates the consistent model as the plant, but model='paper' was "
+                             "given; pass model=None (the tier's) or 'consistent', or another tier")
         if self.params is None:  # the default, as for the env's other arguments
             object.__setattr__(self, "params", SoftPVTOLParams())
         if not isinstance(self.params, SoftPVTOLParams):
@@ -113,6 +119,14 @@ class EnvConfig:
     def task_spec(self) -> TaskSpec:
         """The registered :class:`~softpvtol_gym.tasks.TaskSpec` of ``task``."""
         return get_task(self.task)
+
+    @property
+    def plant_model(self) -> str:
+        """The plant's model: ``model``, or by default "consistent" in a tier with the "consistent_plant"
+        effect (e.g. "model_gap") and "paper" otherwise. The controllers always use the paper's."""
+        if self.model is not None:
+            return self.model
+        return "consistent" if "consistent_plant" in _tiers.get_tier(self.tier).effects else "paper"
 
     @property
     def resolved_allocation(self) -> str:
@@ -234,6 +248,7 @@ class EnvConfig:
         C[SC.lam:SC.lam + 5] = gains.lam_array
         C[SC.kg:SC.kg + 5] = gains.k_array
         C[SC.dt_control] = dt
+        C[SC.consistent_plant] = 1.0 if self.plant_model == "consistent" else 0.0
         return C
 
     def codes(self) -> np.ndarray:

@@ -37,7 +37,8 @@ CONST = Layout("env_constants", [
     ("virtual_scale", 5), ("virtual_offset", 5), ("residual_actuator_scale", 4), ("residual_tau_scale", 5),
     ("hover_thrust", 1), ("lag_on", 1), ("wind_on", 1), ("noise_on", 1),
     ("p_nominal", 10), ("lam", 5), ("kg", 5), ("dt_control", 1),
-], version=1)
+    ("consistent_plant", 1),  # 1.0: the plant integrates the consistent model (docs/model.md)
+], version=2)
 CODES = Layout("env_codes", [("mode", 1), ("alloc", 1), ("imap", 1), ("res_virtual", 1), ("ref", 1),
                              ("action_dim", 1)], version=1)
 #: the physics lane block of a step: the RK4 rows, then the body reference and rates for the

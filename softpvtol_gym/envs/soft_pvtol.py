@@ -133,12 +133,23 @@ class SoftPVTOLEnv(gym.Env):
       per episode; controller and policy keep the nominal params) | "wind" (Ornstein-Uhlenbeck force
       on x and z, std 3 N, correlation time 1 s) | "noisy" (Gaussian measurement noise of std
       (0.02 m, 0.02 m, 0.01 rad, 0.02 rad, 0.02 rad) on q and (0.05, 0.05, 0.02, 0.05, 0.05) on qdot,
-      plus a first-order lag of time constant 0.05 s on the applied command) | "hard" (all).
+      plus a first-order lag of time constant 0.05 s on the applied command) | "hard" (all) |
+      "model_gap" (the plant is the consistent model, ``model="consistent"``; the residual mode's base
+      controller, the virtual mode's allocation and :class:`~softpvtol_gym.PassivityPolicy` keep the
+      paper's model: a model-gap scenario, no disturbance otherwise).
     * ``tier_options``: dict overriding ``mismatch_scale``, ``wind_std`` [N],
       ``wind_correlation_time`` [s], ``obs_noise_scale`` (x the stds above), ``actuator_time_constant``
       [s]; a value given by hand switches its effect on.
     * ``params``: :class:`SoftPVTOLParams`, the nominal model (plant in the nominal tier, controller).
-    * ``input_map``: "paper" | "exact" (the plant's input map). ``allocation``: "exact" (default) |
+    * ``model``: None (default) | "paper" | "consistent": the plant's Lagrangian
+      (:mod:`softpvtol_gym.dynamics`, docs/model.md). "paper": the paper's model as printed (rotor
+      masses at tips that do not rotate with theta); "consistent": the same energy terms with the tips
+      rotated by theta, actuated through its own input map (virtual work of the thrusts at the rotated
+      tips, "exact"). None: "consistent" in a tier with the consistent plant ("model_gap"), else
+      "paper" (``model="paper"`` with such a tier raises ValueError). The controllers (residual base
+      controller, virtual allocation, PassivityPolicy) use the paper's model in every case.
+    * ``input_map``: "paper" | "exact": the input map of the paper's model, the plant's under
+      ``model="paper"`` and the one the controllers assume. ``allocation``: "exact" (default) |
       "paper" | "ideal" (virtual mode only). ``residual_space``: "virtual" | "actuators".
       ``residual_scale``: 0.2.
     * ``controller_loop``: the analytic loop (:data:`softpvtol_gym.control.LOOPS`) of the residual
@@ -168,6 +179,11 @@ class SoftPVTOLEnv(gym.Env):
       ``truncated`` warns once per episode (as CartPole) and stays allowed; str/bool/complex actions,
       reset states q0 outside the position limits, ``tier_options["mismatch_scale"] >= 1`` and
       ``max_episode_seconds`` below one control step are refused; numpy integer seeds are accepted.
+    * v0, consistent model (issue 14, an addition: the default is unchanged, bit for bit): the ``model``
+      argument (None default: "paper" unless the tier says otherwise; "consistent": the rotor masses at
+      the tips rotated by theta) and the
+      "model_gap" tier (consistent plant, controllers on the paper's model). Under the consistent plant
+      ``info["total_energy"]`` is that model's energy.
     * v0, analytic control (issue 14, 2026-12-01; a behaviour change of the residual mode, committed
       figures regenerated): the base controller solves the algebraic loop to 1e-10 rad every step (it
       used the previous step's arm references), the paper allocation uses the quadrant-correct

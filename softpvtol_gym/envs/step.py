@@ -315,16 +315,43 @@ def _reward_range(lo, hi, state, istate, consts, codes, lanes):
 
 
 @_jit
+def _consistent_physics(lanes, m, consts, codes):
+    """The plant step of the first m lanes under the consistent model (``model="consistent"``, the
+    "model_gap" tier): frame_skip RK4 steps of :func:`MK.rk4_lanes_consistent`, lane by lane. The held
+    actuators act through the consistent model's own input map (virtual work at the rotated tips,
+    ``INPUT_MAP_EXACT``), whatever map the controllers assume (``input_map``); ideal mode holds tau."""
+    held = MK.HELD_TAU if codes[SK.mode] == MODE_IDEAL else MK.INPUT_MAP_EXACT
+    for _ in range(int(consts[SC.frame_skip])):
+        MK.rk4_lanes_consistent(lanes, consts[SC.dt_physics], m, held)
+
+
+@_jit
+def _consistent_energy_lanes(lanes, m):
+    """The plant's total energy of the first m lanes under the consistent model (replaces the paper
+    model's in the energy row; the storage row is the controller's and stays)."""
+    L = MK.LANES
+    for j in range(m):
+        q, qd, _u, _ext, p = MK._lane_load(lanes, j)
+        kin, pot = MK.consistent_energies(q, qd, p)
+        lanes[SL.energy * L + j] = kin + pot
+
+
+@_jit
 def _step_block(n0, m, state, obs, keys, istate, consts, codes, ctl, lanes, cmd):
     """Advance envs n0 .. n0 + m - 1 (m <= LANES) by one control step; their physics runs in the
     lane block lanes."""
     hi = n0 + m
     _begin_range(n0, hi, state, istate, consts, codes, ctl, lanes, cmd)
-    held = MK.HELD_TAU if codes[SK.mode] == MODE_IDEAL else codes[SK.imap]
-    for _ in range(int(consts[SC.frame_skip])):  # the command and the wind held over frame_skip RK4 steps
-        MK.rk4_lanes(lanes, consts[SC.dt_physics], m, held)
+    if consts[SC.consistent_plant] > 0.0:
+        _consistent_physics(lanes, m, consts, codes)
+    else:
+        held = MK.HELD_TAU if codes[SK.mode] == MODE_IDEAL else codes[SK.imap]
+        for _ in range(int(consts[SC.frame_skip])):  # the command and the wind held over frame_skip RK4 steps
+            MK.rk4_lanes(lanes, consts[SC.dt_physics], m, held)
     _end_range(n0, hi, state, keys, istate, consts, lanes)
     _diag_lanes(lanes, m, _nominal_params(consts), _vec5(consts, SC.lam), _vec5(consts, SC.kg))
+    if consts[SC.consistent_plant] > 0.0:
+        _consistent_energy_lanes(lanes, m)
     observe_range(n0, hi, state, keys, istate, consts, obs)
     _reward_range(n0, hi, state, istate, consts, codes, lanes)
 
@@ -335,11 +362,16 @@ def _step_block_partial(n0, m, state, obs, keys, istate, consts, codes, ctl, lan
     than LANES envs needs: the same functions per lane, without the SIMD copies to compile)."""
     hi = n0 + m
     _begin_range(n0, hi, state, istate, consts, codes, ctl, lanes, cmd)
-    held = MK.HELD_TAU if codes[SK.mode] == MODE_IDEAL else codes[SK.imap]
-    for _ in range(int(consts[SC.frame_skip])):
-        MK.rk4_lanes_partial(lanes, consts[SC.dt_physics], m, held)
+    if consts[SC.consistent_plant] > 0.0:
+        _consistent_physics(lanes, m, consts, codes)
+    else:
+        held = MK.HELD_TAU if codes[SK.mode] == MODE_IDEAL else codes[SK.imap]
+        for _ in range(int(consts[SC.frame_skip])):
+            MK.rk4_lanes_partial(lanes, consts[SC.dt_physics], m, held)
     _end_range(n0, hi, state, keys, istate, consts, lanes)
     _diag_lanes_partial(lanes, m, _nominal_params(consts), _vec5(consts, SC.lam), _vec5(consts, SC.kg))
+    if consts[SC.consistent_plant] > 0.0:
+        _consistent_energy_lanes(lanes, m)
     observe_range(n0, hi, state, keys, istate, consts, obs)
     _reward_range(n0, hi, state, istate, consts, codes, lanes)
 
@@ -382,6 +414,9 @@ def reset_rows(state, obs, keys, istate, consts, rows, q0, qd0, P, new_keys, ref
             _row5(state, n, S.q), _row5(state, n, S.qd), (state[n, S.qr], state[n, S.qr + 1], state[n, S.qr + 2]),
             (state[n, S.qdr], state[n, S.qdr + 1], state[n, S.qdr + 2]), _row10(state, n, S.P), _nominal_params(consts),
             _vec5(consts, SC.lam), _vec5(consts, SC.kg))
+        if consts[SC.consistent_plant] > 0.0:
+            kin, pot = MK.consistent_energies(_row5(state, n, S.q), _row5(state, n, S.qd), _row10(state, n, S.P))
+            state[n, S.total_energy] = kin + pot
         state[n, S.curvature_violation] = max(abs(state[n, S.q + 3]) - math.pi, abs(state[n, S.q + 4]) - math.pi, 0.0)
 
 

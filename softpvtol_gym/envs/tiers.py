@@ -25,6 +25,8 @@ EFFECT_OPTIONS = {
     "wind": ("wind_std", "wind_correlation_time"),
     "noise": ("obs_noise_scale",),
     "lag": ("actuator_time_constant",),
+    # the plant integrates the consistent model (docs/model.md) while the controllers keep the paper's
+    "consistent_plant": (),
 }
 _EFFECT_OF = {opt: eff for eff, opts in EFFECT_OPTIONS.items() for opt in opts}
 #: options whose "off" value is not 0 (kept as given when the effect is off)
@@ -37,7 +39,8 @@ OBS_NOISE_QD = (0.05, 0.05, 0.02, 0.05, 0.05)  # m/s, m/s, rad/s, rad/s, rad/s
 
 @dataclasses.dataclass(frozen=True)
 class TierSpec:
-    """A robustness tier: ``name`` and the ``effects`` it switches on (keys of :data:`EFFECT_OPTIONS`)."""
+    """A robustness tier: ``name`` and the ``effects`` it switches on (keys of :data:`EFFECT_OPTIONS`;
+    "consistent_plant" has no options: the plant integrates ``model="consistent"``)."""
 
     name: str
     effects: tuple = ()
@@ -82,6 +85,9 @@ for _spec in (
     TierSpec("wind", ("wind",), "Ornstein-Uhlenbeck force on x and z, std 3 N, correlation time 1 s"),
     TierSpec("noisy", ("noise", "lag"), "Gaussian measurement noise and a 0.05 s first-order actuator lag"),
     TierSpec("hard", ("mismatch", "wind", "noise", "lag"), "all of the above"),
+    TierSpec("model_gap", ("consistent_plant",),
+             "the plant is the consistent model (rotor masses at the rotated tips, virtual-work input map); "
+             "the controllers, the allocation and PassivityPolicy keep the paper's model"),
 ):
     register_tier(_spec)
 #: the built-in tiers
