@@ -134,6 +134,27 @@ def test_bad_train_input_exits_2_and_writes_nothing(args, message, tmp_path, cap
     assert not (tmp_path / "x").exists()
 
 
+def test_device_option(tmp_path, capsys):
+    """--device auto|cpu|cuda: the policy's device (the env steps on the CPU); cuda without a GPU is an exit 2
+    that says so, before anything is written."""
+    import torch
+
+    from baselines.models import resolve_device
+
+    assert resolve_device("cpu") == "cpu"
+    assert resolve_device("auto") == ("cuda" if torch.cuda.is_available() else "cpu")
+    with pytest.raises(ConfigError, match="device must be one of"):
+        resolve_device("tpu")
+    assert_exit_2(train_main, ["--device", "tpu", "--out", str(tmp_path / "x")], "invalid choice", capsys)
+    if not torch.cuda.is_available():
+        assert_exit_2(train_main, ["--device", "cuda", "--out", str(tmp_path / "x")],
+                      "--device cuda: torch sees no CUDA GPU", capsys)
+        assert not (tmp_path / "x").exists()
+    out = tmp_path / "auto"
+    assert train_main(["--device", "auto", "--timesteps", "256", *SHORT, "--out", str(out)]) == 0
+    assert json.loads((out / "result.json").read_text())["device"] == resolve_device("auto")
+
+
 def test_existing_run_is_not_overwritten(tmp_path, capsys):
     (tmp_path / "model.zip").write_bytes(b"keep")  # even a run of the earlier, pickle-based format
     assert_exit_2(train_main, ["--timesteps", "256", *SHORT, "--out", str(tmp_path)], "nothing was overwritten", capsys)
