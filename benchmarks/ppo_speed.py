@@ -18,13 +18,16 @@ of 10 episodes every ``--eval-freq`` steps). Per configuration it records
   excluded) and the share of the wall time spent in the env's ``step`` (the adapter's ``step_wait``).
 
 Wall-clock figures depend on the machine's load: the JSON records ``os.getloadavg()`` before and after
-each configuration. Time to beat = steps to beat x wall time per step, the selection criterion.
+each configuration. Time to beat = steps to beat x wall time per step, the selection criterion. Each run
+is a fresh interpreter (as ``python train.py``). ``--table`` prints the Markdown table of a results file
+(docs/baselines.md, "Fast defaults").
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import os
 import sys
 import tempfile
@@ -108,20 +111,47 @@ def run_one(name: str, overrides: list[str], mode: str, timesteps: int, eval_fre
     }
 
 
+def markdown_table(results: list[dict]) -> str:
+    """One row per run of a results file (the table of docs/baselines.md, "Fast defaults")."""
+    lines = ["| mode | configuration | seed | steps to beat passivity | seconds to beat (load) | return at the end | "
+             "env-steps/s (evaluations excluded) | env share |", "|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        hp = r["hyperparams"]
+        config = (f"{r['name']}: {hp['n_envs']} x {hp['n_steps']}, batch {hp['batch_size']}, {hp['n_epochs']} epochs, "
+                  f"lr {hp['learning_rate']}, target_kl {hp.get('target_kl')}")
+        beat = "never" if r["steps_to_beat"] is None else f"{r['steps_to_beat']:,}"
+        secs = "-" if r["seconds_to_beat"] is None else f"{r['seconds_to_beat']:.0f} s"
+        load = r["loadavg_before"][0]
+        lines.append(f"| {r['action_mode']} | {config} | {r['seed']} | {beat} | {secs} ({load:.1f}) | "
+                     f"{r['final']['mean_return']:.1f} vs {r['passivity']['mean_return']:.1f} at {r['timesteps']:,} | "
+                     f"{r['steps_per_second'] / 1e3:.1f} k ({r['steps_per_second_without_evaluations'] / 1e3:.1f} k) | "
+                     f"{100 * r['env_share']:.1f} % |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mode", default="residual", choices=("residual", "virtual", "actuators"))
-    ap.add_argument("--config", action="append", required=True, help="name=key=value;key=value (repeatable)")
+    ap.add_argument("--config", action="append", help="name=key=value;key=value (repeatable)")
+    ap.add_argument("--table", action="store_true", help="print the Markdown table of --out and exit")
     ap.add_argument("--timesteps", type=int, default=2_000_000)
     ap.add_argument("--eval-freq", type=int, default=50_000)
     ap.add_argument("--seed", type=int, action="append", help="training seed (repeatable; default 0)")
     ap.add_argument("--out", type=Path, required=True, help="JSON file (results are appended per configuration)")
     args = ap.parse_args(argv)
     results = json.loads(args.out.read_text()) if args.out.is_file() else []
+    if args.table:
+        print(markdown_table(results))
+        return 0
+    if not args.config:
+        ap.error("--config is required (or --table)")
     for text in args.config:
         name, overrides = parse_config(text)
         for seed in args.seed or [0]:
-            r = run_one(name, overrides, args.mode, args.timesteps, args.eval_freq, seed)
+            # each run in a fresh interpreter, as `python train.py` runs: runs in one process are not
+            # independent (a second run with the same seed differs from a fresh process's)
+            with multiprocessing.get_context("spawn").Pool(1) as pool:
+                r = pool.apply(run_one, (name, overrides, args.mode, args.timesteps, args.eval_freq, seed))
             r["command"] = "python benchmarks/ppo_speed.py " + " ".join(sys.argv[1:] if argv is None else argv)
             results.append(r)
             atomic_write_text(args.out, json.dumps(results, indent=1) + "\n")

@@ -577,6 +577,8 @@ def bench_time_to_beat(quick: bool, out: Path | None = None) -> dict:
         "curve": curve, "passivity": {k: pas[k] for k in ("mean_return", "mean_rms_position_error")},
         "final": {k: learned[k] for k in ("mean_return", "mean_rms_position_error", "crash_rate")},
         "loadavg_start": load_start, "loadavg_end": load_end,
+        # what train.py printed (the README shows it: a test checks that the README's block matches)
+        "stdout": proc.stdout.replace(str(run_dir), "<run dir>"),
     }
     beat_ok = beat is not None and beat["seconds"] <= TIME_TO_BEAT_GOAL
     rows = [
