@@ -48,7 +48,7 @@ from .models import DEVICES
 
 RESULT_FILE = "result.json"
 DEFAULTS = {"algo": "ppo", "action_mode": "residual", "task": "hover", "tier": "nominal", "seed": 0,
-            "checkpoint_freq": 100_000, "eval_freq": 100_000, "eval_episodes": 10}
+            "checkpoint_freq": 100_000, "eval_freq": 50_000, "eval_episodes": 10}
 
 
 def build_parser() -> Parser:
@@ -69,7 +69,7 @@ def build_parser() -> Parser:
     ap.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE", help="override a YAML hyperparameter")
     ap.add_argument("--checkpoint-freq", type=int_arg(), default=None, help="env steps between checkpoints (100,000)")
     ap.add_argument("--eval-freq", type=int_arg(), default=None,
-                    help="env steps between periodic evaluations (100,000)")
+                    help="env steps between periodic evaluations (50,000)")
     ap.add_argument("--eval-episodes", type=int_arg(), default=None,
                     help=f"episodes per evaluation (10; 0: none; at most {MAX_EPISODES:,})")
     ap.add_argument("--device", default="cpu", choices=DEVICES,
