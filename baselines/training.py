@@ -229,7 +229,11 @@ def prepare(config: RunConfig, run_dir: Path, verbose: int = 0, device: str = "c
     run_dir = Path(run_dir)
     if run_dir.exists() and not run_dir.is_dir():
         raise ConfigError(f"run directory {run_dir} is a file; choose a directory for --out")
-    torch_threads()
+    import torch
+
+    # before the model is built: its initial weights (orthogonal initialisation) depend on torch's thread
+    # count, which would otherwise be the machine's core count here (train() sets the same count again)
+    torch.set_num_threads(torch_threads())
     device = resolve_device(device)
     env = make_env(config)
     vecnorm = make_vecnorm(config, env)

@@ -208,3 +208,24 @@ def test_sac_option_trains_checkpoints_its_replay_buffer_and_resumes(tmp_path):
     a, b = load_file(tmp_path / "ref" / "model.safetensors"), load_file(out / "model.safetensors")
     assert sorted(a) == sorted(b) and any(k.startswith("variables/log_ent_coef") for k in a)
     assert [k for k in a if not (a[k] == b[k]).all()] == []
+
+
+def test_initial_weights_do_not_depend_on_the_machines_thread_count(tmp_path):
+    """prepare() builds the model with SOFTPVTOL_TORCH_THREADS (1) torch threads, whatever torch's default (the
+    machine's cores): orthogonal initialisation gives other weights with other thread counts."""
+    import torch
+
+    from baselines.training import prepare
+
+    before = torch.get_num_threads()
+    weights = []
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            cfg = RunConfig(seed=1, n_envs=2, hyperparams=load_hyperparams("ppo", "residual"))
+            model = prepare(cfg, tmp_path / f"run{threads}")[2]
+            assert torch.get_num_threads() == 1
+            weights.append(torch.cat([p.detach().flatten() for p in model.policy.parameters()]))
+    finally:
+        torch.set_num_threads(before)
+    assert torch.equal(weights[0], weights[1])
