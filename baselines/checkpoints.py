@@ -694,12 +694,13 @@ def clean_run_dir(run_dir: Path) -> None:
 
 # ------------------------------------------------------------------------------------- loading
 def load_folder(folder: Path, *, training: bool = False, n_envs: int | None = None,
-                tensorboard_log: str | None = None, verbose: int = 0, env=None):
+                tensorboard_log: str | None = None, verbose: int = 0, env=None, device: str = "cpu"):
     """Load the model of a checkpoint folder (a finished run or a training checkpoint) without unpickling.
 
     Returns ``(model, vecnorm, config, manifest)``: the SB3 model rebuilt from ``config.yaml`` and filled
     with the saved tensors and state; its VecNormalize (over ``env``, or a one-env stand-in for
-    evaluation), or None when the run has no normalisation. Every file is checked against the manifest;
+    evaluation), or None when the run has no normalisation; the policy on ``device`` ("cpu" or "cuda").
+    Every file is checked against the manifest;
     a run whose config asks for normalisation without a normalisation file (or the reverse) is an error.
     """
     from .models import build_model, make_env
@@ -720,7 +721,7 @@ def load_folder(folder: Path, *, training: bool = False, n_envs: int | None = No
         config = RunConfig.from_dict(raw, source=f"run config {folder / CONFIG_FILE}", strict=True)
     except ConfigError as exc:
         raise CheckpointError(str(exc)) from None
-    norm = normalize_kwargs(config.hyperparams)
+    norm = normalize_kwargs(config.hyperparams) is not None
     has_norm_file = VECNORM_FILE in manifest["files"]
     if norm and not has_norm_file:
         raise CheckpointError(f"{folder}: config.yaml asks for observation/reward normalisation but the checkpoint "
@@ -738,7 +739,7 @@ def load_folder(folder: Path, *, training: bool = False, n_envs: int | None = No
         if not training:
             vecnorm.norm_reward = False
     model_env = vecnorm if (training and vecnorm is not None) else env
-    model = build_model(config, model_env, tensorboard_log=tensorboard_log, verbose=verbose)
+    model = build_model(config, model_env, tensorboard_log=tensorboard_log, verbose=verbose, device=device)
     load_model_state(model, tensors, meta, str(folder))
     if manifest["num_timesteps"] != model.num_timesteps:
         raise CheckpointError(f"{folder}: {MANIFEST_FILE} says {manifest['num_timesteps']} steps, "
@@ -746,7 +747,7 @@ def load_folder(folder: Path, *, training: bool = False, n_envs: int | None = No
     return model, vecnorm, config, manifest
 
 
-def load_for_resume(folder: Path, config: RunConfig, run_dir: Path, verbose: int = 0):
+def load_for_resume(folder: Path, config: RunConfig, run_dir: Path, verbose: int = 0, device: str = "cpu"):
     """``(model, vecnorm, restore_rng)`` of a training checkpoint: the env rebuilt and put back in its saved
     state, the model and VecNormalize filled in. ``restore_rng()`` sets the global RNGs (call it last)."""
     folder = Path(folder)
@@ -757,7 +758,7 @@ def load_for_resume(folder: Path, config: RunConfig, run_dir: Path, verbose: int
 
     env = make_env(config)
     model, vecnorm, saved, _ = load_folder(folder, training=True, env=env, tensorboard_log=str(Path(run_dir) / "tb"),
-                                           verbose=verbose)
+                                           verbose=verbose, device=device)
     if not isinstance(state, dict) or state.get("format") != FORMAT or state.get("version") != FORMAT_VERSION:
         raise CheckpointError(f"{folder}: {STATE_FILE} is not a version-{FORMAT_VERSION} resume state")
     if state.get("num_timesteps") != model.num_timesteps:

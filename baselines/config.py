@@ -1,11 +1,14 @@
-"""Run configuration: hyperparameters from YAML per (env id, action mode), CLI overrides, validation, saving.
+"""Run configuration: hyperparameters from YAML per env id (one per action mode), CLI overrides, validation,
+saving.
 
-``baselines/hyperparams/<algo>.yml`` holds one entry per ``"<env id>/<action mode>"`` (rl-baselines3-zoo
-style). :func:`load_hyperparams` reads the entry, :func:`apply_overrides` applies ``key=value`` strings
-from the command line (values parsed as YAML), :func:`validate_hyperparams` checks every key against the
-algorithm's constructor and stable-baselines3's constraints (before anything is written), and
-:class:`RunConfig` is what a run saves next to its checkpoints (``config.yaml``), so that a run can be
-resumed, evaluated or audited later.
+``baselines/hyperparams/<algo>.yml`` holds one entry per env id, in rl-baselines3-zoo's format (the same
+file works with ``python -m rl_zoo3.train --conf-file``): the action modes are the ids
+``SoftPVTOLResidual-v0``, ``SoftPVTOLVirtual-v0`` and ``SoftPVTOLActuators-v0`` (``SoftPVTOL-v0``, whose
+default action mode is ``actuators``, is an alias of the last). :func:`load_hyperparams` reads the entry,
+:func:`apply_overrides` applies ``key=value`` strings from the command line (values parsed as YAML),
+:func:`validate_hyperparams` checks every key against the algorithm's constructor and stable-baselines3's
+constraints (before anything is written), and :class:`RunConfig` is what a run saves next to its
+checkpoints (``config.yaml``), so that a run can be resumed, evaluated or audited later.
 """
 
 from __future__ import annotations
@@ -17,13 +20,13 @@ from pathlib import Path
 from typing import Any
 
 from softpvtol_gym.envs.core import ACTION_MODES, TASKS, TIERS
+from softpvtol_gym.envs.registration import ENV_ID, MODE_ENV_IDS
 
 from .errors import ConfigError
 
 __all__ = ["ConfigError", "RunConfig", "load_hyperparams", "apply_overrides", "algo_kwargs", "validate_hyperparams",
            "read_yaml"]
 
-ENV_ID = "SoftPVTOL-v0"
 CONFIG_FILE_NAME = "config.yaml"
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 ALGOS = ("ppo", "sac")
@@ -64,20 +67,24 @@ def read_yaml(path: Path, what: str) -> Any:
         raise ConfigError(f"{what} {path} is not valid YAML{where}: {problem}") from None
 
 
-def load_hyperparams(algo: str, action_mode: str, env_id: str = ENV_ID, directory: Path | None = None) -> dict:
-    """The hyperparameter entry ``"<env_id>/<action_mode>"`` of ``<directory>/<algo>.yml`` (a copy)."""
-    if algo not in ALGOS:
-        raise ConfigError(f"algo must be one of {list(ALGOS)}, got {algo!r}")
+def hyperparams_key(action_mode: str) -> str:
+    """The env id whose entry of a hyperparameter file holds ``action_mode``'s hyperparameters."""
     if action_mode not in ACTION_MODES:
         raise ConfigError(f"action mode must be one of {list(ACTION_MODES)}, got {action_mode!r}")
+    return MODE_ENV_IDS[action_mode]
+
+
+def load_hyperparams(algo: str, action_mode: str, directory: Path | None = None) -> dict:
+    """The entry :func:`hyperparams_key` ``(action_mode)`` of ``<directory>/<algo>.yml`` (a copy)."""
+    if algo not in ALGOS:
+        raise ConfigError(f"algo must be one of {list(ALGOS)}, got {algo!r}")
+    key = hyperparams_key(action_mode)
     path = (HYPERPARAMS_DIR if directory is None else Path(directory)) / f"{algo}.yml"
     table = read_yaml(path, "hyperparameter file") or {}
     if not isinstance(table, dict):
-        raise ConfigError(f"hyperparameter file {path} must map '<env id>/<action mode>' to entries, "
-                          f"got a {type(table).__name__}")
-    key = f"{env_id}/{action_mode}"
+        raise ConfigError(f"hyperparameter file {path} must map env ids to entries, got a {type(table).__name__}")
     if key not in table:
-        raise ConfigError(f"{path} has no entry {key!r}; entries: {sorted(table)}")
+        raise ConfigError(f"{path} has no entry {key!r} (the {action_mode} mode); entries: {sorted(map(str, table))}")
     if not isinstance(table[key], dict):
         raise ConfigError(f"entry {key!r} of {path} must be a mapping, got {table[key]!r}")
     return dict(table[key])
@@ -113,22 +120,53 @@ def _parse_value(raw: str) -> Any:
     return value
 
 
+#: keys that may be a linear schedule ``"lin_<initial value>"`` (rl-baselines3-zoo's notation: the value
+#: decreases linearly from the initial value at the start of training to 0 at its end)
+SCHEDULE_KEYS = ("learning_rate", "clip_range")
+
+
+def _linear_schedule_start(value) -> float | None:
+    """The initial value of ``"lin_<x>"`` (x a finite number > 0), else None."""
+    if not isinstance(value, str) or not value.startswith("lin_"):
+        return None
+    try:
+        x = float(value[4:])
+    except ValueError:
+        return None
+    return x if math.isfinite(x) and x > 0 else None
+
+
 def algo_kwargs(hyperparams: dict) -> dict:
     """Keyword arguments for the SB3 algorithm: the entry minus :data:`NON_ALGO_KEYS`, with
-    ``policy_kwargs`` given as a string (``"dict(net_arch=[64, 64])"``) parsed safely."""
+    ``policy_kwargs`` given as a string (``"dict(net_arch=[64, 64])"``) parsed safely and
+    ``"lin_<x>"`` values of :data:`SCHEDULE_KEYS` as SB3 linear schedules from x to 0."""
     kwargs = {k: v for k, v in hyperparams.items() if k not in NON_ALGO_KEYS}
     pk = kwargs.get("policy_kwargs")
     if isinstance(pk, str):
         kwargs["policy_kwargs"] = _parse_dict_call(pk)
+    for key in SCHEDULE_KEYS:
+        start = _linear_schedule_start(kwargs.get(key))
+        if start is not None:
+            from stable_baselines3.common.utils import LinearSchedule
+
+            kwargs[key] = LinearSchedule(start=start, end=0.0, end_fraction=1.0)
     return kwargs
 
 
 def normalize_kwargs(hyperparams: dict) -> dict | None:
-    """The VecNormalize keyword arguments of an entry, or None (no normalisation)."""
-    return hyperparams.get("normalize") or None
+    """The VecNormalize keyword arguments of an entry, or None (no normalisation), as rl-baselines3-zoo reads
+    ``normalize``: ``true`` (VecNormalize's defaults), a mapping or a ``"dict(...)"`` string of arguments, and
+    the entry's ``gamma`` (if any) as VecNormalize's ``gamma``."""
+    norm = hyperparams.get("normalize")
+    if norm is None or norm is False:
+        return None
+    kwargs = {} if norm is True else dict(_parse_dict_call(norm) if isinstance(norm, str) else norm)
+    if "gamma" in hyperparams:
+        kwargs["gamma"] = hyperparams["gamma"]
+    return kwargs
 
 
-def _parse_dict_call(text: str) -> dict:
+def _parse_dict_call(text: str, what: str = "policy_kwargs") -> dict:
     """Parse ``"dict(a=1, b=dict(c=[2, 3]))"`` or a ``{...}`` literal without eval."""
 
     def conv(node: ast.AST) -> Any:
@@ -142,15 +180,15 @@ def _parse_dict_call(text: str) -> dict:
             return -conv(node.operand)
         if isinstance(node, ast.Constant):
             return node.value
-        raise ConfigError(f"policy_kwargs may only hold dict(...), lists and constants, got {ast.dump(node)}")
+        raise ConfigError(f"{what} may only hold dict(...), lists and constants, got {ast.dump(node)}")
 
     try:
         tree = ast.parse(text, mode="eval")
     except SyntaxError as exc:
-        raise ConfigError(f"policy_kwargs {text!r} is not a valid expression: {exc.msg}") from None
+        raise ConfigError(f"{what} {text!r} is not a valid expression: {exc.msg}") from None
     value = conv(tree.body)
     if not isinstance(value, dict):
-        raise ConfigError(f"policy_kwargs must be a dict, got {text!r}")
+        raise ConfigError(f"{what} must be a dict, got {text!r}")
     return value
 
 
@@ -208,6 +246,11 @@ def _none(v):
         return "null (classes and objects cannot be given in a config)"
 
 
+def _number_or_linear_schedule(v):
+    if _linear_schedule_start(v) is None and (not _is_num(v) or v <= 0):
+        return "a finite number > 0 or a linear schedule 'lin_<initial value > 0>'"
+
+
 def _policy_kwargs(v):
     if isinstance(v, str):
         try:
@@ -260,13 +303,19 @@ def _policy(v):
 
 
 def _normalize(v):
-    if v is None or v is False:
+    if v is None or isinstance(v, bool):
         return None
+    what = f"true, false, or a mapping (or 'dict(...)' string) of VecNormalize arguments {list(VECNORM_KEYS)}"
+    if isinstance(v, str):
+        try:
+            v = _parse_dict_call(v, "normalize")
+        except ConfigError as exc:
+            return f"{what} ({exc})"
     if not isinstance(v, dict):
-        return f"false or a mapping of VecNormalize arguments {list(VECNORM_KEYS)}"
+        return what
     unknown = sorted(set(v) - set(VECNORM_KEYS))
     if unknown:
-        return f"a mapping of VecNormalize arguments {list(VECNORM_KEYS)} (unknown: {unknown})"
+        return f"{what} (unknown: {unknown})"
     for key, check in (("norm_obs", _bool), ("norm_reward", _bool), ("clip_obs", _num(0, lo_open=True)),
                        ("clip_reward", _num(0, lo_open=True)), ("gamma", _num(0, 1, lo_open=True)),
                        ("epsilon", _num(0, lo_open=True))):
@@ -279,7 +328,7 @@ _COMMON_RULES = {
     "n_envs": _int(1, MAX_N_ENVS),
     "n_timesteps": _int(1, MAX_TIMESTEPS),
     "normalize": _normalize,
-    "learning_rate": _num(0, lo_open=True),
+    "learning_rate": _number_or_linear_schedule,
     "gamma": _num(0, 1, lo_open=True),
     "use_sde": _bool,
     "sde_sample_freq": _int(-1),
@@ -292,7 +341,7 @@ _RULES = {
         "batch_size": _int(2),        # SB3: "batch_size must be greater than 1"
         "n_epochs": _int(1),
         "gae_lambda": _num(0, 1),
-        "clip_range": _num(0, lo_open=True),
+        "clip_range": _number_or_linear_schedule,
         "clip_range_vf": _optional(_num(0, lo_open=True)),
         "normalize_advantage": _bool,
         "ent_coef": _num(0),
@@ -344,6 +393,12 @@ def validate_hyperparams(algo: str, hp: Any, n_envs: int | None = None) -> None:
         msg = rules[key](value)
         if msg is not None:
             raise ConfigError(f"hyperparameter {key} must be {msg}, got {value!r}")
+    norm = hp.get("normalize")
+    if norm not in (None, False, True) and "gamma" in hp:
+        norm_gamma = (_parse_dict_call(norm, "normalize") if isinstance(norm, str) else norm).get("gamma", hp["gamma"])
+        if norm_gamma != hp["gamma"]:
+            raise ConfigError(f"normalize's gamma ({norm_gamma!r}) differs from the entry's gamma ({hp['gamma']!r}); "
+                              f"VecNormalize uses the entry's gamma (as rl-baselines3-zoo does): leave it out")
     if algo == "ppo":
         envs = n_envs if n_envs is not None else hp.get("n_envs", 16)
         steps = hp.get("n_steps", 2048)

@@ -63,9 +63,9 @@ def _read_pickled(path: Path):
 
     zip_path, pkl, cfg = _legacy_paths(path)
     config = RunConfig.load(cfg)
-    if normalize_kwargs(config.hyperparams) and pkl is None:
+    if normalize_kwargs(config.hyperparams) is not None and pkl is None:
         raise CheckpointError(f"{cfg} asks for normalisation but there is no vecnormalize.pkl next to {zip_path}")
-    if pkl is not None and not normalize_kwargs(config.hyperparams):
+    if pkl is not None and normalize_kwargs(config.hyperparams) is None:
         raise CheckpointError(f"{pkl} is present but {cfg} has no normalisation")
     warn(PICKLE_WARNING.format(files=", ".join(str(p) for p in (zip_path, pkl) if p is not None)))
     model = algo_class(config.algo).load(zip_path, device="cpu")

@@ -29,23 +29,45 @@ def make_env(config: RunConfig, n_envs: int | None = None):
 def make_vecnorm(config: RunConfig, env, training: bool = True):
     """``VecNormalize(env, **normalize)`` of the run's hyperparameters, or None without normalisation."""
     norm = normalize_kwargs(config.hyperparams)
-    if not norm:
+    if norm is None:
         return None
     from stable_baselines3.common.vec_env import VecNormalize
 
     return VecNormalize(env, training=training, **norm)
 
 
-def build_model(config: RunConfig, env, tensorboard_log: str | None = None, verbose: int = 0):
-    """The SB3 algorithm of ``config`` on ``env`` (seeded with the run's seed, on the CPU). What SB3 refuses
-    (an assertion or a bad argument of the policy) becomes a ConfigError naming it."""
+DEVICES = ("auto", "cpu", "cuda")
+
+
+def resolve_device(device: str) -> str:
+    """``"cpu"`` or ``"cuda"`` for the policy of a run (the env always steps on the CPU): ``"auto"`` is
+    ``"cuda"`` where torch sees a CUDA GPU, else ``"cpu"``; ``"cuda"`` without one is a ConfigError."""
+    if device not in DEVICES:
+        raise ConfigError(f"device must be one of {list(DEVICES)}, got {device!r}")
+    if device == "cpu":
+        return "cpu"
+    import torch
+
+    if torch.cuda.is_available():
+        return "cuda"
+    if device == "auto":
+        return "cpu"
+    build = f"built with CUDA {torch.version.cuda}" if torch.version.cuda else "a CPU-only build"
+    raise ConfigError(f"--device cuda: torch sees no CUDA GPU (torch {torch.__version__}, {build}; "
+                      f"torch.cuda.is_available() is False); use --device cpu or --device auto")
+
+
+def build_model(config: RunConfig, env, tensorboard_log: str | None = None, verbose: int = 0, device: str = "cpu"):
+    """The SB3 algorithm of ``config`` on ``env`` (seeded with the run's seed; the policy on ``device``,
+    ``"cpu"`` or ``"cuda"``). What SB3 refuses (an assertion or a bad argument of the policy) becomes a
+    ConfigError naming it."""
     cls = algo_class(config.algo)
     hp = config.hyperparams
     try:
         with warnings.catch_warnings():
             # the mini-batch size not dividing the rollout is legal (SB3 warns; train.py says so itself)
             warnings.filterwarnings("ignore", message=".*mini-batch size.*")
-            return cls(hp.get("policy", "MlpPolicy"), env, seed=config.seed, device="cpu", verbose=verbose,
+            return cls(hp.get("policy", "MlpPolicy"), env, seed=config.seed, device=device, verbose=verbose,
                        tensorboard_log=tensorboard_log, **algo_kwargs(hp))
     except (AssertionError, TypeError, ValueError, KeyError) as exc:
         raise ConfigError(f"stable-baselines3 refused the hyperparameters of this {config.algo.upper()} run: "

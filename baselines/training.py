@@ -43,7 +43,7 @@ from .checkpoints import (
 from .config import ConfigError, RunConfig
 from .evaluation import EVAL_SEED_OFFSET, run_episodes, summarize
 from .locks import DirectoryLock
-from .models import algo_class, build_model, make_env, make_vecnorm
+from .models import algo_class, build_model, make_env, make_vecnorm, resolve_device
 
 EVALUATIONS_FILE = "evaluations.json"
 #: what a command may change on --resume (everything else must match the run's saved config)
@@ -135,13 +135,20 @@ def _callbacks(run_dir: Path, config: RunConfig, vecnorm, start_step: int):
 
     class CheckpointAndEval(BaseCallback):
         """At rollout boundaries (after an update, before the next rollout): checkpoint every
-        ``checkpoint_freq`` steps and evaluate every ``eval_freq`` steps."""
+        ``checkpoint_freq`` steps and evaluate every ``eval_freq`` steps (and the untrained policy at step 0
+        of a fresh run)."""
 
         def __init__(self):
             super().__init__()
             self.next_ckpt = (start_step // config.checkpoint_freq + 1) * config.checkpoint_freq
             self.next_eval = (start_step // config.eval_freq + 1) * config.eval_freq
             self.history = _load_evaluations(run_dir, max_step=start_step)
+            self.started = time.perf_counter()
+
+        def _on_training_start(self) -> None:
+            self.started = time.perf_counter()
+            if config.eval_episodes and start_step == 0 and not self.history:
+                self._evaluate(0)  # the untrained policy: where the learning curve starts
 
         def _on_step(self) -> bool:
             return True
@@ -167,7 +174,10 @@ def _callbacks(run_dir: Path, config: RunConfig, vecnorm, start_step: int):
             s = summarize(eps)
             for key in ("mean_return", "mean_rms_position_error", "crash_rate"):
                 self.logger.record(f"eval/{key}", s[key])
-            self.history.append({"step": int(step), **s})
+            # train_seconds: since this process started training (a resumed run counts from its resume);
+            # wall_time: the end of this evaluation, in seconds since the epoch (for timing from outside)
+            self.history.append({"step": int(step), **s, "train_seconds": round(time.perf_counter() - self.started, 3),
+                                 "wall_time": round(time.time(), 3)})
             atomic_write_text(run_dir / EVALUATIONS_FILE, json.dumps(self.history, indent=2))
 
     return CheckpointAndEval()
@@ -212,20 +222,27 @@ def torch_threads() -> int:
     return n
 
 
-def prepare(config: RunConfig, run_dir: Path, verbose: int = 0) -> tuple:
-    """The env, VecNormalize and model of a fresh run, built in memory: everything stable-baselines3 would
-    refuse is refused here (ConfigError), before anything is written."""
+def prepare(config: RunConfig, run_dir: Path, verbose: int = 0, device: str = "cpu") -> tuple:
+    """The env, VecNormalize and model of a fresh run, built in memory (the policy on ``device``: "auto",
+    "cpu" or "cuda"; the env on the CPU): everything stable-baselines3 would refuse is refused here
+    (ConfigError), before anything is written."""
     run_dir = Path(run_dir)
     if run_dir.exists() and not run_dir.is_dir():
         raise ConfigError(f"run directory {run_dir} is a file; choose a directory for --out")
-    torch_threads()
+    import torch
+
+    # before the model is built: its initial weights (orthogonal initialisation) depend on torch's thread
+    # count, which would otherwise be the machine's core count here (train() sets the same count again)
+    torch.set_num_threads(torch_threads())
+    device = resolve_device(device)
     env = make_env(config)
     vecnorm = make_vecnorm(config, env)
-    return env, vecnorm, build_model(config, vecnorm or env, tensorboard_log=str(run_dir / "tb"), verbose=verbose)
+    return env, vecnorm, build_model(config, vecnorm or env, tensorboard_log=str(run_dir / "tb"), verbose=verbose,
+                                     device=device)
 
 
 def train(config: RunConfig, run_dir: Path, resume: bool = False, progress_bar: bool = False,
-          verbose: int = 0, prepared: tuple | None = None) -> dict:
+          verbose: int = 0, prepared: tuple | None = None, device: str = "cpu") -> dict:
     """Train (or resume) a run in ``run_dir``; returns ``{"model", "vecnorm", "seconds", "status"}`` with
     status ``"trained"`` or ``"finished"`` (``resume=True`` on a run already trained to ``config.timesteps``:
     nothing is trained, the final model is loaded).
@@ -237,12 +254,15 @@ def train(config: RunConfig, run_dir: Path, resume: bool = False, progress_bar: 
     before its first one) starts over. ``resume=True`` continues from the newest checkpoint that verifies
     (falling back to the previous one, with a warning), with the saved config (``config`` must match it
     in algo, action mode, task, tier, seed, n_envs and hyperparameters) up to ``config.timesteps``.
+    ``device`` ("auto", "cpu", "cuda"): where the policy trains (the env steps on the CPU); a run may be
+    resumed on another device.
     """
     import torch
 
     run_dir = Path(run_dir)
     torch.set_num_threads(torch_threads())
-    env, vecnorm, model = prepared if prepared is not None else prepare(config, run_dir, verbose)
+    device = resolve_device(device)
+    env, vecnorm, model = prepared if prepared is not None else prepare(config, run_dir, verbose, device)
     with DirectoryLock(run_dir, "run directory"):
         clean_run_dir(run_dir)
         finished = finished_run(run_dir)
@@ -265,7 +285,7 @@ def train(config: RunConfig, run_dir: Path, resume: bool = False, progress_bar: 
                 if saved is not None:
                     _check_same_run(saved, config, f"the run in {run_dir}")
                 if finished["num_timesteps"] >= config.timesteps:
-                    model, vecnorm, _, _ = load_folder(run_dir)
+                    model, vecnorm, _, _ = load_folder(run_dir, device=device)
                     return {"model": model, "vecnorm": vecnorm, "seconds": 0.0, "status": "finished",
                             "num_timesteps": finished["num_timesteps"]}
             errors = []
@@ -278,7 +298,8 @@ def train(config: RunConfig, run_dir: Path, resume: bool = False, progress_bar: 
                     continue
                 _check_same_run(saved, config, f"checkpoint {cand}")
                 try:
-                    model, vecnorm, restore_rng = load_for_resume(cand, config, run_dir, verbose=verbose)
+                    model, vecnorm, restore_rng = load_for_resume(cand, config, run_dir, verbose=verbose,
+                                                                  device=device)
                 except CheckpointError as exc:
                     errors.append(str(exc))
                     warn(f"skipping a checkpoint: {exc}")

@@ -222,7 +222,7 @@ CASES = [
     (T, [*SHORT, "--hp", "ent_coef=-1"], "ent_coef must be a finite number >= 0", nothing),
     (T, [*SHORT, "--hp", "max_grad_norm=0"], "max_grad_norm must be a finite number > 0", nothing),
     (T, [*SHORT, "--hp", "target_kl=-1"], "target_kl must be null or", nothing),
-    (T, [*SHORT, "--hp", "normalize=5"], "normalize must be false or a mapping", nothing),
+    (T, [*SHORT, "--hp", "normalize=5"], "normalize must be true, false, or a mapping", nothing),
     (T, [*SHORT, "--hp", "normalize={{foo: 1}}"], "unknown: ['foo']", nothing),
     (T, [*SHORT, "--hp", "normalize={{gamma: 2}}"], "whose gamma is", nothing),
     (T, [*SHORT, "--hp", "normalize={{norm_obs: maybe}}"], "whose norm_obs is true or false", nothing),

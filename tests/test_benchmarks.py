@@ -501,13 +501,17 @@ def test_benchmark_script_runs_end_to_end_quick(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     md = (tmp_path / "RESULTS.md").read_text()
     data = json.loads((tmp_path / "results.json").read_text())
-    assert set(data["items"]) == {"single", "vector", "controller", "ppo", "cold_start"}
+    assert set(data["items"]) == {"single", "vector", "controller", "ppo", "cold_start", "time_to_beat"}
     for item in data["items"].values():
         assert item["targets"] and all(isinstance(t["pass"], bool) for t in item["targets"].values())
     for key in ("cores", "python", "numpy", "numba", "gymnasium", "torch", "stable_baselines3", "commit"):
         assert key in data["machine"]
-    for title in ("1. Single-env", "2. Vector-env", "3. Passivity controller", "4. PPO", "5. Cold start"):
+    for title in ("1. Single-env", "2. Vector-env", "3. Passivity controller", "4. PPO", "5. Cold start",
+                  "6. Time to beat"):
         assert title in md
+    item = data["items"]["time_to_beat"]  # a short train.py run: its curve, passivity's line and the plot
+    assert item["curve"][0]["step"] == 0 and item["total_seconds"] > item["curve"][-1]["seconds"] > 0
+    assert (tmp_path / "time_to_beat.png").stat().st_size > 10_000
     assert "Pendulum-v1" in md and "CartPoleVectorEnv" in md and "do not edit" in md
 
 
@@ -523,3 +527,52 @@ def test_readme_performance_table_is_the_generated_one():
     block = text[text.index(bench.README_START) + len(bench.README_START):text.index(bench.README_END)]
     assert block.strip() == bench.readme_table(payload).strip()
     assert not payload["quick"]
+
+
+def _train_block(text: str) -> list[str]:
+    """The lines of the README's block that shows what `python train.py` prints."""
+    start = text.index("```\nPPO vs passivity")
+    return text[start + 4:text.index("```", start + 4)].strip().splitlines()
+
+
+def test_readme_train_py_output_and_time_to_beat_are_the_committed_measurement():
+    """The README's `python train.py` output is what the committed benchmark's train.py run printed (the run
+    directory aside), its time to beat passivity is the first evaluation above passivity on the committed
+    learning curve, and the committed learning-curve PNG exists."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("softpvtol_benchmarks_run", ROOT / "benchmarks" / "run.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    item = json.loads((ROOT / "benchmarks" / "results.json").read_text())["items"]["time_to_beat"]
+    printed = [line for line in item["stdout"].strip().splitlines() if line.strip()]
+    block = _train_block((ROOT / "README.md").read_text())
+    assert block[0].split("; run in ")[0] == printed[-4].split("; run in ")[0]
+    assert block[1:] == printed[-3:]
+    assert item["command"] == "python train.py --no-progress-bar"  # the default agent, nothing changed
+    curve = [{"step": e["step"], "wall_time": e["seconds"], "mean_return": e["mean_return"],
+              "mean_rms_position_error": e["mean_rms_position_error"]} for e in item["curve"]]
+    beat = bench.time_to_beat(curve, item["passivity"]["mean_return"], 0.0)
+    assert beat == item["beat"] and beat is not None
+    assert all(e["mean_return"] <= item["passivity"]["mean_return"] for e in curve if e["step"] < beat["step"])
+    png = (ROOT / "benchmarks" / "time_to_beat.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+def test_docs_ppo_speed_table_is_the_generated_one():
+    """docs/baselines.md's "Fast defaults" table = benchmarks/ppo_speed.py --table of the committed JSON, and
+    every run's steps to beat is the first evaluation above passivity on its committed learning curve."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("softpvtol_ppo_speed", ROOT / "benchmarks" / "ppo_speed.py")
+    speed = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(speed)
+    results = json.loads((ROOT / "benchmarks" / "ppo_speed.json").read_text())
+    text = (ROOT / "docs" / "baselines.md").read_text()
+    start = "<!-- benchmarks/ppo_speed.py --table: start (generated from benchmarks/ppo_speed.json, do not edit) -->"
+    block = text[text.index(start) + len(start):text.index("<!-- benchmarks/ppo_speed.py --table: end -->")]
+    assert block.strip() == speed.markdown_table(results).strip()
+    for r in results:
+        above = [e for e in r["curve"] if e["mean_return"] > r["passivity"]["mean_return"]]
+        assert r["steps_to_beat"] == (above[0]["step"] if above else None)
+        assert r["command"].startswith("python benchmarks/ppo_speed.py ")

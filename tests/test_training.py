@@ -134,6 +134,27 @@ def test_bad_train_input_exits_2_and_writes_nothing(args, message, tmp_path, cap
     assert not (tmp_path / "x").exists()
 
 
+def test_device_option(tmp_path, capsys):
+    """--device auto|cpu|cuda: the policy's device (the env steps on the CPU); cuda without a GPU is an exit 2
+    that says so, before anything is written."""
+    import torch
+
+    from baselines.models import resolve_device
+
+    assert resolve_device("cpu") == "cpu"
+    assert resolve_device("auto") == ("cuda" if torch.cuda.is_available() else "cpu")
+    with pytest.raises(ConfigError, match="device must be one of"):
+        resolve_device("tpu")
+    assert_exit_2(train_main, ["--device", "tpu", "--out", str(tmp_path / "x")], "invalid choice", capsys)
+    if not torch.cuda.is_available():
+        assert_exit_2(train_main, ["--device", "cuda", "--out", str(tmp_path / "x")],
+                      "--device cuda: torch sees no CUDA GPU", capsys)
+        assert not (tmp_path / "x").exists()
+    out = tmp_path / "auto"
+    assert train_main(["--device", "auto", "--timesteps", "256", *SHORT, "--out", str(out)]) == 0
+    assert json.loads((out / "result.json").read_text())["device"] == resolve_device("auto")
+
+
 def test_existing_run_is_not_overwritten(tmp_path, capsys):
     (tmp_path / "model.zip").write_bytes(b"keep")  # even a run of the earlier, pickle-based format
     assert_exit_2(train_main, ["--timesteps", "256", *SHORT, "--out", str(tmp_path)], "nothing was overwritten", capsys)
@@ -187,3 +208,24 @@ def test_sac_option_trains_checkpoints_its_replay_buffer_and_resumes(tmp_path):
     a, b = load_file(tmp_path / "ref" / "model.safetensors"), load_file(out / "model.safetensors")
     assert sorted(a) == sorted(b) and any(k.startswith("variables/log_ent_coef") for k in a)
     assert [k for k in a if not (a[k] == b[k]).all()] == []
+
+
+def test_initial_weights_do_not_depend_on_the_machines_thread_count(tmp_path):
+    """prepare() builds the model with SOFTPVTOL_TORCH_THREADS (1) torch threads, whatever torch's default (the
+    machine's cores): orthogonal initialisation gives other weights with other thread counts."""
+    import torch
+
+    from baselines.training import prepare
+
+    before = torch.get_num_threads()
+    weights = []
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            cfg = RunConfig(seed=1, n_envs=2, hyperparams=load_hyperparams("ppo", "residual"))
+            model = prepare(cfg, tmp_path / f"run{threads}")[2]
+            assert torch.get_num_threads() == 1
+            weights.append(torch.cat([p.detach().flatten() for p in model.policy.parameters()]))
+    finally:
+        torch.set_num_threads(before)
+    assert torch.equal(weights[0], weights[1])

@@ -1,0 +1,169 @@
+"""PPO configurations compared by time to beat the passivity controller (issue 15, item 1).
+
+    python benchmarks/ppo_speed.py --mode residual --timesteps 3000000 \
+        --config "default16=n_envs=16;n_steps=256;batch_size=256;n_epochs=10" \
+        --config "n256=n_envs=256;n_steps=64;batch_size=4096;n_epochs=5" --out benchmarks/ppo_speed_residual.json
+
+Each configuration is the YAML entry of the mode (``baselines/hyperparams/ppo.yml``) with the given
+overrides, trained by the same code as ``train.py`` (:func:`baselines.training.train`: the native vector
+env through the SB3 adapter, VecNormalize, ``torch.set_num_threads(1)``, the periodic held-out evaluation
+of 10 episodes every ``--eval-freq`` steps). Per configuration it records
+
+* the learning curve: per periodic evaluation the env steps, the seconds since training started, the
+  held-out mean return and RMS position error;
+* the passivity controller on the same held-out episodes (the line to beat);
+* ``steps_to_beat`` / ``seconds_to_beat``: the first evaluation whose mean return is above passivity's
+  (``null`` if none within ``--timesteps``);
+* the throughput of the whole training loop (env steps / wall seconds, evaluations included and
+  excluded) and the share of the wall time spent in the env's ``step`` (the adapter's ``step_wait``).
+
+Wall-clock figures depend on the machine's load: the JSON records ``os.getloadavg()`` before and after
+each configuration. Time to beat = steps to beat x wall time per step, the selection criterion. Each run
+is a fresh interpreter (as ``python train.py``). ``--table`` prints the Markdown table of a results file
+(docs/baselines.md, "Fast defaults").
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from baselines.atomic import atomic_write_text  # noqa: E402
+
+
+def parse_config(text: str) -> tuple[str, list[str]]:
+    """``"name=k1=v1;k2=v2"`` -> ``("name", ["k1=v1", "k2=v2"])``; ``"name="`` -> no overrides."""
+    name, sep, rest = text.partition("=")
+    if not sep or not name:
+        raise SystemExit(f"--config must look like name=key=value;key=value (name= for the YAML entry), got {text!r}")
+    return name, [item for item in rest.split(";") if item]
+
+
+def run_one(name: str, overrides: list[str], mode: str, timesteps: int, eval_freq: int, seed: int) -> dict:
+    import baselines.training as training
+    from baselines.config import RunConfig, apply_overrides, load_hyperparams
+    from baselines.evaluation import EVAL_SEED_OFFSET, evaluate
+    from softpvtol_gym import PassivityPolicy
+    from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
+
+    hp = apply_overrides(load_hyperparams("ppo", mode), overrides)
+    config = RunConfig(algo="ppo", action_mode=mode, timesteps=timesteps, seed=seed, n_envs=int(hp["n_envs"]),
+                       hyperparams=hp, overrides=overrides, checkpoint_freq=timesteps, eval_freq=eval_freq,
+                       eval_episodes=10)
+    probe = SoftPVTOLVectorEnv(num_envs=1, **config.env_kwargs())
+    passivity = evaluate(PassivityPolicy.from_env(probe), mode, "hover", "nominal", 10, EVAL_SEED_OFFSET + seed)
+    load_before = os.getloadavg()
+    with tempfile.TemporaryDirectory(prefix="issue-fast-ppo-speed-") as tmp:
+        run_dir = Path(tmp) / "run"
+        env, vecnorm, model = training.prepare(config, run_dir)
+        inside = {"env": 0.0, "eval": 0.0}
+        step_wait = env.step_wait
+
+        def timed_step_wait():
+            t0 = time.perf_counter()
+            out = step_wait()
+            inside["env"] += time.perf_counter() - t0
+            return out
+
+        env.step_wait = timed_step_wait
+        run_episodes = training.run_episodes
+
+        def timed_run_episodes(*args, **kwargs):
+            t0 = time.perf_counter()
+            out = run_episodes(*args, **kwargs)
+            inside["eval"] += time.perf_counter() - t0
+            return out
+
+        training.run_episodes = timed_run_episodes
+        try:
+            result = training.train(config, run_dir, prepared=(env, vecnorm, model))
+        finally:
+            training.run_episodes = run_episodes
+        history = json.loads((run_dir / training.EVALUATIONS_FILE).read_text())
+    wall = result["seconds"]
+    steps = result["num_timesteps"]
+    line = passivity["summary"]["mean_return"]
+    curve = [{"step": e["step"], "seconds": e["train_seconds"], "mean_return": e["mean_return"],
+              "mean_rms_position_error": e["mean_rms_position_error"], "crash_rate": e["crash_rate"]}
+             for e in history]
+    first = next((e for e in curve if e["mean_return"] > line), None)
+    return {
+        "name": name, "overrides": overrides, "action_mode": mode, "seed": seed, "timesteps": steps,
+        "hyperparams": hp, "wall_seconds": wall, "eval_seconds": inside["eval"], "env_seconds": inside["env"],
+        "steps_per_second": steps / wall, "steps_per_second_without_evaluations": steps / (wall - inside["eval"]),
+        "env_share": inside["env"] / wall,
+        "passivity": {k: passivity["summary"][k] for k in ("mean_return", "mean_rms_position_error", "crash_rate")},
+        "steps_to_beat": None if first is None else first["step"],
+        "seconds_to_beat": None if first is None else first["seconds"],
+        "best_return": max(e["mean_return"] for e in curve) if curve else None,
+        "final": curve[-1] if curve else None,
+        "curve": curve, "loadavg_before": list(load_before), "loadavg_after": list(os.getloadavg()),
+    }
+
+
+def markdown_table(results: list[dict]) -> str:
+    """One row per run of a results file (the table of docs/baselines.md, "Fast defaults")."""
+    lines = ["| mode | configuration | seed | steps to beat passivity | seconds to beat (load) | return at the end | "
+             "env-steps/s (evaluations excluded) | env share |", "|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        hp = r["hyperparams"]
+        config = (f"{r['name']}: {hp['n_envs']} x {hp['n_steps']}, batch {hp['batch_size']}, {hp['n_epochs']} epochs, "
+                  f"lr {hp['learning_rate']}, target_kl {hp.get('target_kl')}")
+        beat = "never" if r["steps_to_beat"] is None else f"{r['steps_to_beat']:,}"
+        secs = "-" if r["seconds_to_beat"] is None else f"{r['seconds_to_beat']:.0f} s"
+        load = r["loadavg_before"][0]
+        lines.append(f"| {r['action_mode']} | {config} | {r['seed']} | {beat} | {secs} ({load:.1f}) | "
+                     f"{r['final']['mean_return']:.1f} vs {r['passivity']['mean_return']:.1f} at {r['timesteps']:,} | "
+                     f"{r['steps_per_second'] / 1e3:.1f} k ({r['steps_per_second_without_evaluations'] / 1e3:.1f} k) | "
+                     f"{100 * r['env_share']:.1f} % |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--mode", default="residual", choices=("residual", "virtual", "actuators"))
+    ap.add_argument("--config", action="append", help="name=key=value;key=value (repeatable)")
+    ap.add_argument("--table", action="store_true", help="print the Markdown table of --out and exit")
+    ap.add_argument("--timesteps", type=int, default=2_000_000)
+    ap.add_argument("--eval-freq", type=int, default=50_000)
+    ap.add_argument("--seed", type=int, action="append", help="training seed (repeatable; default 0)")
+    ap.add_argument("--out", type=Path, required=True, help="JSON file (results are appended per configuration)")
+    args = ap.parse_args(argv)
+    results = json.loads(args.out.read_text()) if args.out.is_file() else []
+    if args.table:
+        print(markdown_table(results))
+        return 0
+    if not args.config:
+        ap.error("--config is required (or --table)")
+    for text in args.config:
+        name, overrides = parse_config(text)
+        for seed in args.seed or [0]:
+            # each run in a fresh interpreter, as `python train.py` runs: runs in one process are not
+            # independent (a second run with the same seed differs from a fresh process's)
+            with multiprocessing.get_context("spawn").Pool(1) as pool:
+                r = pool.apply(run_one, (name, overrides, args.mode, args.timesteps, args.eval_freq, seed))
+            r["command"] = "python benchmarks/ppo_speed.py " + " ".join(sys.argv[1:] if argv is None else argv)
+            results.append(r)
+            atomic_write_text(args.out, json.dumps(results, indent=1) + "\n")
+            beat = ("never" if r["steps_to_beat"] is None
+                    else f"{r['steps_to_beat']:,} steps, {r['seconds_to_beat']:.1f} s")
+            print(f"{args.mode} {name} seed {seed}: {r['steps_per_second'] / 1e3:.1f} k steps/s "
+                  f"({r['steps_per_second_without_evaluations'] / 1e3:.1f} k without evaluations), env share "
+                  f"{100 * r['env_share']:.1f} %, beats passivity ({r['passivity']['mean_return']:.1f}) after {beat}; "
+                  f"best {r['best_return']:.1f}, final {r['final']['mean_return']:.1f} / "
+                  f"{r['final']['mean_rms_position_error']:.3f} m; load {r['loadavg_before'][0]:.2f}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
