@@ -28,6 +28,8 @@ __all__ = ["ConfigError", "RunConfig", "load_hyperparams", "apply_overrides", "a
            "read_yaml"]
 
 CONFIG_FILE_NAME = "config.yaml"
+#: the residual base loop of runs saved before RunConfig had ``controller_loop`` (the env's default then)
+LEGACY_CONTROLLER_LOOP = "exact"
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 ALGOS = ("ppo", "sac")
 #: keys of a hyperparameter entry that are not keyword arguments of the SB3 algorithm
@@ -447,6 +449,9 @@ class RunConfig:
     eval_freq: int = 100_000
     eval_episodes: int = 10
     env_id: str = ENV_ID
+    #: the analytic loop of the residual base controller (and of the passivity comparison): None ->
+    #: the env's default, stored resolved so that a saved run records it (control.LOOPS)
+    controller_loop: str | None = None
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -469,6 +474,13 @@ class RunConfig:
         if not isinstance(self.overrides, list) or not all(isinstance(o, str) for o in self.overrides):
             raise ConfigError(f"overrides must be a list of 'key=value' strings, got {self.overrides!r}")
         validate_hyperparams(self.algo, self.hyperparams, self.n_envs)
+        from softpvtol_gym.envs.config import EnvConfig
+
+        try:
+            env_config = EnvConfig(action_mode=self.action_mode, controller_loop=self.controller_loop)
+        except (ValueError, TypeError) as exc:
+            raise ConfigError(f"controller_loop: {exc}") from None
+        self.controller_loop = env_config.resolved_controller_loop
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -483,6 +495,9 @@ class RunConfig:
         unknown = set(data) - set(names)
         if unknown:
             raise ConfigError(f"{source}: unknown keys {sorted(map(str, unknown))}; valid ones are {sorted(names)}")
+        if strict and "controller_loop" not in data:
+            # saved before the field existed (2026-12-01): those runs trained on the "exact" base loop
+            data = {**data, "controller_loop": LEGACY_CONTROLLER_LOOP}
         if strict:
             lost = [n for n in names if n not in data]
             if lost:
@@ -505,4 +520,9 @@ class RunConfig:
         return cls.from_dict(read_yaml(path, "run config"), source=f"run config {path}", strict=True)
 
     def env_kwargs(self) -> dict:
-        return {"action_mode": self.action_mode, "task": self.task, "tier": self.tier}
+        return {"action_mode": self.action_mode, "task": self.task, "tier": self.tier,
+                "controller_loop": self.controller_loop}
+
+    def eval_env_kwargs(self) -> dict:
+        """Env arguments of this run's evaluations besides mode, task and tier (the base loop)."""
+        return {"controller_loop": self.controller_loop}

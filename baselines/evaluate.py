@@ -110,6 +110,8 @@ def _main(argv) -> int:
                      f"{config.action_mode!r}; leave it out or pass {config.action_mode}")
         mode, task, tier = config.action_mode, args.task or config.task, args.tier or config.tier
         source = str(path)
+        if args.controller_loop is None and args.allocation is None:
+            env_kwargs = config.eval_env_kwargs()  # the base loop the checkpoint was trained on
     result = evaluate(policy, mode, task, tier, args.episodes, args.seed, env_kwargs=env_kwargs)
     s = result["summary"]
     cfg = EnvConfig(action_mode=mode, **env_kwargs)

@@ -254,7 +254,8 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
     if job.learned and (out / MANIFEST_FILE).is_file():
         from .training import LearnedPolicy
 
-        policy, _ = LearnedPolicy.load(out)
+        policy, run_config = LearnedPolicy.load(out)
+        env_kwargs = run_config.eval_env_kwargs()  # the base loop the policy was trained on
         train_seconds = None if previous is None else previous["train_seconds"]
     elif job.learned:
         from .checkpoints import legacy_files
@@ -271,6 +272,7 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
                            checkpoint_freq=max(job.timesteps // 4, 1), eval_freq=max(job.timesteps // 4, 1),
                            eval_episodes=5)
         run = train(config, run_dir, resume=True)
+        env_kwargs = config.eval_env_kwargs()
         train_seconds = run["seconds"] if run["status"] == "trained" else None
         policy = LearnedPolicy(run["model"], run["vecnorm"])
         from .training import EVALUATIONS_FILE

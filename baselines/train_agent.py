@@ -179,9 +179,12 @@ def _main(argv: list[str] | None) -> int:
                   f"evaluating it again")
         cell = (config.action_mode, config.task, config.tier)
         episodes = max(config.eval_episodes, 1)
-        learned = evaluate(LearnedPolicy(run["model"], run["vecnorm"]), *cell, episodes, EVAL_SEED_OFFSET + config.seed)
+        kw = config.eval_env_kwargs()
+        learned = evaluate(LearnedPolicy(run["model"], run["vecnorm"]), *cell, episodes, EVAL_SEED_OFFSET + config.seed,
+                           env_kwargs=kw)
         probe = SoftPVTOLVectorEnv(num_envs=1, **config.env_kwargs())
-        passivity = evaluate(PassivityPolicy.from_env(probe), *cell, episodes, EVAL_SEED_OFFSET + config.seed)
+        passivity = evaluate(PassivityPolicy.from_env(probe), *cell, episodes, EVAL_SEED_OFFSET + config.seed,
+                             env_kwargs=kw)
         report = {"config": config.to_dict(), "train_seconds": round(run["seconds"], 1),
                   "device": run["model"].device.type,
                   "eval_seed": EVAL_SEED_OFFSET + config.seed, config.algo: learned, "passivity": passivity}

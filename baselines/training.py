@@ -170,7 +170,7 @@ def _callbacks(run_dir: Path, config: RunConfig, vecnorm, start_step: int):
         def _evaluate(self, step: int) -> None:
             policy = LearnedPolicy(self.model, vecnorm)
             eps = run_episodes(policy, config.action_mode, config.task, config.tier, config.eval_episodes,
-                               EVAL_SEED_OFFSET + config.seed)
+                               EVAL_SEED_OFFSET + config.seed, env_kwargs=config.eval_env_kwargs())
             s = summarize(eps)
             for key in ("mean_return", "mean_rms_position_error", "crash_rate"):
                 self.logger.record(f"eval/{key}", s[key])

@@ -229,3 +229,26 @@ def test_initial_weights_do_not_depend_on_the_machines_thread_count(tmp_path):
     finally:
         torch.set_num_threads(before)
     assert torch.equal(weights[0], weights[1])
+
+
+def test_run_config_records_the_base_loop_and_reads_legacy_configs_as_exact(tmp_path):
+    """A run records the residual base loop it trains on (resolved: the env's default "bounded"); a
+    config saved before the field existed is read as "exact", the env's default when it was trained."""
+    import yaml
+
+    from baselines.config import LEGACY_CONTROLLER_LOOP, ConfigError, RunConfig
+
+    c = RunConfig(timesteps=1000)
+    assert c.controller_loop == "bounded" and c.env_kwargs()["controller_loop"] == "bounded"
+    assert RunConfig(timesteps=1000, controller_loop="paper").eval_env_kwargs() == {"controller_loop": "paper"}
+    with pytest.raises(ConfigError, match="controller_loop"):
+        RunConfig(controller_loop="convergent")
+    with pytest.raises(ConfigError, match="controller_loop"):
+        RunConfig(action_mode="actuators", controller_loop="ideal")
+    path = tmp_path / "config.yaml"
+    legacy = c.to_dict()
+    del legacy["controller_loop"]
+    path.write_text(yaml.safe_dump(legacy))
+    assert RunConfig.load(path).controller_loop == LEGACY_CONTROLLER_LOOP == "exact"
+    c.save(path)
+    assert RunConfig.load(path).controller_loop == "bounded"
