@@ -79,7 +79,8 @@ class ReferenceController:
         live, relax, last = np.ones(n, bool), np.ones(n), np.full(n, np.inf)
         tau = alloc = info = None
         for it in range(1, self.iters + 1):
-            q_ref[..., 3:5], qd_ref[..., 3:5], qdd_ref[..., 3:5] = arm, arm_d, arm_dd
+            # the body rows see the arm references without their fed-forward derivatives
+            q_ref[..., 3:5], qd_ref[..., 3:5], qdd_ref[..., 3:5] = arm, 0.0, 0.0
             tau_it = passivity_control(q, qd, q_ref, qd_ref, qdd_ref, P)
             if res is not None:
                 tau_it = tau_it + res

@@ -24,8 +24,8 @@ def test_algebraic_loop_solved_to_1e10_every_step(loop, hold):
     assert np.all(r["algebraic_residual"] <= 1e-10), r["algebraic_residual"].max()
     assert np.all(r["algebraic_iterations"] >= 1)
     # the solution continues the branch: no jump of the arm references by ~pi (another root) per step
-    # (the improved loop's arm torques chatter in its first second: steps of up to 0.83 rad)
-    assert np.max(np.abs(np.diff(r["arm_reference"], axis=0))) < 1.5
+    # (the improved loop's unbounded feedforward swings them in its first second: steps up to 1.9 rad)
+    assert np.max(np.abs(np.diff(r["arm_reference"], axis=0))) < 2.5
 
 
 def test_paper_case_first_step_right_rotor_pushes_the_right_way():
@@ -60,10 +60,9 @@ def test_max_held_control_period(loop):
 
 def test_bounded_loop_in_the_env_tracks_the_paper_trajectory_within_1mm():
     """track_paper nominal, default actuator limits: RMS position error over 30-40 s <= 1e-3 m, no
-    crash (the exact loop keeps ~5 cm: its arm references have no feedforward; the improved loop's
-    unbounded feedforward saturates the arm torques and crashes)."""
+    crash (the exact loop keeps ~5 cm: its arm references have no feedforward)."""
     rms = {}
-    for loop in ("bounded", "exact", "improved"):
+    for loop in ("bounded", "exact"):
         env = SoftPVTOLVectorEnv(num_envs=1, task="track_paper", action_mode="actuators")
         pol = PassivityPolicy.from_env(env, loop=loop)
         obs, _ = env.reset(seed=0)
@@ -77,7 +76,22 @@ def test_bounded_loop_in_the_env_tracks_the_paper_trajectory_within_1mm():
         rms[loop] = (np.sqrt(np.mean(np.square(err)[t >= 30.0])) if t[-1] >= 40.0 - 1e-9 else np.inf, bool(term[0]))
     assert rms["bounded"][0] <= 1e-3 and not rms["bounded"][1], rms
     assert 1e-2 < rms["exact"][0] < 0.1, rms
-    assert rms["improved"][1], rms  # crashed
+
+
+def test_bounded_loop_does_not_chatter_at_hover():
+    """The fed-forward derivatives enter the arm rows only: in the body rows their differences (1/dt^2)
+    would close a loop through the allocation with a gain far above 1 at the Nyquist frequency, and the
+    arm torques would flip between +-tau_max at every step of a held command."""
+    env = SoftPVTOLVectorEnv(num_envs=1, task="hover", action_mode="actuators")
+    pol = PassivityPolicy.from_env(env)
+    obs, _ = env.reset(seed=1_000_000)
+    arm = []
+    for _ in range(1000):
+        a, _ = pol.predict(obs)
+        arm.append(a[0, 2:4].copy())
+        obs, *_ = env.step(a)
+    late = np.array(arm[300:])
+    assert late.std(axis=0).max() < 0.01, late.std(axis=0)  # normalised arm torques after the transient
 
 
 def test_controller_loop_kwarg_and_defaults():

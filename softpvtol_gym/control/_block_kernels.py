@@ -234,6 +234,11 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
         for j in range(m):
             if B[lane_index(CB_ACTIVE, j)] != 0.0:
                 ents, q, qd, br, refs, res = _lane_inputs(B, j)
+                # the body rows take the arm references without their fed-forward derivatives: through
+                # D_ba and C_ba, differenced derivatives (1/dt^2 on q^d's history) would close a loop
+                # q^d -> body rows -> allocation -> q^d with a gain far above 1 at the Nyquist frequency
+                # (the arm torques then chatter at +-tau_max under a held command); the arm rows use them
+                refs = (refs[0], refs[1], 0.0, 0.0, 0.0, 0.0)
                 tau = _lane_tau(ents, q, qd, br, refs, res, lam, kg, has_res)
                 put_lane3(B, CB_TAU, j, tau)
                 if math.isfinite(tau[0]) and math.isfinite(tau[1]) and math.isfinite(tau[2]):
