@@ -25,7 +25,9 @@ SPEC = ("evaluation: {episodes: 2, seed: 1000000, tiers: [nominal, wind]}\n"
 #: files of a learned job that must be byte-identical whichever executor ran it. Not byte-identical even between two
 #: pool runs: model.json (it holds the observation space's RNG state, which SB3 leaves unseeded) and the header
 #: of model.safetensors (its metadata's key order); the tensors of model.safetensors are compared instead.
-SAME_BYTES = ("vecnormalize.json", "evaluations.json", "config.yaml")
+SAME_BYTES = ("vecnormalize.json", "config.yaml")
+#: evaluations.json: the same apart from its clock readings (train_seconds, wall_time)
+CLOCK_KEYS = ("train_seconds", "wall_time")
 
 
 def _tensors(path: Path) -> dict:
@@ -63,6 +65,9 @@ def test_ray_gives_the_pools_results_and_skips_finished_jobs(tmp_path, capsys):
     learned = next(j for j in jobs if j.learned)
     for name in SAME_BYTES:
         assert (learned.folder(ray_root) / name).read_bytes() == (learned.folder(pool_root) / name).read_bytes(), name
+    evals = [[{k: v for k, v in e.items() if k not in CLOCK_KEYS}
+              for e in json.loads((learned.folder(r) / "evaluations.json").read_text())] for r in (ray_root, pool_root)]
+    assert evals[0] == evals[1] and len(evals[0]) >= 2
     ray_model, pool_model = (_tensors(learned.folder(r) / "model.safetensors") for r in (ray_root, pool_root))
     assert ray_model.keys() == pool_model.keys() and len(ray_model) > 10
     for key, value in ray_model.items():
