@@ -64,7 +64,7 @@ def test_statistics_match_the_per_episode_data():
             assert 0.0 <= lo <= row["prob_improvement"] <= hi <= 1.0
 
 
-@pytest.mark.slow  # 40 checkpoint replays, ~50 s
+@pytest.mark.slow  # one replay per committed checkpoint (45), ~1 min
 @pytest.mark.parametrize(
     "checkpoint, train_tier, task", LEARNED, ids=[c[0].split("leaderboard_runs/")[-1] for c in LEARNED]
 )
