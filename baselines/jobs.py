@@ -9,11 +9,14 @@ so any executor can run the list: :func:`run_jobs` takes anything with ``concurr
 file system that every node shares; ``check_root=True`` makes each task check that it does).
 
 Job outputs (``<root>/<job.name>/``): ``eval.json`` (per evaluation tier, the episode list of
-:func:`baselines.evaluation.run_episodes`), and for learned policies the run directory contents that
-the leaderboard needs (the final model in the safe checkpoint format: ``model.safetensors``,
-``model.json``, ``vecnormalize.json``, ``config.yaml`` and the manifest ``checkpoint.json``, plus
-``evaluations.json``). A job whose ``eval.json`` exists is done and skipped, so an interrupted list can
-simply be re-run.
+:func:`baselines.evaluation.run_episodes` on the job's own task under ``eval``; a learned cell listed
+with ``also_evaluated_on`` is evaluated on those tasks too, under ``eval_other_tasks``: task -> tier ->
+episodes, so that a policy trained on ``track_random`` is scored on ``track_paper``, which it never
+saw), and for learned policies the run directory contents that the leaderboard needs (the final model
+in the safe checkpoint format: ``model.safetensors``, ``model.json``, ``vecnormalize.json``,
+``config.yaml`` and the manifest ``checkpoint.json``, plus ``evaluations.json``). A job whose
+``eval.json`` holds every (task, tier) it is evaluated on is done and skipped, so an interrupted list
+can simply be re-run, and a task added to ``also_evaluated_on`` only evaluates what is missing.
 
 The spec is validated before any job runs (:func:`load_spec`: unknown keys, wrong types, unknown tasks,
 tiers or action modes are errors naming the key); job names are safe slugs and every output path is
@@ -46,7 +49,7 @@ ROOT_TOKEN_FILE = ".run_jobs.token"
 SPEC_KEYS = ("evaluation", "passivity", "tasks", "trained", "seeds")
 EVALUATION_KEYS = ("episodes", "seed", "tiers")
 PASSIVITY_KEYS = ("name", "allocation", "loop")  # loop: optional, default the loop named as the allocation
-TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps")
+TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps", "also_evaluated_on")  # the last one optional
 ALLOCATIONS = ("paper", "exact")
 
 
@@ -65,6 +68,12 @@ class Job:
     timesteps: int = 0
     allocation: str | None = None   # passivity variants: the allocation of their controller
     loop: str | None = None         # passivity variants: their PassivityController loop (control.LOOPS)
+    other_eval_tasks: tuple = ()    # tasks it is evaluated on besides its own (learned cells: also_evaluated_on)
+
+    @property
+    def eval_tasks(self) -> tuple:
+        """Every task the job is evaluated on: its own first."""
+        return (self.task, *self.other_eval_tasks)
 
     @property
     def name(self) -> str:
@@ -157,13 +166,19 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
                     f"{source}: passivity[{i}].loop (a loop with the {p['allocation']} allocation)")
     cells = set()
     for i, c in enumerate(_list(spec["trained"], f"{source}: trained")):
-        _mapping(c, TRAINED_KEYS, f"{source}: trained[{i}]")
+        _mapping(c, TRAINED_KEYS, f"{source}: trained[{i}]", required=TRAINED_KEYS[:4])
         _choice(c["action_mode"], ACTION_MODES, f"{source}: trained[{i}].action_mode")
         _choice(c["task"], TASKS, f"{source}: trained[{i}].task")
         _choice(c["tier"], TIERS, f"{source}: trained[{i}].tier")
         if not _is_int(c["timesteps"]) or not 1 <= c["timesteps"] <= MAX_TIMESTEPS:
             raise ConfigError(f"{source}: trained[{i}].timesteps must be an integer in [1, {MAX_TIMESTEPS:,}], "
                               f"got {c['timesteps']!r}")
+        also = _list(c.get("also_evaluated_on", []), f"{source}: trained[{i}].also_evaluated_on")
+        for t in also:
+            _choice(t, tasks, f"{source}: each of trained[{i}].also_evaluated_on (a task of the spec's tasks)")
+        if c["task"] in also or len(set(also)) != len(also):
+            raise ConfigError(f"{source}: trained[{i}].also_evaluated_on must list other tasks than the cell's own "
+                              f"({c['task']!r}), each once; got {also}")
         key = (c["action_mode"], c["task"], c["tier"])
         if key in cells:
             raise ConfigError(f"{source}: trained[{i}] repeats the cell {key}")
@@ -197,7 +212,8 @@ def load_jobs(spec_path: Path = SPEC_FILE) -> list[Job]:
     for cell in spec["trained"]:
         for seed in spec["seeds"]:
             jobs.append(Job(policy="ppo", action_mode=cell["action_mode"], task=cell["task"], train_tier=cell["tier"],
-                            seed=int(seed), timesteps=int(cell["timesteps"]), **common))
+                            seed=int(seed), timesteps=int(cell["timesteps"]),
+                            other_eval_tasks=tuple(cell.get("also_evaluated_on", ())), **common))
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
@@ -246,7 +262,7 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
 
     out = job.folder(root)
     previous = read_eval(out / EVAL_FILE) if (out / EVAL_FILE).is_file() else None
-    if previous is not None and not reevaluate:
+    if previous is not None and not reevaluate and not missing_evaluations(job, previous):
         return previous
     t0 = time.perf_counter()
     env_kwargs = {}
@@ -269,8 +285,8 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
         hp = load_hyperparams("ppo", job.action_mode)
         config = RunConfig(algo="ppo", action_mode=job.action_mode, task=job.task, tier=job.train_tier,
                            timesteps=job.timesteps, seed=job.seed, n_envs=int(hp.get("n_envs", 16)), hyperparams=hp,
-                           checkpoint_freq=max(job.timesteps // 4, 1), eval_freq=max(job.timesteps // 4, 1),
-                           eval_episodes=5)
+                           checkpoint_freq=max(job.timesteps // 4, 1), eval_episodes=5,
+                           eval_freq=max(job.timesteps // 10, 1))  # ten points of the learning curves
         run = train(config, run_dir, resume=True)
         env_kwargs = config.eval_env_kwargs()
         train_seconds = run["seconds"] if run["status"] == "trained" else None
@@ -285,19 +301,38 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
         env_kwargs = {"allocation": job.allocation, "controller_loop": job.loop or job.allocation}
         probe = SoftPVTOLVectorEnv(num_envs=1, action_mode=job.action_mode, task=job.task, **env_kwargs)
         policy = PassivityPolicy.from_env(probe)
-    results = {}
-    for tier in job.eval_tiers:
-        results[tier] = run_episodes(policy, job.action_mode, job.task, tier, job.eval_episodes, job.eval_seed,
-                                     env_kwargs=env_kwargs)
+    # per evaluated task and tier; a finished job that is only missing some (a task added to its
+    # also_evaluated_on) keeps the episodes it has unless reevaluate
+    kept = {} if previous is None or reevaluate else evaluations_of(previous)
+    evaluations = {}
+    for task in job.eval_tasks:
+        for tier in job.eval_tiers:
+            done = kept.get(task, {}).get(tier)
+            evaluations.setdefault(task, {})[tier] = done if done is not None else run_episodes(
+                policy, job.action_mode, task, tier, job.eval_episodes, job.eval_seed, env_kwargs=env_kwargs)
     record = {
         "job": dataclasses.asdict(job),
         "checkpoint": _checkpoint_field(out) if job.learned else None,
         "train_seconds": None if train_seconds is None else round(train_seconds, 1),
-        "eval": results,
+        "eval": evaluations[job.task],
     }
+    if job.other_eval_tasks:
+        record["eval_other_tasks"] = {task: evaluations[task] for task in job.other_eval_tasks}
     atomic_write_text(out / EVAL_FILE, json.dumps(record, indent=1))
     record["wall_seconds"] = time.perf_counter() - t0
     return record
+
+
+def evaluations_of(record: dict) -> dict:
+    """task -> tier -> episodes of a job record (its own task's ``eval`` and ``eval_other_tasks``)."""
+    own = record["job"]["task"]
+    return {own: record["eval"], **{t: ev for t, ev in record.get("eval_other_tasks", {}).items() if t != own}}
+
+
+def missing_evaluations(job: Job, record: dict) -> list[tuple[str, str]]:
+    """The (task, tier) pairs that ``job`` is evaluated on and its result ``record`` lacks."""
+    have = evaluations_of(record)
+    return [(task, tier) for task in job.eval_tasks for tier in job.eval_tiers if tier not in have.get(task, {})]
 
 
 def reevaluate_job(job: Job, root: Path = RUNS_DIR) -> dict:
@@ -386,7 +421,12 @@ def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevalu
 
 
 def pending(jobs: list[Job], root: Path = RUNS_DIR) -> list[Job]:
-    return [j for j in jobs if not (j.folder(root) / EVAL_FILE).is_file()]
+    """The jobs without a result, or whose result lacks a (task, tier) they are now evaluated on."""
+    def done(job: Job) -> bool:
+        path = job.folder(root) / EVAL_FILE
+        return path.is_file() and not missing_evaluations(job, read_eval(path))
+
+    return [j for j in jobs if not done(j)]
 
 
 if __name__ == "__main__":  # pragma: no cover

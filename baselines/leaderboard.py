@@ -40,7 +40,17 @@ import numpy as np
 from baselines.atomic import atomic_path, atomic_write_text
 from baselines.cli import Parser, run_main
 from baselines.errors import ConfigError
-from baselines.jobs import EVAL_FILE, REPO_ROOT, RUNS_DIR, SPEC_FILE, load_jobs, load_spec, read_eval
+from baselines.jobs import (
+    EVAL_FILE,
+    REPO_ROOT,
+    RUNS_DIR,
+    SPEC_FILE,
+    evaluations_of,
+    load_jobs,
+    load_spec,
+    missing_evaluations,
+    read_eval,
+)
 
 RESULTS_JSON = Path(__file__).resolve().parent / "results" / "leaderboard.json"
 LEADERBOARD_MD = REPO_ROOT / "LEADERBOARD.md"
@@ -52,9 +62,12 @@ BOOTSTRAP_SEED = 0
 COMMAND = "python baselines/run_jobs.py && python baselines/leaderboard.py"
 
 
-def entry_label(job: dict) -> str:
+def entry_label(job: dict, task: str | None = None) -> str:
+    """The row label of a job evaluated on ``task`` (default: its own): a PPO entry names the tier it was
+    trained on, and the task too where that is not the one evaluated."""
     if job["policy"] == "ppo":
-        return f"PPO-{job['action_mode']} (trained on {job['train_tier']})"
+        where = job["train_tier"] if task in (None, job["task"]) else f"{job['task']}, {job['train_tier']}"
+        return f"PPO-{job['action_mode']} (trained on {where})"
     return job["policy"]
 
 
@@ -72,13 +85,21 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> tuple[list[dict], 
         if (j.get("policy"), j.get("task"), j.get("seed")) != (job.policy, job.task, job.seed):
             raise ConfigError(f"{path} holds the result of another job ({j.get('policy')}, {j.get('task')}, seed "
                               f"{j.get('seed')}); expected {job.name}")
-        for tier, episodes in rec["eval"].items():
-            cells.append({
-                "entry": entry_label(j), "policy": j["policy"], "action_mode": j["action_mode"], "task": j["task"],
-                "train_tier": j["train_tier"], "tier": tier, "seed": j["seed"], "checkpoint": rec["checkpoint"],
-                "train_seconds": rec["train_seconds"], "eval_seed": j["eval_seed"], "episodes": episodes,
-                "summary": _summary(episodes),
-            })
+        evaluations = evaluations_of(rec)
+        lost = missing_evaluations(job, rec)
+        if lost:
+            missing.append(f"{job.name} on {', '.join(f'{t}/{tier}' for t, tier in lost)}")
+        for task in job.eval_tasks:  # what the spec lists now (a result may hold more)
+            for tier, episodes in evaluations.get(task, {}).items():
+                if tier not in job.eval_tiers:
+                    continue
+                cells.append({
+                    "entry": entry_label(j, task), "policy": j["policy"], "action_mode": j["action_mode"],
+                    "task": task, "train_task": j["task"], "train_tier": j["train_tier"], "tier": tier,
+                    "seed": j["seed"], "timesteps": j.get("timesteps") or None, "checkpoint": rec["checkpoint"],
+                    "train_seconds": rec["train_seconds"],
+                    "eval_seed": j["eval_seed"], "episodes": episodes, "summary": _summary(episodes),
+                })
     return cells, missing
 
 
@@ -130,7 +151,8 @@ def aggregate(cells: list[dict]) -> list[dict]:
     rows = []
     for (task, tier, entry), group in sorted(groups.items()):
         row = {"task": task, "tier": tier, "entry": entry, "policy": group[0]["policy"],
-               "action_mode": group[0]["action_mode"], "train_tier": group[0]["train_tier"],
+               "action_mode": group[0]["action_mode"], "train_task": group[0].get("train_task", task),
+               "train_tier": group[0]["train_tier"],
                "runs": len(group), "episodes": len(group[0]["episodes"])}
         # one bootstrap for the three metrics: scores (runs x episodes x 3)
         scores = np.stack([_matrix(group, "rms_position_error"), _matrix(group, "return"),
@@ -149,6 +171,86 @@ def aggregate(cells: list[dict]) -> list[dict]:
             row["prob_improvement_ci"] = [float(v) for v in np.asarray(ci["p"]).reshape(-1)[:2]]
         rows.append(row)
     return rows
+
+
+# ------------------------------------------------------------------------------------- headline
+HEADLINE_TASKS = ("track_paper", "track_random")  # the tracking tasks of issue 16's goal
+
+
+def _policy_key(row: dict) -> tuple:
+    """A learned policy across the tasks it is evaluated on: (action mode, training task, training tier)."""
+    return (row["action_mode"], row.get("train_task", row["task"]), row["train_tier"])
+
+
+def _disjoint_below(a: list[float], b: list[float]) -> bool:
+    return a[1] < b[0]
+
+
+def headline(data: dict) -> dict | None:
+    """The best learned policy against the strongest analytic controller on every (tracking task, tier).
+
+    The learned policy is one policy for all of them (an action mode trained on one task and tier): of
+    the learned policies evaluated on every tier of every tracking task of the leaderboard, the one with
+    the smallest sum over (task, tier) of its IQM RMS position error relative to that of the strongest
+    analytic controller there. The strongest analytic controller is chosen per (task, tier): the
+    passivity entry with the lowest IQM RMS position error. None if no learned policy qualifies."""
+    meta, rows = data["meta"], data["aggregates"]
+    tasks = [t for t in HEADLINE_TASKS if t in meta["tasks"]]
+    pairs = [(t, tier) for t in tasks for tier in meta["tiers"]]
+    analytic = {}
+    for t, tier in pairs:
+        candidates = [r for r in rows if r["task"] == t and r["tier"] == tier and r["policy"] != "ppo"]
+        if candidates:
+            analytic[(t, tier)] = min(candidates, key=lambda r: r["rms_position_error_iqm"])
+    learned: dict[tuple, dict] = {}
+    for r in rows:
+        if r["policy"] == "ppo" and (r["task"], r["tier"]) in analytic:
+            learned.setdefault(_policy_key(r), {})[(r["task"], r["tier"])] = r
+    complete = {k: v for k, v in learned.items() if len(v) == len(pairs)}
+    if not pairs or len(analytic) < len(pairs) or not complete:
+        return None
+
+    def relative(k):
+        return sum(complete[k][p]["rms_position_error_iqm"] / analytic[p]["rms_position_error_iqm"] for p in pairs)
+
+    best = min(sorted(complete), key=relative)
+    out = []
+    for t, tier in pairs:
+        a, b = analytic[(t, tier)], complete[best][(t, tier)]
+        out.append({"task": t, "tier": tier, "analytic": a, "learned": b,
+                    "lower": b["rms_position_error_iqm"] < a["rms_position_error_iqm"],
+                    "disjoint": _disjoint_below(b["rms_position_error_ci"], a["rms_position_error_ci"]),
+                    "crash_no_higher": b["crash_rate"] <= a["crash_rate"]})
+    mode, train_task, train_tier = best
+    return {"policy": f"PPO-{mode} trained on {train_task} ({train_tier} tier)", "rows": out}
+
+
+def _headline_markdown(data: dict) -> list[str]:
+    h = headline(data)
+    if h is None:
+        return []
+    n = len(h["rows"])
+    counts = [sum(r[k] for r in h["rows"]) for k in ("lower", "disjoint", "crash_no_higher")]
+    lines = [
+        "## Headline: learned vs analytic control on the tracking tasks", "",
+        f"One learned policy, **{h['policy']}**, against the strongest analytic controller of each task and tier "
+        "(the passivity entry with the lowest IQM RMS position error there). The policy is the learned entry "
+        "evaluated on every tier of both tracking tasks with the smallest sum of its error relative to that "
+        "controller's (`headline()` in `baselines/leaderboard.py`). "
+        f"Its IQM RMS position error is lower in {counts[0]} of {n} (task, tier) pairs, with disjoint 95 % CIs "
+        f"in {counts[1]} of {n}; its crash rate is no higher in {counts[2]} of {n}.", "",
+        "| task | tier | strongest analytic | its RMS position error [m] | its crash rate | learned RMS position "
+        "error [m] | learned crash rate | learned lower? | CIs disjoint? |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in h["rows"]:
+        a, b = r["analytic"], r["learned"]
+        err = [_fmt(x["rms_position_error_iqm"], x["rms_position_error_ci"], 3) for x in (a, b)]
+        crash = [_fmt(x["crash_rate"], x["crash_rate_ci"], 2) for x in (a, b)]
+        yes = ["yes" if r[k] else "no" for k in ("lower", "disjoint")]
+        lines.append(f"| {r['task']} | {r['tier']} | {a['entry']} | {err[0]} | {crash[0]} | {err[1]} | {crash[1]} | "
+                     f"{yes[0]} | {yes[1]} |")
+    return lines + [""]
 
 
 # ------------------------------------------------------------------------------------- render
@@ -181,6 +283,7 @@ def render_markdown(data: dict) -> str:
     ]
     if meta.get("missing_jobs"):
         lines += [f"Missing jobs (not yet run): {len(meta['missing_jobs'])}.", ""]
+    lines += _headline_markdown(data)
     by_task: dict[str, list[dict]] = {}
     for r in data["aggregates"]:
         by_task.setdefault(r["task"], []).append(r)
@@ -197,8 +300,49 @@ def render_markdown(data: dict) -> str:
             ret = _fmt(r["return_iqm"], r["return_ci"], 0)
             lines.append(f"| {r['tier']} | {r['entry']} | {r['runs']} | {err} | {crash} | {ret} | {p} |")
         lines.append("")
+    lines += _budget_markdown(data)
     lines += ["![IQM RMS position error per tier](baselines/results/leaderboard.png)", ""]
     return "\n".join(lines)
+
+
+def training_budgets(data: dict) -> list[dict]:
+    """Per learned cell (action mode, training task, training tier): the training steps of its jobs (from
+    the job records) and the wall time of each seed's training (``train_seconds``; None where a job
+    was evaluated from an existing model and its time is not on record)."""
+    cells: dict[tuple, dict] = {}
+    for c in data["cells"]:
+        if c["policy"] != "ppo":
+            continue
+        key = (c["action_mode"], c.get("train_task", c["task"]), c["train_tier"])
+        cells.setdefault(key, {})[c["seed"]] = (c.get("timesteps"), c["train_seconds"])
+    out = []
+    for (mode, task, tier), seeds in sorted(cells.items()):
+        steps = sorted({s for s, _ in seeds.values() if s is not None})
+        seconds = [t for _, t in seeds.values() if t is not None]
+        out.append({"action_mode": mode, "train_task": task, "train_tier": tier, "seeds": len(seeds),
+                    "timesteps": steps, "train_seconds": sorted(seconds)})
+    return out
+
+
+def _budget_markdown(data: dict) -> list[str]:
+    rows = training_budgets(data)
+    if not rows:
+        return []
+    lines = ["## Training budgets", "",
+             "Per learned cell: the PPO steps of each seed (the spec's budget) and the wall time of its training "
+             "(`train_seconds` in the job records: median and range over the seeds; one process per job with one torch "
+             f"thread; the machine and its load are in the commit that generated this file: {data['meta']['commit']}).",
+             "", "| policy | trained on | seeds | steps per seed | training wall time per seed [s] |",
+             "|---|---|---|---|---|"]
+    for r in rows:
+        steps = ", ".join(f"{s:,}" for s in r["timesteps"]) or "not on record"
+        t = r["train_seconds"]
+        wall = f"{float(np.median(t)):.0f} [{t[0]:.0f}, {t[-1]:.0f}]" if t else "not on record"
+        if t and len(t) < r["seeds"]:
+            wall += f" ({len(t)} of {r['seeds']} seeds on record)"
+        lines.append(f"| PPO-{r['action_mode']} | {r['train_task']}, {r['train_tier']} | {r['seeds']} | {steps} | "
+                     f"{wall} |")
+    return lines + [""]
 
 
 def _entry_order(entry: str) -> tuple:

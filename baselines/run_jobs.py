@@ -4,8 +4,9 @@
     python baselines/run_jobs.py --executor ray [--workers 8]     # a local Ray instance with 8 CPUs
     python baselines/run_jobs.py --executor ray --address auto    # the Ray cluster of `ray start`
 
-Jobs already done (their ``eval.json`` exists under ``baselines/results/leaderboard_runs/``) are
-skipped, so an interrupted run is continued by running the command again. ``--reevaluate``
+Jobs already done (their ``eval.json`` under ``baselines/results/leaderboard_runs/`` holds every task and
+tier they are evaluated on) are skipped, so an interrupted run is continued by running the command again;
+a task added to a cell's ``also_evaluated_on`` only runs the missing evaluations. ``--reevaluate``
 re-runs every evaluation with the committed models (after a change of env or controller code).
 Each worker process (each Ray task: one CPU) runs with one numba and one torch thread. The same jobs
 and seeds give the same result files with either executor; on a Ray cluster ``--root`` must be on a
