@@ -49,7 +49,7 @@ ROOT_TOKEN_FILE = ".run_jobs.token"
 SPEC_KEYS = ("evaluation", "passivity", "tasks", "trained", "seeds")
 EVALUATION_KEYS = ("episodes", "seed", "tiers")
 PASSIVITY_KEYS = ("name", "allocation", "loop")  # loop: optional, default the loop named as the allocation
-TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps", "also_evaluated_on")  # the last one optional
+TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps", "also_evaluated_on", "hp")  # the last two optional
 ALLOCATIONS = ("paper", "exact")
 
 
@@ -69,6 +69,7 @@ class Job:
     allocation: str | None = None   # passivity variants: the allocation of their controller
     loop: str | None = None         # passivity variants: their PassivityController loop (control.LOOPS)
     other_eval_tasks: tuple = ()    # tasks it is evaluated on besides its own (learned cells: also_evaluated_on)
+    hp: tuple = ()                  # learned cells: "key=value" overrides of the mode's PPO entry (train.py --hp)
 
     @property
     def eval_tasks(self) -> tuple:
@@ -179,6 +180,16 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
         if c["task"] in also or len(set(also)) != len(also):
             raise ConfigError(f"{source}: trained[{i}].also_evaluated_on must list other tasks than the cell's own "
                               f"({c['task']!r}), each once; got {also}")
+        hp = _list(c.get("hp", []), f"{source}: trained[{i}].hp")
+        if not all(isinstance(h, str) for h in hp):
+            raise ConfigError(f"{source}: trained[{i}].hp must be a list of 'key=value' strings, got {hp!r}")
+        if hp:
+            from .config import apply_overrides, load_hyperparams, validate_hyperparams
+
+            try:  # validated as train.py --hp would be, before anything runs
+                validate_hyperparams("ppo", apply_overrides(load_hyperparams("ppo", c["action_mode"]), hp))
+            except ConfigError as exc:
+                raise ConfigError(f"{source}: trained[{i}].hp: {exc}") from None
         key = (c["action_mode"], c["task"], c["tier"])
         if key in cells:
             raise ConfigError(f"{source}: trained[{i}] repeats the cell {key}")
@@ -213,7 +224,8 @@ def load_jobs(spec_path: Path = SPEC_FILE) -> list[Job]:
         for seed in spec["seeds"]:
             jobs.append(Job(policy="ppo", action_mode=cell["action_mode"], task=cell["task"], train_tier=cell["tier"],
                             seed=int(seed), timesteps=int(cell["timesteps"]),
-                            other_eval_tasks=tuple(cell.get("also_evaluated_on", ())), **common))
+                            other_eval_tasks=tuple(cell.get("also_evaluated_on", ())),
+                            hp=tuple(cell.get("hp", ())), **common))
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
@@ -282,9 +294,12 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
             raise ConfigError(f"{out} holds a model in the earlier pickle-based format ({legacy_files(out)}); convert "
                               f"it once with python baselines/export.py from-sb3 --trust-pickle {out} if you trust it")
         run_dir = under(root, job.name + ".run", "job training folder")
-        hp = load_hyperparams("ppo", job.action_mode)
+        from .config import apply_overrides
+
+        hp = apply_overrides(load_hyperparams("ppo", job.action_mode), list(job.hp))
         config = RunConfig(algo="ppo", action_mode=job.action_mode, task=job.task, tier=job.train_tier,
                            timesteps=job.timesteps, seed=job.seed, n_envs=int(hp.get("n_envs", 16)), hyperparams=hp,
+                           overrides=list(job.hp),
                            checkpoint_freq=max(job.timesteps // 4, 1), eval_episodes=5,
                            eval_freq=max(job.timesteps // 10, 1))  # ten points of the learning curves
         run = train(config, run_dir, resume=True)

@@ -225,14 +225,18 @@ def headline(data: dict) -> dict | None:
     return {"policy": f"PPO-{mode} trained on {train_task} ({train_tier} tier)", "rows": out}
 
 
-def _headline_markdown(data: dict) -> list[str]:
+README_BLOCK = ("leaderboard.py headline", "baselines/results/leaderboard.json")  # README block: name, source
+
+
+def headline_markdown(data: dict, heading: bool = True) -> list[str]:
+    """The headline section of LEADERBOARD.md (``heading=False``: without its title, for the README)."""
     h = headline(data)
     if h is None:
         return []
     n = len(h["rows"])
     counts = [sum(r[k] for r in h["rows"]) for k in ("lower", "disjoint", "crash_no_higher")]
     lines = [
-        "## Headline: learned vs analytic control on the tracking tasks", "",
+        *(["## Headline: learned vs analytic control on the tracking tasks", ""] if heading else []),
         f"One learned policy, **{h['policy']}**, against the strongest analytic controller of each task and tier "
         "(the passivity entry with the lowest IQM RMS position error there). The policy is the learned entry "
         "evaluated on every tier of both tracking tasks with the smallest sum of its error relative to that "
@@ -283,7 +287,7 @@ def render_markdown(data: dict) -> str:
     ]
     if meta.get("missing_jobs"):
         lines += [f"Missing jobs (not yet run): {len(meta['missing_jobs'])}.", ""]
-    lines += _headline_markdown(data)
+    lines += headline_markdown(data)
     by_task: dict[str, list[dict]] = {}
     for r in data["aggregates"]:
         by_task.setdefault(r["task"], []).append(r)
@@ -505,6 +509,10 @@ def _main(argv=None) -> int:
         atomic_write_text(args.json, json.dumps(data, indent=1))
     atomic_write_text(args.markdown, render_markdown(data))
     render_chart(data, args.chart)
+    if args.markdown.resolve() == LEADERBOARD_MD.resolve():  # the committed outputs: the README's block too
+        from baselines import readme
+
+        readme.write_block(*README_BLOCK, "\n".join(headline_markdown(data, heading=False)))
     print(f"wrote {args.markdown} and {args.chart}" + ("" if args.from_json else f" from {args.json}"))
     return 0
 

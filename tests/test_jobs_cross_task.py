@@ -45,11 +45,15 @@ def test_added_task_evaluates_only_what_is_missing_and_reaches_the_leaderboard(t
     from baselines.leaderboard import aggregate, collect
 
     root = tmp_path / "runs"
-    spec = write_spec(tmp_path / "spec.yml")
+    spec = write_spec(tmp_path / "spec.yml", ', hp: ["learning_rate=1e-3"]')
     (job,) = load_jobs(spec)
     with ThreadPoolExecutor(max_workers=1) as ex:
         run_jobs([job], ex, root, progress=False)
     first = json.loads((job.folder(root) / EVAL_FILE).read_text())
+    from baselines.config import RunConfig
+
+    saved = RunConfig.load(job.folder(root) / "config.yaml")  # the cell's override is what trained
+    assert saved.hyperparams["learning_rate"] == 1e-3 and saved.overrides == ["learning_rate=1e-3"]
     assert "eval_other_tasks" not in first and set(first["eval"]) == {"nominal", "wind"}
 
     spec = write_spec(tmp_path / "spec.yml", ", also_evaluated_on: [hover]")
@@ -85,3 +89,21 @@ def test_added_task_evaluates_only_what_is_missing_and_reaches_the_leaderboard(t
                       tasks="[hover, track_paper, track_random]")
     _, missing = collect(root, spec)
     assert missing == ["ppo_actuators_track_random_nominal/seed_0 on track_paper/nominal, track_paper/wind"]
+
+
+@pytest.mark.parametrize("hp, message", [
+    ('"learning_rate=1e-3"', "hp must be a list"),
+    ("[3]", "hp must be a list of 'key=value' strings"),
+    ('["learning_rate"]', "must look like key=value"),
+    ('["learning_rate=-1"]', "learning_rate"),
+    ('["bogus_key=1"]', "bogus_key"),
+])
+def test_bad_cell_hyperparameter_overrides_are_refused(tmp_path, hp, message):
+    with pytest.raises(ConfigError, match=r"trained\[0\]\.hp") as info:
+        load_jobs(write_spec(tmp_path / "spec.yml", f", hp: {hp}"))
+    assert message in str(info.value)
+
+
+def test_cell_hyperparameter_overrides_reach_the_job(tmp_path):
+    (job,) = load_jobs(write_spec(tmp_path / "spec.yml", ', hp: ["learning_rate=1e-3", "gamma=0.995"]'))
+    assert job.hp == ("learning_rate=1e-3", "gamma=0.995")

@@ -8,11 +8,12 @@ from pathlib import Path
 
 import pytest
 
-from baselines import passivity_metrics, readme, reproduce_paper
+from baselines import leaderboard, passivity_metrics, readme, reproduce_paper
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = json.loads((ROOT / reproduce_paper.README_SOURCE).read_text())
 METRICS = json.loads((ROOT / passivity_metrics.README_SOURCE).read_text())
+BOARD = json.loads(leaderboard.RESULTS_JSON.read_text())
 
 
 @pytest.mark.parametrize("name, source, table", [
@@ -20,6 +21,7 @@ METRICS = json.loads((ROOT / passivity_metrics.README_SOURCE).read_text())
     ("reproduce_paper.py loops", reproduce_paper.README_SOURCE, lambda: reproduce_paper.loops_table(PAPER)),
     ("reproduce_paper.py steady state", reproduce_paper.README_SOURCE,
      lambda: reproduce_paper.steady_state_table(PAPER["steady_state"])),
+    (*leaderboard.README_BLOCK, lambda: "\n".join(leaderboard.headline_markdown(BOARD, heading=False))),
 ])
 def test_readme_table_is_the_generated_one(name, source, table):
     assert readme.read_block(name, source) == table().strip()
