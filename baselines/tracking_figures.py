@@ -129,8 +129,16 @@ def load_learned(checkpoint: Path, caption: str | None = None):
     policy, config = LearnedPolicy.load(Path(checkpoint))
     label = f"{config.algo.upper()}-{config.action_mode} (trained on {config.task} {config.tier})"
     if caption is None:
-        caption = f"{label}, seed {config.seed}: the checkpoint given ({checkpoint})"
+        caption = f"seed {config.seed}, given by --checkpoint {_shown(Path(checkpoint))}"
     return policy, config, label, caption
+
+
+def _shown(path: Path) -> str:
+    """``path`` relative to the repository where it lies in it (shorter titles)."""
+    try:
+        return str(path.resolve().relative_to(REPO_ROOT))
+    except ValueError:
+        return str(path)
 
 
 def reference_env_kwargs(spec_path: Path) -> dict:
@@ -183,10 +191,9 @@ def tracking_figure(tiers, seed: int, seconds: float | None, learned, passivity_
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from baselines.atomic import atomic_path
     from softpvtol_gym import PassivityPolicy
     from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
-
-    from baselines.atomic import atomic_path
 
     policy, config, label, caption = learned
     analytic = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=TASK,
@@ -233,12 +240,11 @@ def tracking_figure(tiers, seed: int, seconds: float | None, learned, passivity_
     for ax in axes.flat:
         for h, name in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(name, h)
-    fig.legend(handles.values(), handles.keys(), loc="upper center", ncol=len(handles), fontsize=8.5,
-               bbox_to_anchor=(0.5, 0.935))
+    fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=len(handles), fontsize=9)
     width = max(60, 28 * len(tiers))  # characters per title line
     fig.suptitle("\n".join(textwrap.wrap(f"{TASK}, evaluation episode seed {seed}: {REFERENCE} (actuators mode) vs "
                                          f"{label}. Learned policy: {caption}", width)), fontsize=9)
-    fig.tight_layout(rect=(0, 0, 1, 0.9))
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
     with atomic_path(out) as tmp:
         fig.savefig(tmp, format="png", dpi=100, metadata={"Software": None})
     plt.close(fig)
@@ -271,10 +277,9 @@ def read_curves(runs_dir: Path) -> list[dict]:
 
 def heldout_reference(task: str, tier: str, configs: list, passivity_kwargs: dict) -> float:
     """passivity-bounded's mean RMS position error on each run's held-out episodes, median over the runs."""
+    from baselines.evaluation import run_episodes
     from softpvtol_gym import PassivityPolicy
     from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
-
-    from baselines.evaluation import run_episodes
 
     policy = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=task,
                                                          **passivity_kwargs))
@@ -303,7 +308,7 @@ def curves_figure(curves: list[dict], reference: str, passivity_kwargs: dict, le
     from baselines.atomic import atomic_path
 
     tasks = sorted({c["config"].task for c in curves})
-    fig, axes = plt.subplots(1, len(tasks), figsize=(5.6 * len(tasks), 4.6), squeeze=False)
+    fig, axes = plt.subplots(1, len(tasks), figsize=(5.6 * len(tasks), 5.0), squeeze=False)
     cells = sorted({c["cell"] for c in curves})
     colors = {cell: plt.get_cmap("tab10")(i % 10) for i, cell in enumerate(cells)}
     levels = {}
@@ -334,8 +339,8 @@ def curves_figure(curves: list[dict], reference: str, passivity_kwargs: dict, le
                 levels[f"{task}/{tier}"] = level
                 ax.axhline(level, color="0.3", ls=style, lw=1.3, label=text)
         ax.set_yscale("log")
-        ax.set_title(f"trained on {task}" + ("" if timed else "\n(runs saved before train_seconds was recorded: x = steps)"),
-                     fontsize=10)
+        note = "" if timed else "\n(runs saved before train_seconds was recorded: x = steps)"
+        ax.set_title(f"trained on {task}{note}", fontsize=10)
         ax.set_xlabel("training wall-clock time [s] (incl. periodic evaluations)" if timed else "environment steps")
         ax.set_ylabel("held-out mean RMS position error [m]")
         ax.grid(True, alpha=0.3, which="both")
@@ -377,9 +382,10 @@ def build_parser() -> Parser:
     ap.add_argument("--seconds", type=float_arg(0.01, 600.0), default=None,
                     help="cut the tracking episodes after this long [s] (default: the whole episode)")
     ap.add_argument("--curve-reference", choices=("heldout", "leaderboard"), default="heldout")
-    ap.add_argument("--gif-seconds", type=float_arg(0.1, 600.0), default=20.0)
+    ap.add_argument("--gif-seconds", type=float_arg(0.1, 600.0), default=None,
+                    help="cut the GIF's episode after this long [s] (default: the whole episode)")
     ap.add_argument("--gif-fps", type=int_arg(1, 100), default=10, help="divides 100")
-    ap.add_argument("--gif-scale", type=float_arg(0.1, 1.0), default=0.4)
+    ap.add_argument("--gif-scale", type=float_arg(0.1, 1.0), default=0.6, help="frame size x 600 x 450")
     ap.add_argument("--tracking-out", type=Path, default=TRACKING_PNG)
     ap.add_argument("--curves-out", type=Path, default=CURVES_PNG)
     ap.add_argument("--gif-out", type=Path, default=GIF)
@@ -429,14 +435,14 @@ def _main(argv) -> int:
         print(f"wrote {args.curves_out} ({len(curves)} runs; {REFERENCE} levels: "
               + ", ".join(f"{k} {v:.3f} m" for k, v in levels.items()) + ")")
     if "gif" in only:
-        from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
-
         from baselines.render_gif import render_frames, save_gif
+        from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
         policy, config, label, _ = learned
         env = SoftPVTOLVectorEnv(num_envs=1, action_mode=config.action_mode, task=TASK, tier="nominal",
                                  render_mode="rgb_array", **config.eval_env_kwargs())
-        frames, steps = render_frames(policy, env, args.seed, args.gif_seconds, args.gif_fps, args.gif_scale)
+        seconds = args.gif_seconds or env.config.episode_seconds
+        frames, steps = render_frames(policy, env, args.seed, seconds, args.gif_fps, args.gif_scale)
         size = save_gif(frames, args.gif_out, args.gif_fps)
         print(f"wrote {args.gif_out}: {label} on {TASK} nominal, seed {args.seed}, {len(frames)} frames "
               f"({steps} steps), {size / 1e6:.2f} MB")

@@ -25,8 +25,8 @@ CHECKPOINT = ROOT / CELL / "seed_0"
 
 def _cell(entry, seed, rms, task="track_paper", tier="nominal", checkpoint=None, **extra):
     return {"entry": entry, "policy": "ppo" if checkpoint else entry, "task": task, "tier": tier, "seed": seed,
-            "checkpoint": checkpoint, "episodes": [{"rms_position_error": rms - 0.1}, {"rms_position_error": rms + 0.1}],
-            **extra}
+            "checkpoint": checkpoint, **extra,
+            "episodes": [{"rms_position_error": rms - 0.1}, {"rms_position_error": rms + 0.1}]}
 
 
 def _row(entry, iqm, task="track_paper", tier="nominal", learned=True, **extra):
@@ -109,7 +109,7 @@ def test_tracking_plot_and_gif_of_a_short_episode(tmp_path, capsys, source):
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert "passivity-bounded RMS" in out and "PPO-residual (trained on track_random nominal)" in out
-    assert ("the checkpoint given" if source == "checkpoint" else "B, seed 0: the median of its 5 seeds") in out
+    assert ("given by --checkpoint" if source == "checkpoint" else "B, seed 0: the median of its 5 seeds") in out
     width, height = _png(png)
     assert width > 300 and height > 300
     with Image.open(gif) as im:
@@ -129,13 +129,15 @@ def test_learning_curves_from_runs(tmp_path, capsys, reference):
         task = "hover" if "hover" in cell else "track_paper"
         mode = cell.split("_")[1]
         config = (base.replace("task: track_random", f"task: {task}").replace("seed: 0", f"seed: {seed}")
-                  .replace("eval_episodes: 5", "eval_episodes: 1").replace("action_mode: residual", f"action_mode: {mode}"))
+                  .replace("eval_episodes: 5", "eval_episodes: 1")
+                  .replace("action_mode: residual", f"action_mode: {mode}"))
         (run / "config.yaml").write_text(config)
-        history = [{"step": s, "mean_rms_position_error": 1.0 / (1 + s), **({"train_seconds": 0.5 + s} if timed else {})}
+        history = [{"step": s, "mean_rms_position_error": 1.0 / (1 + s), **({"train_seconds": s / 10} if timed else {})}
                    for s in (0, 10, 20)]
         (run / "evaluations.json").write_text(json.dumps(history))
     lb = tmp_path / "lb.json"
-    lb.write_text(json.dumps({"aggregates": [_row("passivity-bounded", 0.4, task="hover", learned=False)], "cells": []}))
+    reference_row = _row("passivity-bounded", 0.4, task="hover", learned=False)
+    lb.write_text(json.dumps({"aggregates": [reference_row], "cells": []}))
     out = tmp_path / "c.png"
     argv = ["--only", "curves", "--runs", str(tmp_path / "runs"), "--curves-out", str(out), "--curve-reference",
             reference, "--leaderboard", str(lb)]
@@ -192,3 +194,28 @@ def test_committed_pictures_exist_and_are_in_the_readme(path):
     else:
         _png(path)
     assert "python baselines/tracking_figures.py" in readme
+
+
+class FullDown:
+    """A policy that commands every actuator to its lower limit: the episode ends early (a crash)."""
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        import numpy as np
+
+        return -np.ones((len(observation), 4), np.float32), None
+
+
+def test_a_crash_ends_the_trajectory_and_is_drawn(tmp_path):
+    from baselines.config import RunConfig
+    from baselines.tracking_figures import reference_env_kwargs, run_trajectory, tracking_figure
+
+    run = run_trajectory(FullDown(), "actuators", "track_paper", "nominal", 1_000_000, 2.0, {})
+    assert run["crashed"] and run["reason"] and run["t"][-1] < 1.0 and len(run["t"]) == len(run["err"])
+    learned = (FullDown(), RunConfig(action_mode="actuators", task="track_paper"), "full down", "a test policy")
+    out = tmp_path / "crash.png"
+    passivity = reference_env_kwargs(ROOT / "baselines" / "leaderboard.yml")
+    result = tracking_figure(["nominal"], 1_000_000, 1.0, learned, passivity, out)
+    assert result["nominal"]["full down"]["crashed"] and result["nominal"]["full down"]["seconds"] < 1.0
+    assert not result["nominal"]["passivity-bounded"]["crashed"]
+    assert result["nominal"]["passivity-bounded"]["seconds"] == pytest.approx(1.0)
+    _png(out)
