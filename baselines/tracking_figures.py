@@ -248,8 +248,29 @@ def tracking_figure(tiers, seed: int, seconds: float | None, learned, passivity_
     with atomic_path(out) as tmp:
         fig.savefig(tmp, format="png", dpi=100, metadata={"Software": None})
     plt.close(fig)
-    return {tier: {name: {"rms": run["rms"], "crashed": run["crashed"], "seconds": float(run["t"][-1])}
-                   for name, run in r.items()} for tier, r in runs.items()}
+    return {tier: {name: episode_summary(run) for name, run in r.items()} for tier, r in runs.items()}
+
+
+#: the summary's thresholds: when the position error is first below CLOSE, its largest value after SETTLED
+CLOSE, SETTLED = 0.2, 10.0  # [m], [s]
+
+
+def episode_summary(run: dict) -> dict:
+    """RMS position error, crash, length, the first time |e| < CLOSE (None: never) and max |e| from SETTLED on."""
+    import numpy as np
+
+    below = np.flatnonzero(run["err"] < CLOSE)
+    late = run["err"][run["t"] >= SETTLED]
+    return {"rms": run["rms"], "crashed": run["crashed"], "seconds": float(run["t"][-1]),
+            "first_close": float(run["t"][below[0]]) if below.size else None,
+            "max_settled": float(late.max()) if late.size else None}
+
+
+def _summary_text(v: dict) -> str:
+    close = "never" if v["first_close"] is None else f"at {v['first_close']:.2f} s"
+    settled = "" if v["max_settled"] is None else f", max |e| from {SETTLED:g} s on {v['max_settled']:.3f} m"
+    return (f"RMS {v['rms']:.3f} m over {v['seconds']:.1f} s{' (crash)' if v['crashed'] else ''}, |e| < {CLOSE:g} m "
+            f"first {close}{settled}")
 
 
 # ------------------------------------------------------------------------------- learning curves
@@ -426,9 +447,8 @@ def _main(argv) -> int:
     if "tracking" in only:
         result = tracking_figure(tiers, args.seed, args.seconds, learned, passivity_kwargs, args.tracking_out)
         for tier, r in result.items():
-            print(f"  {TASK} {tier}: " + "; ".join(
-                f"{name} RMS {v['rms']:.3f} m over {v['seconds']:.1f} s{' (crash)' if v['crashed'] else ''}"
-                for name, v in r.items()))
+            for name, v in r.items():
+                print(f"  {TASK} {tier}, {name}: {_summary_text(v)}")
         print(f"wrote {args.tracking_out}")
     if "curves" in only:
         levels = curves_figure(curves, args.curve_reference, passivity_kwargs, leaderboard, args.curves_out)

@@ -108,7 +108,8 @@ def test_tracking_plot_and_gif_of_a_short_episode(tmp_path, capsys, source):
         argv += ["--leaderboard", str(tmp_path / "lb.json")]
     assert main(argv) == 0
     out = capsys.readouterr().out
-    assert "passivity-bounded RMS" in out and "PPO-residual (trained on track_random nominal)" in out
+    assert "nominal, passivity-bounded: RMS" in out
+    assert "nominal, PPO-residual (trained on track_random nominal): RMS" in out
     assert ("given by --checkpoint" if source == "checkpoint" else "B, seed 0: the median of its 5 seeds") in out
     width, height = _png(png)
     assert width > 300 and height > 300
@@ -218,4 +219,19 @@ def test_a_crash_ends_the_trajectory_and_is_drawn(tmp_path):
     assert result["nominal"]["full down"]["crashed"] and result["nominal"]["full down"]["seconds"] < 1.0
     assert not result["nominal"]["passivity-bounded"]["crashed"]
     assert result["nominal"]["passivity-bounded"]["seconds"] == pytest.approx(1.0)
+    assert result["nominal"]["passivity-bounded"]["max_settled"] is None  # the 1-s episode never reaches 10 s
     _png(out)
+
+
+def test_episode_summary():
+    import numpy as np
+
+    from baselines.tracking_figures import episode_summary
+
+    t = np.arange(0.0, 12.01, 0.5)
+    err = np.where(t < 3.0, 5.0, 0.1)
+    err[t == 11.0] = 0.3
+    run = {"t": t, "err": err, "rms": 1.0, "crashed": False}
+    assert episode_summary(run) == {"rms": 1.0, "crashed": False, "seconds": 12.0, "first_close": 3.0,
+                                    "max_settled": 0.3}
+    assert episode_summary({**run, "err": err + 1.0})["first_close"] is None
