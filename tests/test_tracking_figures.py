@@ -235,3 +235,23 @@ def test_episode_summary():
     assert episode_summary(run) == {"rms": 1.0, "crashed": False, "seconds": 12.0, "first_close": 3.0,
                                     "max_settled": 0.3}
     assert episode_summary({**run, "err": err + 1.0})["first_close"] is None
+
+
+def test_without_matplotlib_it_names_the_extra(tmp_path, capsys, monkeypatch):
+    import importlib
+
+    import baselines._extras
+
+    real = importlib.import_module
+
+    def no_matplotlib(name, *args, **kwargs):
+        if name.split(".")[0] == "matplotlib":
+            raise ImportError(f"No module named {name!r}")
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(baselines._extras.importlib, "import_module", no_matplotlib)
+    with pytest.raises(SystemExit) as exc:
+        main(["--only", "curves", "--curves-out", str(tmp_path / "c.png")])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "missing matplotlib" in err and "softpvtol-gym[baselines]" in err, err
+    assert not (tmp_path / "c.png").exists()
