@@ -21,6 +21,7 @@ NEEDS = {
     "passivity_metrics.py": (),
     "reproduce_paper.py": ("matplotlib",),
     "render_gif.py": ("yaml", "filelock", "safetensors", "PIL"),
+    "tracking_figures.py": ("yaml", "filelock", "safetensors", "matplotlib", "PIL"),
     "tune.py": ("yaml", "filelock", "safetensors", "tensorboard", "ray", "optuna"),
 }
 #: modules of the ``distributed`` extra (Ray and the search library of its Tune searcher)
