@@ -335,7 +335,8 @@ def _budget_markdown(data: dict) -> list[str]:
     lines = ["## Training budgets", "",
              "Per learned cell: the PPO steps of each seed (the spec's budget) and the wall time of its training "
              "(`train_seconds` in the job records: median and range over the seeds; one process per job with one torch "
-             f"thread; the machine and its load are in the commit that generated this file: {data['meta']['commit']}).",
+             "thread). Wall time depends on the machine and on what else it ran meanwhile, so compare cells by steps; "
+             "the commit that added these results says on what machine, and at what load, the jobs ran.",
              "", "| policy | trained on | seeds | steps per seed | training wall time per seed [s] |",
              "|---|---|---|---|---|"]
     for r in rows:
