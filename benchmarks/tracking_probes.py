@@ -9,8 +9,10 @@ on ``track_paper`` and ``track_random``, tiers ``nominal``, ``mismatch`` and ``h
 evaluation seed 1,000,000 (the same episodes for every run), with the env arguments the run trained with
 (``config.eval_env_kwargs()``: its base loop and env options; its frame stack comes from its config). The
 passivity controller of the residual mode's base loop (``bounded``, the residual action 0) is evaluated
-on the same episodes as the reference. Per run and cell the JSON holds the mean and median RMS position
-error, the crash rate, the mean control effort, and the per-episode RMS position errors. A run already
+on the same episodes as the reference. Per run and cell the JSON holds the mean, median and IQM RMS
+position error, the crash rate, the mean control effort, and the per-episode RMS position errors; the
+table's last part pools the episodes of a run's seeds (IQM over seeds x episodes, the leaderboard's
+estimate). A run already
 in ``--out`` is not evaluated again (``--again`` re-evaluates every run). ``--table`` writes the Markdown
 tables generated from the JSON (never edit them by hand).
 """
@@ -42,11 +44,19 @@ REFERENCE = "passivity-bounded"
 SEED_SUFFIX = re.compile(r"_s(\d+)$")
 
 
+def iqm(values) -> float:
+    """The interquartile mean (the leaderboard's point estimate: rliable's aggregate_iqm, a 25 % trimmed mean)."""
+    from scipy.stats import trim_mean
+
+    return float(trim_mean(np.asarray(values, dtype=float).ravel(), 0.25))
+
+
 def cell_summary(episodes: list[dict]) -> dict:
     err = np.array([e["rms_position_error"] for e in episodes])
     return {"episodes": len(episodes),
             "mean_rms_position_error": float(err.mean()),
             "median_rms_position_error": float(np.median(err)),
+            "iqm_rms_position_error": iqm(err),
             "crash_rate": float(np.mean([e["crashed"] for e in episodes])),
             "mean_control_effort": float(np.mean([e["control_effort"] for e in episodes])),
             "rms_position_errors": [round(float(x), 6) for x in err]}
@@ -137,7 +147,7 @@ def markdown(data: dict) -> str:
             lines.append(f"| {r['group']} | {seed} | " + " | ".join(_cell(r["cells"][f"{task}/{t}"]) for t in TIERS)
                          + " |")
         lines.append("")
-    lines += ["## Mean over seeds (mean RMS position error [m], crash rate)", "",
+    lines += ["## Pooled over seeds: IQM RMS position error [m] over seeds x episodes (mean crash rate)", "",
               "| run | seeds | " + " | ".join(f"{t} {tier}" for t in TASKS for tier in TIERS) + " |",
               "|---|---|" + "---|" * (len(TASKS) * len(TIERS))]
     groups: dict[str, list[dict]] = {}
@@ -148,8 +158,8 @@ def markdown(data: dict) -> str:
         for task in TASKS:
             for tier in TIERS:
                 cs = [r["cells"][f"{task}/{tier}"] for r in rs]
-                cells.append(f"{np.mean([c['mean_rms_position_error'] for c in cs]):.3f} "
-                             f"({np.mean([c['crash_rate'] for c in cs]):.2f})")
+                pooled = [x for c in cs for x in c["rms_position_errors"]]
+                cells.append(f"{iqm(pooled):.3f} ({np.mean([c['crash_rate'] for c in cs]):.2f})")
         seeds = "-" if rs[0]["seed"] is None else ", ".join(str(r["seed"]) for r in rs)
         lines.append(f"| {group} | {seeds} | " + " | ".join(cells) + " |")
     lines += ["", "## Training commands", ""]
