@@ -12,9 +12,6 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS_START = ("<!-- benchmarks/tracking_probes.py summary table: start (generated from "
-              "benchmarks/tracking_probes.json, do not edit) -->")
-DOCS_END = "<!-- benchmarks/tracking_probes.py summary table: end -->"
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +27,7 @@ def test_tables_are_generated_from_the_json(probes):
     module, data = probes
     assert (ROOT / "benchmarks" / "TRACKING_PROBES.md").read_text() == module.markdown(data)
     text = (ROOT / "docs" / "baselines.md").read_text()
-    block = text[text.index(DOCS_START) + len(DOCS_START):text.index(DOCS_END)]
+    block = text[text.index(module.DOCS_START) + len(module.DOCS_START):text.index(module.DOCS_END)]
     assert block.strip() == module.summary_table(data).strip()
 
 
