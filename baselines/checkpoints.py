@@ -51,6 +51,7 @@ import numpy as np
 from .atomic import atomic_dir, atomic_write_bytes, atomic_write_text, clean_stale_temps, fsync_dir
 from .config import CONFIG_FILE_NAME, RunConfig, normalize_kwargs
 from .errors import CheckpointError, ConfigError
+from .models import frame_stack_wrapper
 
 FORMAT = "softpvtol-gym checkpoint"
 FORMAT_VERSION = 1
@@ -499,6 +500,9 @@ def resume_payload(model, vecnorm) -> tuple[dict, dict]:
     np_state = np.random.get_state()
     arrays["numpy_rng_key"] = np.asarray(np_state[1])
     arrays["torch_rng"] = torch.get_rng_state().numpy().copy()
+    stack = frame_stack_wrapper(model.get_env())
+    if stack is not None:  # the last K observations of each sub-env (the model's _last_obs is a copy of them)
+        arrays["framestack_obs"] = np.array(stack.stacked_obs.stacked_obs, copy=True)
     if vecnorm is not None:
         arrays["vecnormalize_returns"] = np.asarray(vecnorm.returns, dtype=np.float64)
         for attr in ("old_obs", "old_reward"):
@@ -703,7 +707,7 @@ def load_folder(folder: Path, *, training: bool = False, n_envs: int | None = No
     Every file is checked against the manifest;
     a run whose config asks for normalisation without a normalisation file (or the reverse) is an error.
     """
-    from .models import build_model, make_env
+    from .models import build_model, make_env, stack_frames
 
     folder = Path(folder)
     manifest = read_manifest(folder)
@@ -738,7 +742,9 @@ def load_folder(folder: Path, *, training: bool = False, n_envs: int | None = No
         vecnorm = vecnorm_from_dict(_json(folder, manifest, VECNORM_FILE), norm_env, training, str(folder))
         if not training:
             vecnorm.norm_reward = False
-    model_env = vecnorm if (training and vecnorm is not None) else env
+    # the model's observation space is that of the frame stack (hyperparameter frame_stack, saved in config.yaml;
+    # a config without it: 1, no stack), over VecNormalize in training as in baselines.training.prepare
+    model_env = stack_frames(config, vecnorm if (training and vecnorm is not None) else env)
     model = build_model(config, model_env, tensorboard_log=tensorboard_log, verbose=verbose, device=device)
     load_model_state(model, tensors, meta, str(folder))
     if manifest["num_timesteps"] != model.num_timesteps:
@@ -784,6 +790,17 @@ def load_for_resume(folder: Path, config: RunConfig, run_dir: Path, verbose: int
             raise CheckpointError(f"{folder}: an off-policy checkpoint without {REPLAY_FILE}")
         restore_replay_buffer(model.replay_buffer, _json(folder, manifest, "replay_buffer.json"),
                               _npz(folder, manifest, REPLAY_FILE), str(folder))
+    stack = frame_stack_wrapper(model.get_env())
+    if (stack is not None) != ("framestack_obs" in arrays):
+        raise CheckpointError(f"{folder}: {STATE_ARRAYS_FILE} {'lacks' if stack is not None else 'has'} the frame "
+                              f"stack's observations, config.yaml {'has' if stack is not None else 'has no'} "
+                              f"frame_stack")
+    if stack is not None:
+        saved_stack, target = arrays["framestack_obs"], stack.stacked_obs.stacked_obs
+        if saved_stack.shape != target.shape or saved_stack.dtype != target.dtype:
+            raise CheckpointError(f"{folder}: framestack_obs is {saved_stack.dtype}{saved_stack.shape}, the run's "
+                                  f"frame stack is {target.dtype}{target.shape}")
+        stack.stacked_obs.stacked_obs = saved_stack.copy()
     restore = global_rng_state(state, arrays, str(folder))
     return model, vecnorm, restore
 

@@ -25,7 +25,7 @@ from softpvtol_gym.envs.registration import ENV_ID, MODE_ENV_IDS
 from .errors import ConfigError
 
 __all__ = ["ConfigError", "RunConfig", "load_hyperparams", "apply_overrides", "algo_kwargs", "validate_hyperparams",
-           "read_yaml"]
+           "read_yaml", "frame_stack", "parse_env_options", "ENV_OPTION_KEYS"]
 
 CONFIG_FILE_NAME = "config.yaml"
 #: the residual base loop of runs saved before RunConfig had ``controller_loop`` (the env's default then)
@@ -33,7 +33,14 @@ LEGACY_CONTROLLER_LOOP = "exact"
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 ALGOS = ("ppo", "sac")
 #: keys of a hyperparameter entry that are not keyword arguments of the SB3 algorithm
-NON_ALGO_KEYS = ("policy", "n_envs", "n_timesteps", "normalize")
+NON_ALGO_KEYS = ("policy", "n_envs", "n_timesteps", "normalize", "frame_stack")
+#: the most observations ``frame_stack`` may stack (a bound on the policy's input, 64 floats per observation)
+MAX_FRAME_STACK = 64
+#: env arguments a run may set besides mode, task, tier and base loop (RunConfig.env_options, train.py --env):
+#: the residual mode's residual scale and the space the residual acts in (softpvtol_gym EnvConfig fields)
+ENV_OPTION_KEYS = ("residual_scale", "residual_space")
+#: the env options a run saved before RunConfig had ``env_options`` trained with (none: the env's defaults)
+LEGACY_ENV_OPTIONS: dict = {}
 #: constructor arguments of the SB3 algorithms that a run sets itself (not hyperparameters)
 RESERVED_ALGO_ARGS = ("self", "policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model")
 #: training seeds are below this (evaluation seeds start at 1,000,000: the two sets never overlap)
@@ -106,14 +113,29 @@ def apply_overrides(hyperparams: dict, overrides: list[str]) -> dict:
     return out
 
 
-def _parse_value(raw: str) -> Any:
+def parse_env_options(items: list[str]) -> dict:
+    """``["residual_scale=0.4"]`` as ``{"residual_scale": 0.4}`` (values as YAML, numbers as numbers; nothing is
+    evaluated); the keys must be in :data:`ENV_OPTION_KEYS` (the values are checked by :class:`RunConfig`)."""
+    out = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ConfigError(f"an env option must look like key=value, got {item!r}")
+        if key not in ENV_OPTION_KEYS:
+            raise ConfigError(f"unknown env option {key!r}; a run may set {list(ENV_OPTION_KEYS)}")
+        out[key] = _parse_value(raw, "env option")
+    return out
+
+
+def _parse_value(raw: str, what: str = "hyperparameter") -> Any:
     """A YAML value, with numbers like ``1e-4`` (a string for YAML 1.1) read as floats."""
     import yaml
 
     try:
         value = yaml.safe_load(raw)
     except yaml.YAMLError as exc:
-        raise ConfigError(f"hyperparameter value {raw!r} is not valid YAML: {getattr(exc, 'problem', exc)}") from None
+        raise ConfigError(f"{what} value {raw!r} is not valid YAML: {getattr(exc, 'problem', exc)}") from None
     if isinstance(value, str):
         try:
             return float(value)
@@ -166,6 +188,12 @@ def normalize_kwargs(hyperparams: dict) -> dict | None:
     if "gamma" in hyperparams:
         kwargs["gamma"] = hyperparams["gamma"]
     return kwargs
+
+
+def frame_stack(hyperparams: dict) -> int:
+    """The number of consecutive observations the policy sees (``frame_stack`` of the entry, as in
+    rl-baselines3-zoo: the training env is wrapped in SB3's VecFrameStack); 1 (no stacking) without the key."""
+    return int(hyperparams.get("frame_stack", 1))
 
 
 def _parse_dict_call(text: str, what: str = "policy_kwargs") -> dict:
@@ -330,6 +358,7 @@ _COMMON_RULES = {
     "n_envs": _int(1, MAX_N_ENVS),
     "n_timesteps": _int(1, MAX_TIMESTEPS),
     "normalize": _normalize,
+    "frame_stack": _int(1, MAX_FRAME_STACK),
     "learning_rate": _number_or_linear_schedule,
     "gamma": _num(0, 1, lo_open=True),
     "use_sde": _bool,
@@ -452,6 +481,9 @@ class RunConfig:
     #: the analytic loop of the residual base controller (and of the passivity comparison): None ->
     #: the env's default, stored resolved so that a saved run records it (control.LOOPS)
     controller_loop: str | None = None
+    #: env arguments of the run's training and evaluation envs besides the above (:data:`ENV_OPTION_KEYS`,
+    #: e.g. ``{"residual_scale": 0.4}``; train.py ``--env key=value``); empty: the env's defaults
+    env_options: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -481,6 +513,24 @@ class RunConfig:
         except (ValueError, TypeError) as exc:
             raise ConfigError(f"controller_loop: {exc}") from None
         self.controller_loop = env_config.resolved_controller_loop
+        self._check_env_options(EnvConfig)
+
+    def _check_env_options(self, env_config_class) -> None:
+        """env_options: a mapping of :data:`ENV_OPTION_KEYS` that the env accepts (each value checked by
+        EnvConfig; a ConfigError names the key), each of which has an effect in the run's action mode."""
+        opts = self.env_options
+        if not isinstance(opts, dict):
+            raise ConfigError(f"env_options must be a mapping of {list(ENV_OPTION_KEYS)} to values, got {opts!r}")
+        for key, value in opts.items():
+            if key not in ENV_OPTION_KEYS:
+                raise ConfigError(f"unknown env option {key!r}; a run may set {list(ENV_OPTION_KEYS)}")
+            if self.action_mode != "residual":  # both options shape the residual action only
+                raise ConfigError(f"env option {key} acts on the residual action mode only; this run's action mode "
+                                  f"is {self.action_mode!r} (leave {key} out)")
+            try:
+                env_config_class(action_mode=self.action_mode, controller_loop=self.controller_loop, **{key: value})
+            except (ValueError, TypeError) as exc:
+                raise ConfigError(f"env option {key}: {exc}") from None
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -498,6 +548,9 @@ class RunConfig:
         if strict and "controller_loop" not in data:
             # saved before the field existed (2026-12-01): those runs trained on the "exact" base loop
             data = {**data, "controller_loop": LEGACY_CONTROLLER_LOOP}
+        if strict and "env_options" not in data:
+            # saved before the field existed (2026-12-01, issue 16): those runs used the env's defaults
+            data = {**data, "env_options": dict(LEGACY_ENV_OPTIONS)}
         if strict:
             lost = [n for n in names if n not in data]
             if lost:
@@ -520,9 +573,10 @@ class RunConfig:
         return cls.from_dict(read_yaml(path, "run config"), source=f"run config {path}", strict=True)
 
     def env_kwargs(self) -> dict:
-        return {"action_mode": self.action_mode, "task": self.task, "tier": self.tier,
-                "controller_loop": self.controller_loop}
+        """Env arguments of this run's training env."""
+        return {"action_mode": self.action_mode, "task": self.task, "tier": self.tier, **self.eval_env_kwargs()}
 
     def eval_env_kwargs(self) -> dict:
-        """Env arguments of this run's evaluations besides mode, task and tier (the base loop)."""
-        return {"controller_loop": self.controller_loop}
+        """Env arguments of this run's evaluations besides mode, task and tier (the base loop and the env
+        options): a policy is evaluated on the action space it was trained on, on any task and tier."""
+        return {"controller_loop": self.controller_loop, **self.env_options}

@@ -80,13 +80,14 @@ def _read_pickled(path: Path):
 def load_pickled(path: Path):
     """``(LearnedPolicy, RunConfig)`` from pickle-based files (an SB3 zip and VecNormalize pickle), with a
     warning. Only reached with an explicit trust_pickle / --trust-pickle."""
+    from baselines.config import frame_stack
     from baselines.training import LearnedPolicy
 
     model, vecnorm, config, _, _ = _read_pickled(path)
     if vecnorm is not None:
         vecnorm.training = False
         vecnorm.norm_reward = False
-    return LearnedPolicy(model, vecnorm), config
+    return LearnedPolicy(model, vecnorm, frame_stack=frame_stack(config.hyperparams)), config
 
 
 def from_sb3(path: Path, out: Path | None = None) -> Path:

@@ -1,12 +1,13 @@
 """Building the SB3 pieces of a run from its :class:`~baselines.config.RunConfig`: the vector env, the
-VecNormalize wrapper and the algorithm. Checkpoint loading builds the same objects and then fills in the
-saved weights and state (:mod:`baselines.checkpoints`), so nothing of a model is ever unpickled."""
+VecNormalize wrapper, the VecFrameStack wrapper and the algorithm. Checkpoint loading builds the same objects
+and then fills in the saved weights and state (:mod:`baselines.checkpoints`), so nothing of a model is ever
+unpickled."""
 
 from __future__ import annotations
 
 import warnings
 
-from .config import RunConfig, algo_kwargs, normalize_kwargs
+from .config import RunConfig, algo_kwargs, frame_stack, normalize_kwargs
 from .errors import ConfigError
 
 
@@ -34,6 +35,32 @@ def make_vecnorm(config: RunConfig, env, training: bool = True):
     from stable_baselines3.common.vec_env import VecNormalize
 
     return VecNormalize(env, training=training, **norm)
+
+
+def stack_frames(config: RunConfig, venv):
+    """``VecFrameStack(venv, frame_stack)`` of the run's hyperparameters, or ``venv`` itself without stacking.
+
+    The stack goes on top of VecNormalize, as in rl-baselines3-zoo: the normalisation statistics are those
+    of one observation (the same ``vecnormalize.json`` with and without stacking), and the zeros that fill
+    the stack at the start of an episode are zeros of the normalised observation (its running mean), not
+    raw zeros that the statistics would count K - 1 times out of K at every reset."""
+    k = frame_stack(config.hyperparams)
+    if k == 1:
+        return venv
+    from stable_baselines3.common.vec_env import VecFrameStack
+
+    return VecFrameStack(venv, n_stack=k)
+
+
+def frame_stack_wrapper(venv):
+    """The VecFrameStack in a chain of SB3 VecEnv wrappers, or None."""
+    from stable_baselines3.common.vec_env import VecEnvWrapper, VecFrameStack
+
+    while isinstance(venv, VecEnvWrapper):
+        if isinstance(venv, VecFrameStack):
+            return venv
+        venv = venv.venv
+    return None
 
 
 DEVICES = ("auto", "cpu", "cuda")

@@ -5,6 +5,8 @@
     python train.py --out runs/x --resume    # continue a killed run from its newest checkpoint
     python train.py --hp n_epochs=5 --hp learning_rate=1e-4   # override YAML hyperparameters
     python train.py --device cuda            # the policy on a GPU (the env steps on the CPU)
+    python train.py --hp frame_stack=4       # the policy sees the last 4 observations (SB3's VecFrameStack)
+    python train.py --env residual_scale=0.4 # an env option, for training and evaluation (docs/baselines.md)
 
 Hyperparameters come from ``baselines/hyperparams/<algo>.yml`` (the entry of the mode's env id:
 ``SoftPVTOLResidual-v0``, ``SoftPVTOLVirtual-v0``, ``SoftPVTOLActuators-v0``; rl-baselines3-zoo's format);
@@ -34,6 +36,7 @@ from .cli import Parser, int_arg, run_main
 from .config import (
     ALGOS,
     CONFIG_FILE_NAME,
+    ENV_OPTION_KEYS,
     MAX_EPISODES,
     MAX_N_ENVS,
     MAX_TIMESTEPS,
@@ -42,6 +45,7 @@ from .config import (
     RunConfig,
     apply_overrides,
     load_hyperparams,
+    parse_env_options,
 )
 from .evaluation import EVAL_SEED_OFFSET
 from .models import DEVICES
@@ -67,6 +71,9 @@ def build_parser() -> Parser:
                     help="run directory (default runs/<algo>_<mode>_<task>_<tier>_s<seed>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out from its newest checkpoint")
     ap.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE", help="override a YAML hyperparameter")
+    ap.add_argument("--env", action="append", default=[], metavar="KEY=VALUE", dest="env_options",
+                    help=f"an env argument of the run's training and evaluation envs, one of {list(ENV_OPTION_KEYS)} "
+                         f"(residual mode; recorded in config.yaml as env_options)")
     ap.add_argument("--checkpoint-freq", type=int_arg(), default=None, help="env steps between checkpoints (100,000)")
     ap.add_argument("--eval-freq", type=int_arg(), default=None,
                     help="env steps between periodic evaluations (50,000)")
@@ -106,6 +113,7 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
     out = args.out or Path("runs") / "{algo}_{action_mode}_{task}_{tier}_s{seed}".format(**pick)
     if out.exists() and not out.is_dir():
         ap.error(f"--out {out} is a file; expected a run directory")
+    env_options = parse_env_options(args.env_options)
     saved = None
     if args.resume:
         if not out.is_dir():
@@ -125,6 +133,7 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
         if args.timesteps is not None and args.timesteps != saved.timesteps:
             overrides.append(f"n_timesteps={args.timesteps}")
         n_envs = args.n_envs if args.n_envs is not None else saved.n_envs
+        env_options = {**saved.env_options, **env_options}  # a different value is refused below, naming both
     else:
         hp = apply_overrides(load_hyperparams(pick["algo"], pick["action_mode"]), args.hp)
         overrides = list(args.hp)
@@ -138,7 +147,7 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
     config = RunConfig(algo=pick["algo"], action_mode=pick["action_mode"], task=pick["task"], tier=pick["tier"],
                        timesteps=timesteps, seed=pick["seed"], n_envs=n_envs, hyperparams=hp, overrides=overrides,
                        checkpoint_freq=pick["checkpoint_freq"], eval_freq=pick["eval_freq"],
-                       eval_episodes=pick["eval_episodes"])
+                       eval_episodes=pick["eval_episodes"], env_options=env_options)
     return config, out
 
 
