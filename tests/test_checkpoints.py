@@ -441,7 +441,7 @@ def test_committed_checkpoints_are_in_the_safe_format():
     from baselines.jobs import RUNS_DIR, load_jobs
 
     models = sorted(RUNS_DIR.glob("*/seed_*/model.safetensors"))
-    assert len(models) == sum(job.learned for job in load_jobs()) == 45  # one per learned job of the spec
+    assert len(models) == sum(job.learned for job in load_jobs()) == 50  # one per learned job of the spec (v2)
     for m in models:
         assert find_checkpoint(m) == m.parent and not list(m.parent.glob("*.pkl")) and not list(m.parent.glob("*.zip"))
 
