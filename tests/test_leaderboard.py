@@ -174,3 +174,26 @@ def test_headline_picks_one_policy_for_every_pair_and_the_strongest_analytic_per
     assert not by[("track_paper", "nominal")]["crash_no_higher"]
     # no learned policy on every pair: no headline
     assert headline({"meta": meta, "aggregates": [r for r in rows if r["entry"] != "PPO-residual (x)"]}) is None
+
+
+@pytest.mark.slow  # one evaluate.py subprocess, 20 hover episodes
+def test_evaluate_script_reproduces_a_committed_cell(tmp_path):
+    """``baselines/evaluate.py`` on a committed checkpoint gives the leaderboard's episodes (one torch thread,
+    the base loop from the checkpoint's config)."""
+    import os
+    import subprocess
+    import sys
+
+    cell = next(c for c in DATA["cells"] if c["checkpoint"] and c["task"] == "hover" and c["tier"] == "nominal"
+                and c["action_mode"] == "residual" and c["train_tier"] == "nominal")
+    out = tmp_path / "eval.json"
+    script = ROOT / "baselines" / "evaluate.py"
+    r = subprocess.run([sys.executable, str(script), "--policy", str(ROOT / cell["checkpoint"]), "--task", "hover",
+                        "--tier", "nominal", "--episodes", str(len(cell["episodes"])), "--seed", str(cell["eval_seed"]),
+                        "--json", str(out)],
+                       capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=300)
+    assert r.returncode == 0, r.stderr
+    got = json.loads(out.read_text())["episodes"]
+    for g, w in zip(got, cell["episodes"], strict=True):
+        assert g["crashed"] == w["crashed"] and g["rms_position_error"] == pytest.approx(w["rms_position_error"],
+                                                                                          rel=1e-6)
