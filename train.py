@@ -8,10 +8,10 @@ Thin CLI; the logic lives in ``baselines/`` (``baselines/train_agent.py``, ``bas
 
 import sys
 
-from baselines._extras import require
+from softpvtol_gym.baselines.util.extras import require
 
 if __name__ == "__main__":
     require("train.py")  # a plain install lacks the 'baselines' extra: say which one, before any import fails
-    from baselines.train_agent import main
+    from softpvtol_gym.baselines.commands.train import main
 
     sys.exit(main())

@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from baselines.atomic import atomic_write_text  # noqa: E402
+from softpvtol_gym.baselines.util.atomic import atomic_write_text
 
 
 def parse_config(text: str) -> tuple[str, list[str]]:
@@ -51,8 +51,9 @@ def parse_config(text: str) -> tuple[str, list[str]]:
 
 def run_one(name: str, overrides: list[str], mode: str, timesteps: int, eval_freq: int, seed: int) -> dict:
     import baselines.training as training
-    from baselines.config import RunConfig, apply_overrides, load_hyperparams
-    from baselines.evaluation import EVAL_SEED_OFFSET, evaluate
+    from softpvtol_gym.baselines.config.run_config import RunConfig
+    from softpvtol_gym.baselines.config.hyperparams import apply_overrides, load_hyperparams
+    from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, evaluate
     from softpvtol_gym import PassivityPolicy
     from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 

@@ -43,7 +43,7 @@ os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 
 import numpy as np  # noqa: E402
 
-from baselines.atomic import atomic_write_text  # noqa: E402  (standard library only)
+from softpvtol_gym.baselines.util.atomic import atomic_write_text
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -363,7 +363,7 @@ def bench_ppo(quick: bool) -> dict:
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from baselines.config import algo_kwargs, load_hyperparams, normalize_kwargs
+    from softpvtol_gym.baselines.config.hyperparams import algo_kwargs, load_hyperparams, normalize_kwargs
     from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
 
     hp = load_hyperparams("ppo", "residual")
@@ -507,7 +507,7 @@ def plot_learning_curve(result: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from baselines.atomic import atomic_path
+    from softpvtol_gym.baselines.util.atomic import atomic_path
 
     curve, pas = result["curve"], result["passivity"]
     t = [e["seconds"] for e in curve]
@@ -540,7 +540,7 @@ def bench_time_to_beat(quick: bool, out: Path | None = None) -> dict:
     """`python train.py` (the default agent) in a fresh process, warm numba cache: the wall-clock seconds from
     its start until its periodic held-out evaluation first beats the passivity controller (mean return on
     the same 10 held-out hover episodes), and of the whole run. --quick: a short run (not the default)."""
-    from baselines.config import load_hyperparams
+    from softpvtol_gym.baselines.config.hyperparams import load_hyperparams
 
     _fresh_process()  # the numba cache warm, as for item 5
     hp = load_hyperparams("ppo", "residual")

@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from baselines.atomic import atomic_write_text  # noqa: E402
+from softpvtol_gym.baselines.util.atomic import atomic_write_text
 
 TASKS = ("track_paper", "track_random")
 TIERS = ("nominal", "mismatch", "hard")
@@ -77,9 +77,9 @@ def train_command(config, run_dir: Path) -> str:
 
 
 def evaluate_run(run_dir: Path) -> dict:
-    from baselines.config import frame_stack
-    from baselines.evaluation import run_episodes
-    from baselines.training import LearnedPolicy
+    from softpvtol_gym.baselines.config.hyperparams import frame_stack
+    from softpvtol_gym.baselines.evaluation import run_episodes
+    from softpvtol_gym.baselines.training.policy import LearnedPolicy
 
     policy, config = LearnedPolicy.load(run_dir)
     result = {}
@@ -100,7 +100,7 @@ def evaluate_run(run_dir: Path) -> dict:
 
 
 def evaluate_reference() -> dict:
-    from baselines.evaluation import run_episodes
+    from softpvtol_gym.baselines.evaluation import run_episodes
     from softpvtol_gym import PassivityPolicy
     from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
@@ -204,7 +204,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     import torch
 
-    from baselines.training import torch_threads
+    from softpvtol_gym.baselines.training.loop import torch_threads
 
     # as in training (SOFTPVTOL_TORCH_THREADS, default 1): torch's default of one thread per core makes each
     # forward pass of the small MLP wait for busy cores on a loaded machine (9 ms instead of 0.2 ms here)

@@ -20,7 +20,7 @@ TINY = ["--n-envs", "4", "--hp", "n_steps=64", "--hp", "batch_size=64", "--hp", 
 def tiny_run(tmp_path_factory) -> Path:
     """A finished 512-step PPO run (residual / hover / nominal) with checkpoints at 256 and 512. Read-only:
     copy it (:func:`copy_run`) before changing anything."""
-    from baselines.train_agent import main
+    from softpvtol_gym.baselines.commands.train import main
 
     out = tmp_path_factory.mktemp("tiny") / "run"
     assert main(["--timesteps", "512", *TINY, "--out", str(out)]) == 0

@@ -151,7 +151,7 @@ def leaderboard_json(content):
     def setup(tmp: Path) -> dict:
         path = tmp / "lb.json"
         if callable(content):
-            from baselines.leaderboard import RESULTS_JSON
+            from softpvtol_gym.baselines.commands.leaderboard import RESULTS_JSON
 
             data = json.loads(RESULTS_JSON.read_text())
             content(data)
@@ -451,13 +451,13 @@ def _shared(tiny_run, lock_holder):
 
 def _main(script: str):
     if script == T:
-        from baselines.train_agent import main
+        from softpvtol_gym.baselines.commands.train import main
     elif script == E:
-        from baselines.evaluate import main
+        from softpvtol_gym.baselines.commands.evaluate import main
     elif script == R:
-        from baselines.run_jobs import main
+        from softpvtol_gym.baselines.commands.run_jobs import main
     else:
-        from baselines.leaderboard import main
+        from softpvtol_gym.baselines.commands.leaderboard import main
     return main
 
 

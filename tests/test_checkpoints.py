@@ -17,20 +17,15 @@ import numpy as np
 import pytest
 from conftest import ROOT, TINY, copy_run, rewrite_manifest
 
-from baselines.atomic import atomic_path, atomic_write_text, clean_stale_temps
-from baselines.checkpoints import (
-    LEGACY_FILES,
-    MANIFEST_FILE,
-    CheckpointError,
-    env_state,
-    find_checkpoint,
-    latest_checkpoint,
-    restore_env_state,
-)
-from baselines.errors import ConfigError, LockedError
-from baselines.evaluate import main as evaluate_main
-from baselines.locks import DirectoryLock
-from baselines.train_agent import main as train_main
+from softpvtol_gym.baselines.util.atomic import atomic_path, atomic_write_text, clean_stale_temps
+from softpvtol_gym.baselines.checkpoints.manifest import LEGACY_FILES, MANIFEST_FILE
+from softpvtol_gym.baselines.errors import CheckpointError
+from softpvtol_gym.baselines.checkpoints.resume import env_state, restore_env_state
+from softpvtol_gym.baselines.checkpoints.store import find_checkpoint, latest_checkpoint
+from softpvtol_gym.baselines.errors import ConfigError, LockedError
+from softpvtol_gym.baselines.commands.evaluate import main as evaluate_main
+from softpvtol_gym.baselines.util.locks import DirectoryLock
+from softpvtol_gym.baselines.commands.train import main as train_main
 
 
 # ----------------------------------------------------------------------------------- poisoned files
@@ -55,7 +50,7 @@ def _sb3_zip_payload(marker: Path, real_zip_source: Path) -> bytes:
 
     from stable_baselines3 import PPO
 
-    from baselines.training import LearnedPolicy
+    from softpvtol_gym.baselines.training.policy import LearnedPolicy
 
     policy, _ = LearnedPolicy.load(real_zip_source)
     buf = io.BytesIO()
@@ -168,7 +163,7 @@ def test_payload_in_place_of_a_real_file_is_a_clear_error(name, forged_manifest,
 
 def test_evaluate_with_trust_pickle_loads_an_sb3_zip_with_a_warning(tmp_path, tiny_run, capsys):
     """Interop: export to SB3's format and read it back (only with --trust-pickle)."""
-    from baselines.export import main as export_main
+    from softpvtol_gym.baselines.commands.export import main as export_main
 
     zip_path, pkl = tmp_path / "sb3" / "model.zip", tmp_path / "sb3" / "vecnormalize.pkl"
     assert export_main(["to-sb3", "--policy", str(tiny_run), "--out", str(zip_path), "--vecnormalize", str(pkl)]) == 0
@@ -281,7 +276,7 @@ def test_norm_obs_run_without_its_normalisation_is_an_error(tmp_path, tiny_run):
     (run / "vecnormalize.json").unlink()
     rewrite_manifest(run)
     with pytest.raises(CheckpointError, match="normalisation"):
-        from baselines.training import LearnedPolicy
+        from softpvtol_gym.baselines.training.policy import LearnedPolicy
 
         LearnedPolicy.load(run)
 
@@ -317,8 +312,9 @@ def test_bad_hp_does_not_block_the_corrected_command(tmp_path, capsys):
 
 
 def test_progress_bar_ends_at_its_total(tmp_path, capsys):
-    from baselines.config import RunConfig, load_hyperparams
-    from baselines.training import _ProgressBar, prepare
+    from softpvtol_gym.baselines.config.run_config import RunConfig
+    from softpvtol_gym.baselines.config.hyperparams import load_hyperparams
+    from softpvtol_gym.baselines.training.loop import _ProgressBar, prepare
 
     hp = {**load_hyperparams("ppo", "residual"), "n_steps": 64, "batch_size": 64, "n_envs": 4}
     config = RunConfig(timesteps=300, n_envs=4, hyperparams=hp)
@@ -392,7 +388,7 @@ def test_lock_is_reentrant_in_one_thread_and_exclusive_across_threads(tmp_path):
 
 # --------------------------------------------------------------------------------------- paths
 def test_escaping_job_name_is_refused_before_anything_is_written(tmp_path, capsys):
-    from baselines.run_jobs import main as run_jobs_main
+    from softpvtol_gym.baselines.commands.run_jobs import main as run_jobs_main
 
     spec = tmp_path / "spec.yml"
     spec.write_text("evaluation: {episodes: 1, seed: 1000000, tiers: [nominal]}\n"
@@ -404,8 +400,8 @@ def test_escaping_job_name_is_refused_before_anything_is_written(tmp_path, capsy
 
 
 def test_paths_stay_under_the_root(tmp_path):
-    from baselines.jobs import Job
-    from baselines.paths import check_slug, under
+    from softpvtol_gym.baselines.leaderboard.jobs import Job
+    from softpvtol_gym.baselines.util.paths import check_slug, under
 
     (tmp_path / "root").mkdir()
     os.symlink(tmp_path, tmp_path / "root" / "link")
@@ -438,7 +434,7 @@ def test_no_pickle_is_committed():
 
 
 def test_committed_checkpoints_are_in_the_safe_format():
-    from baselines.jobs import RUNS_DIR, load_jobs
+    from softpvtol_gym.baselines.leaderboard.jobs import RUNS_DIR, load_jobs
 
     models = sorted(RUNS_DIR.glob("*/seed_*/model.safetensors"))
     assert len(models) == sum(job.learned for job in load_jobs()) == 50  # one per learned job of the spec (v2)
@@ -447,7 +443,7 @@ def test_committed_checkpoints_are_in_the_safe_format():
 
 
 def test_hyperparameter_validation_covers_the_installed_sb3():
-    from baselines.config import _check_sb3_signature
+    from softpvtol_gym.baselines.config.validation import _check_sb3_signature
 
     _check_sb3_signature("ppo")
     _check_sb3_signature("sac")
@@ -467,7 +463,7 @@ def test_missing_baselines_extra_is_named(tmp_path):
 def test_learned_job_trains_commits_a_safe_model_and_reevaluates_identically(tmp_path):
     from concurrent.futures import ThreadPoolExecutor
 
-    from baselines.jobs import EVAL_FILE, load_jobs, reevaluate_job, run_jobs
+    from softpvtol_gym.baselines.leaderboard.jobs import EVAL_FILE, load_jobs, reevaluate_job, run_jobs
 
     spec = tmp_path / "spec.yml"
     spec.write_text("evaluation: {episodes: 2, seed: 1000000, tiers: [nominal]}\npassivity: []\ntasks: [hover]\n"

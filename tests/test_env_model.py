@@ -129,7 +129,7 @@ def test_committed_passivity_metrics_model_gap_column_is_reproduced():
     import json
     from pathlib import Path
 
-    from baselines.passivity_metrics import run_cell
+    from softpvtol_gym.baselines.commands.passivity_metrics import run_cell
 
     data = json.loads((Path(__file__).resolve().parents[1] / "baselines/results/passivity_metrics.json").read_text())
     for task in ("hover", "track_paper"):

@@ -10,17 +10,14 @@ import numpy as np
 import pytest
 import yaml
 
-from baselines.config import (
-    ENV_OPTION_KEYS,
-    ConfigError,
-    RunConfig,
-    frame_stack,
-    parse_env_options,
-    validate_hyperparams,
-)
-from baselines.evaluation import EVAL_SEED_OFFSET, run_episodes, summarize
-from baselines.train_agent import main as train_main
-from baselines.training import LearnedPolicy, train
+from softpvtol_gym.baselines.config.hyperparams import ENV_OPTION_KEYS, frame_stack, parse_env_options
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.config.run_config import RunConfig
+from softpvtol_gym.baselines.config.validation import validate_hyperparams
+from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes, summarize
+from softpvtol_gym.baselines.commands.train import main as train_main
+from softpvtol_gym.baselines.training.policy import LearnedPolicy
+from softpvtol_gym.baselines.training.loop import train
 from tests.conftest import TINY
 
 
@@ -210,7 +207,7 @@ def test_env_options_reach_training_and_evaluation_envs_and_legacy_configs_have_
 def test_a_run_trained_with_residual_scale_0_4_evaluates_with_0_4(tmp_path):
     """train.py --env residual_scale=0.4: the training env, the in-training evaluation, the final comparison
     and a loaded checkpoint all use 0.4 (on the default scale the same policy gives other episodes)."""
-    from baselines.models import make_env
+    from softpvtol_gym.baselines.training.models import make_env
 
     out = tmp_path / "run"
     assert train_main(["--task", "track_random", "--timesteps", "256", *TINY, "--env", "residual_scale=0.4",

@@ -9,8 +9,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from baselines.errors import ConfigError
-from baselines.jobs import EVAL_FILE, load_jobs, missing_evaluations, pending, run_jobs
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.leaderboard.jobs import EVAL_FILE, load_jobs, missing_evaluations, pending, run_jobs
 
 HEAD = "evaluation: {episodes: 2, seed: 1000000, tiers: [nominal, wind]}\npassivity: []\n"
 CELL = "{action_mode: actuators, task: track_random, tier: nominal, timesteps: 64%s}"
@@ -42,7 +42,7 @@ def test_cell_without_other_tasks_is_evaluated_on_its_own_task_only(tmp_path):
 
 @pytest.mark.slow  # one 4,096-step PPO training
 def test_added_task_evaluates_only_what_is_missing_and_reaches_the_leaderboard(tmp_path):
-    from baselines.leaderboard import aggregate, collect
+    from softpvtol_gym.baselines.leaderboard.stats import aggregate, collect
 
     root = tmp_path / "runs"
     spec = write_spec(tmp_path / "spec.yml", ', hp: ["learning_rate=1e-3"]')
@@ -50,7 +50,7 @@ def test_added_task_evaluates_only_what_is_missing_and_reaches_the_leaderboard(t
     with ThreadPoolExecutor(max_workers=1) as ex:
         run_jobs([job], ex, root, progress=False)
     first = json.loads((job.folder(root) / EVAL_FILE).read_text())
-    from baselines.config import RunConfig
+    from softpvtol_gym.baselines.config.run_config import RunConfig
 
     saved = RunConfig.load(job.folder(root) / "config.yaml")  # the cell's override is what trained
     assert saved.hyperparams["learning_rate"] == 1e-3 and saved.overrides == ["learning_rate=1e-3"]
@@ -68,8 +68,8 @@ def test_added_task_evaluates_only_what_is_missing_and_reaches_the_leaderboard(t
                                                                                                         "wind"}
     assert len(second["eval_other_tasks"]["hover"]["wind"]) == 2 and pending([job], root) == []
     # the other task really ran: the same episodes as evaluating the committed model on hover directly
-    from baselines.evaluation import run_episodes
-    from baselines.training import LearnedPolicy
+    from softpvtol_gym.baselines.evaluation import run_episodes
+    from softpvtol_gym.baselines.training.policy import LearnedPolicy
 
     policy, config = LearnedPolicy.load(job.folder(root))
     assert run_episodes(policy, "actuators", "hover", "wind", 2, 1000000,

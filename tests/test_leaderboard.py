@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from baselines.evaluation import run_episodes
-from baselines.jobs import load_jobs
-from baselines.leaderboard import CHART_PNG, LEADERBOARD_MD, RESULTS_JSON, render_chart, render_markdown
+from softpvtol_gym.baselines.evaluation import run_episodes
+from softpvtol_gym.baselines.leaderboard.jobs import load_jobs
+from softpvtol_gym.baselines.commands.leaderboard import CHART_PNG, LEADERBOARD_MD, RESULTS_JSON
+from softpvtol_gym.baselines.leaderboard.render import render_chart, render_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = json.loads(RESULTS_JSON.read_text())
@@ -39,7 +40,7 @@ def test_every_job_of_the_spec_is_in_the_leaderboard():
 
 
 def test_headline_is_the_best_learned_policy_on_both_tracking_tasks():
-    from baselines.leaderboard import HEADLINE_TASKS, headline
+    from softpvtol_gym.baselines.leaderboard.stats import HEADLINE_TASKS, headline
 
     h = headline(DATA)
     assert h is not None and len(h["rows"]) == len(HEADLINE_TASKS) * len(DATA["meta"]["tiers"])
@@ -86,7 +87,7 @@ def test_statistics_match_the_per_episode_data():
     "checkpoint, train_tier, task", LEARNED, ids=[c[0].split("leaderboard_runs/")[-1] for c in LEARNED]
 )
 def test_committed_checkpoint_reproduces_its_leaderboard_episodes(checkpoint, train_tier, task):
-    from baselines.training import LearnedPolicy
+    from softpvtol_gym.baselines.training.policy import LearnedPolicy
 
     path = ROOT / checkpoint
     assert path.is_file() and path.stat().st_size < 1_000_000
@@ -109,7 +110,7 @@ def test_jobs_run_with_any_executor_and_reevaluate_identically(tmp_path):
     """The job list is independent jobs: a thread pool stands in for a cluster engine here."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from baselines.jobs import EVAL_FILE, reevaluate_job, run_jobs
+    from softpvtol_gym.baselines.leaderboard.jobs import EVAL_FILE, reevaluate_job, run_jobs
 
     spec = tmp_path / "spec.yml"
     spec.write_text("evaluation: {episodes: 2, seed: 1000000, tiers: [nominal, wind]}\n"
@@ -129,7 +130,7 @@ def test_jobs_run_with_any_executor_and_reevaluate_identically(tmp_path):
 
 def test_bootstrap_is_reproducible():
     """rliable draws bootstrap indices from numpy's global RNG; the generator seeds it per call."""
-    from baselines.leaderboard import REFERENCE, aggregate
+    from softpvtol_gym.baselines.leaderboard.stats import REFERENCE, aggregate
 
     # the reference entry alone (its rows carry no P(better), which needs the reference's cells too)
     cells = [c for c in DATA["cells"] if c["task"] == "hover" and c["entry"] == REFERENCE]
@@ -149,7 +150,7 @@ def _row(task, tier, entry, err, ci, crash=0.0, policy="ppo", mode="residual", t
 
 
 def test_headline_picks_one_policy_for_every_pair_and_the_strongest_analytic_per_pair():
-    from baselines.leaderboard import headline
+    from softpvtol_gym.baselines.leaderboard.stats import headline
 
     meta = {"tasks": ["hover", "track_paper", "track_random"], "tiers": ["nominal", "wind"]}
     rows = []

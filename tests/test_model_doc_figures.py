@@ -143,7 +143,7 @@ def test_committed_rk4_step_error_of_the_paper_loop():
     import json
     from pathlib import Path
 
-    from baselines.model_figures import compare
+    from softpvtol_gym.baselines.figures.model import compare
 
     data = json.loads((Path(__file__).resolve().parents[1] / "baselines/results/model_figures.json").read_text())
     committed = data["comparisons"]["rk4_0.01_vs_rk4_0.0005"]

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from baselines.errors import ConfigError
-from baselines.jobs import EVAL_FILE, ROOT_TOKEN_FILE, check_shared_root, load_jobs, run_jobs
-from baselines.run_jobs import main as run_jobs_main
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.leaderboard.jobs import EVAL_FILE, ROOT_TOKEN_FILE, check_shared_root, load_jobs, run_jobs
+from softpvtol_gym.baselines.commands.run_jobs import main as run_jobs_main
 
 # one analytic job and one learned job (a single PPO rollout), two evaluation tiers of 2 episodes
 SPEC = ("evaluation: {episodes: 2, seed: 1000000, tiers: [nominal, wind]}\n"
@@ -169,8 +169,9 @@ def test_a_tiny_search_writes_a_valid_best_configuration(tmp_path, capsys):
 
     import yaml
 
-    from baselines.config import RunConfig, apply_overrides, load_hyperparams
-    from baselines.tune import FORMAT, main
+    from softpvtol_gym.baselines.config.run_config import RunConfig
+    from softpvtol_gym.baselines.config.hyperparams import apply_overrides, load_hyperparams
+    from softpvtol_gym.baselines.commands.tune import FORMAT, main
 
     space, out = tmp_path / "space.yml", tmp_path / "best" / "best.yml"
     space.write_text(TINY_SPACE)
@@ -232,7 +233,7 @@ BAD_TUNE_INPUT = [
 def test_bad_tune_input_exits_2_before_ray_starts(space, extra, message, tmp_path, capsys, monkeypatch):
     import ray
 
-    from baselines.tune import main
+    from softpvtol_gym.baselines.commands.tune import main
 
     monkeypatch.setattr(ray, "init", lambda **kw: pytest.fail("Ray was started"))
     with pytest.raises(SystemExit) as exc:
@@ -243,7 +244,7 @@ def test_bad_tune_input_exits_2_before_ray_starts(space, extra, message, tmp_pat
 
 
 def test_tune_does_not_overwrite_its_output(tmp_path, capsys):
-    from baselines.tune import main
+    from softpvtol_gym.baselines.commands.tune import main
 
     out = tmp_path / "best.yml"
     out.write_text("kept\n")
@@ -254,8 +255,8 @@ def test_tune_does_not_overwrite_its_output(tmp_path, capsys):
 
 
 def test_the_default_search_space_is_valid_for_every_algorithm_and_mode():
-    from baselines.config import load_hyperparams
-    from baselines.tune import SPACE_FILE, load_space, stage_steps, tune_domains
+    from softpvtol_gym.baselines.config.hyperparams import load_hyperparams
+    from softpvtol_gym.baselines.commands.tune import SPACE_FILE, load_space, stage_steps, tune_domains
 
     for algo in ("ppo", "sac"):
         for mode in ("residual", "virtual", "actuators"):
@@ -270,7 +271,7 @@ def test_without_the_distributed_extra_the_ray_paths_name_it(argv, tmp_path, cap
     import importlib
 
     import baselines._extras
-    from baselines.tune import main as tune_main
+    from softpvtol_gym.baselines.commands.tune import main as tune_main
 
     real = importlib.import_module
 

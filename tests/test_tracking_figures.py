@@ -15,8 +15,8 @@ os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 import pytest  # noqa: E402
 from PIL import Image  # noqa: E402
 
-from baselines.errors import ConfigError  # noqa: E402
-from baselines.tracking_figures import CURVES_PNG, GIF, TRACKING_PNG, main, select_learned  # noqa: E402
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.figures.tracking import CURVES_PNG, GIF, TRACKING_PNG, main, select_learned
 
 ROOT = Path(__file__).resolve().parent.parent
 CELL = "baselines/results/leaderboard_runs/ppo_residual_track_random_nominal"
@@ -207,8 +207,8 @@ class FullDown:
 
 
 def test_a_crash_ends_the_trajectory_and_is_drawn(tmp_path):
-    from baselines.config import RunConfig
-    from baselines.tracking_figures import reference_env_kwargs, run_trajectory, tracking_figure
+    from softpvtol_gym.baselines.config.run_config import RunConfig
+    from softpvtol_gym.baselines.figures.tracking import reference_env_kwargs, run_trajectory, tracking_figure
 
     run = run_trajectory(FullDown(), "actuators", "track_paper", "nominal", 1_000_000, 2.0, {})
     assert run["crashed"] and run["reason"] and run["t"][-1] < 1.0 and len(run["t"]) == len(run["err"])
@@ -226,7 +226,7 @@ def test_a_crash_ends_the_trajectory_and_is_drawn(tmp_path):
 def test_episode_summary():
     import numpy as np
 
-    from baselines.tracking_figures import episode_summary
+    from softpvtol_gym.baselines.figures.tracking import episode_summary
 
     t = np.arange(0.0, 12.01, 0.5)
     err = np.where(t < 3.0, 5.0, 0.1)

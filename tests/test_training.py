@@ -11,9 +11,11 @@ from pathlib import Path
 
 import pytest
 
-from baselines.config import ConfigError, RunConfig, _parse_dict_call, algo_kwargs, apply_overrides, load_hyperparams
-from baselines.evaluate import main as evaluate_main
-from baselines.train_agent import main as train_main
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.config.run_config import RunConfig
+from softpvtol_gym.baselines.config.hyperparams import parse_dict_call, algo_kwargs, apply_overrides, load_hyperparams
+from softpvtol_gym.baselines.commands.evaluate import main as evaluate_main
+from softpvtol_gym.baselines.commands.train import main as train_main
 
 ROOT = Path(__file__).resolve().parents[1]
 # a short configuration: 4 envs x 64 steps per rollout, checkpoints every rollout
@@ -45,10 +47,10 @@ def test_every_action_mode_has_ppo_hyperparameters(mode):
 def test_overrides_are_parsed_as_yaml_and_policy_kwargs_without_eval():
     hp = apply_overrides({"n_epochs": 10}, ["n_epochs=5", "learning_rate=1e-4", "normalize=false"])
     assert hp == {"n_epochs": 5, "learning_rate": 1e-4, "normalize": False}
-    assert _parse_dict_call("dict(log_std_init=-2.0, net_arch=dict(pi=[64, 64]))") == {
+    assert parse_dict_call("dict(log_std_init=-2.0, net_arch=dict(pi=[64, 64]))") == {
         "log_std_init": -2.0, "net_arch": {"pi": [64, 64]}}
     with pytest.raises(ConfigError, match="only hold"):
-        _parse_dict_call("dict(activation_fn=__import__('os').system('true'))")
+        parse_dict_call("dict(activation_fn=__import__('os').system('true'))")
     with pytest.raises(ConfigError, match="key=value"):
         apply_overrides({}, ["n_epochs"])
 
@@ -139,7 +141,7 @@ def test_device_option(tmp_path, capsys):
     that says so, before anything is written."""
     import torch
 
-    from baselines.models import resolve_device
+    from softpvtol_gym.baselines.training.models import resolve_device
 
     assert resolve_device("cpu") == "cpu"
     assert resolve_device("auto") == ("cuda" if torch.cuda.is_available() else "cpu")
@@ -215,7 +217,7 @@ def test_initial_weights_do_not_depend_on_the_machines_thread_count(tmp_path):
     machine's cores): orthogonal initialisation gives other weights with other thread counts."""
     import torch
 
-    from baselines.training import prepare
+    from softpvtol_gym.baselines.training.loop import prepare
 
     before = torch.get_num_threads()
     weights = []
@@ -236,7 +238,9 @@ def test_run_config_records_the_base_loop_and_reads_legacy_configs_as_exact(tmp_
     config saved before the field existed is read as "exact", the env's default when it was trained."""
     import yaml
 
-    from baselines.config import LEGACY_CONTROLLER_LOOP, ConfigError, RunConfig
+    from softpvtol_gym.baselines.config.hyperparams import LEGACY_CONTROLLER_LOOP
+    from softpvtol_gym.baselines.errors import ConfigError
+    from softpvtol_gym.baselines.config.run_config import RunConfig
 
     c = RunConfig(timesteps=1000)
     assert c.controller_loop == "bounded" and c.env_kwargs()["controller_loop"] == "bounded"

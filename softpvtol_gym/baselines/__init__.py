@@ -1,1 +1,10 @@
-"""Baselines: paper reproduction, training, evaluation and the leaderboard (scripts live here)."""
+"""The baselines as a library (installed with the ``baselines`` extra): training, checkpoints, the
+leaderboard, figures, and the ``softpvtol`` console command (:mod:`softpvtol_gym.baselines.cli`).
+
+Subpackages, imports pointing down only: ``util`` (atomic writes, locks, paths, generated Markdown blocks,
+argument parsing, optional extras) and ``errors``; ``config`` (hyperparameter YAML, validation, the run
+config); ``evaluation``; ``training`` (models, the train loop, :class:`~.training.policy.LearnedPolicy`);
+``checkpoints`` (the safe format; ``sb3_compat`` is the only place that unpickles); ``leaderboard`` (jobs,
+Ray executor, statistics, rendering); ``figures``; ``commands`` (one module per subcommand); ``cli``.
+Importing this package imports none of them.
+"""

@@ -24,28 +24,33 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import sys
 from pathlib import Path
 
-from baselines.cli import Parser, int_arg, run_main
-from baselines.errors import ConfigError
-from baselines.evaluation import EVAL_SEED_OFFSET, evaluate
+from softpvtol_gym import PassivityPolicy
+from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, evaluate
+from softpvtol_gym.baselines.training.policy import LearnedPolicy
+from softpvtol_gym.baselines.util.args import Parser, check_output_file, int_arg, run_main
+from softpvtol_gym.baselines.util.atomic import atomic_write_text
+from softpvtol_gym.baselines.util.extras import require
+from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.control import LOOPS
+from softpvtol_gym.envs.actions import ACTION_MODES
 from softpvtol_gym.envs.config import EnvConfig
-from softpvtol_gym.envs.core import ACTION_MODES, TASKS, TIERS
+from softpvtol_gym.envs.tiers import registered_tiers
+from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
+from softpvtol_gym.tasks import registered_tasks
 
 MAX_EPISODES = 10_000
 MAX_SEED = 2**63 - 1
 
 
-def build_parser() -> Parser:
-    ap = Parser(prog="evaluate.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser(prog: str = "evaluate.py") -> Parser:
+    ap = Parser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--policy", required=True, help="'passivity' or a checkpoint path")
     ap.add_argument("--action-mode", choices=ACTION_MODES, default=None,
                     help="default: the checkpoint's; 'actuators' for passivity")
-    ap.add_argument("--task", choices=TASKS, default=None, help="default: the checkpoint's; 'hover' for passivity")
-    ap.add_argument("--tier", choices=TIERS, default=None, help="default: the checkpoint's; 'nominal' for passivity")
+    ap.add_argument("--task", choices=registered_tasks(), default=None, help="default: the checkpoint's; 'hover' for passivity")
+    ap.add_argument("--tier", choices=registered_tiers(), default=None, help="default: the checkpoint's; 'nominal' for passivity")
     ap.add_argument("--allocation", choices=("exact", "paper"), default=None,
                     help="allocation of the passivity controller (and of the env in virtual/residual mode); "
                          "default: that of --controller-loop, or exact")
@@ -62,23 +67,8 @@ def build_parser() -> Parser:
     return ap
 
 
-def check_output_file(path: Path, force: bool, option: str = "--json") -> None:
-    """ConfigError unless ``path`` can be written as a file (checked before any work is done)."""
-    if path.is_dir():
-        raise ConfigError(f"{option} {path} is a directory; expected a file name")
-    if path.exists() and not force:
-        raise ConfigError(f"{option} {path} exists; pass --force to overwrite it (nothing was written)")
-    parent = path.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise ConfigError(f"{option} {path}: {parent} is a file, not a directory")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ConfigError(f"{option} {path}: directory {parent} is not writable")
-
-
-def _main(argv) -> int:
-    ap = build_parser()
+def _main(argv, layout: Layout, prog: str) -> int:
+    ap = build_parser(prog)
     args = ap.parse_args(argv)
     if not 1 <= args.episodes <= MAX_EPISODES:
         ap.error(f"--episodes must be >= 1 and at most {MAX_EPISODES:,} (all episodes run at once, in memory), "
@@ -94,16 +84,12 @@ def _main(argv) -> int:
     env_kwargs = {k: v for k, v in (("allocation", args.allocation), ("controller_loop", args.controller_loop))
                   if v is not None}
     if args.policy == "passivity":
-        from softpvtol_gym import PassivityPolicy
-        from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
-
         mode, task, tier = args.action_mode or "actuators", args.task or "hover", args.tier or "nominal"
         policy = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode=mode, task=task, **env_kwargs))
         source = "passivity"
     else:
         import torch
 
-        from baselines.training import LearnedPolicy
 
         # one thread, as train.py and the leaderboard's jobs: the small MLPs run fastest so (several threads
         # made a forward pass 9 ms instead of 0.2 ms on a loaded 2-core machine), and the leaderboard's
@@ -129,18 +115,12 @@ def _main(argv) -> int:
           f"rms attitude {s['mean_rms_attitude_error']:.3f} rad  effort {s['mean_control_effort']:.3f}  "
           f"crash rate {s['crash_rate']:.2f}")
     if args.json is not None:
-        from baselines.atomic import atomic_write_text
-
         atomic_write_text(args.json, json.dumps(report, indent=2))
     return 0
 
 
-def main(argv=None) -> int:
-    from baselines._extras import require
+def main(argv=None, *, layout: Layout | None = None, prog: str = "evaluate.py") -> int:
+    """``softpvtol evaluate``: one policy on one task and tier; the JSON report where --json says."""
+    require("evaluate.py", prog=prog)
+    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
 
-    require("evaluate.py")
-    return run_main(_main, argv, prog="evaluate.py")
-
-
-if __name__ == "__main__":
-    sys.exit(main())

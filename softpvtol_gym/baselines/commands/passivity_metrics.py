@@ -1,6 +1,10 @@
 """Passivity policy on every task x tier of SoftPVTOL-v0 (default env settings, actuators mode).
 
-    python baselines/passivity_metrics.py [--episodes 10] [--seed 100] [--json baselines/results/passivity_metrics.json]
+    softpvtol passivity-metrics [--episodes 10] [--seed 100] [--json results/passivity_metrics.json]
+    softpvtol passivity-metrics --render-only --json baselines/results/passivity_metrics.json  # table only
+
+In a source checkout ``python baselines/passivity_metrics.py`` writes ``baselines/results/passivity_metrics.json``
+and refreshes its table in ``docs/control.md``.
 
 For each cell: mean over episodes of the RMS position error [m] over the episode (until it ends) and
 the crash rate (fraction of episodes that terminated before the time limit).
@@ -13,12 +17,15 @@ import json
 import time
 from pathlib import Path
 
-from baselines import readme
-from baselines.atomic import atomic_write_text
-from baselines.evaluation import evaluate
 from softpvtol_gym import PassivityPolicy
-from softpvtol_gym.envs.core import TASKS, TIERS
+from softpvtol_gym.baselines.evaluation import evaluate
+from softpvtol_gym.baselines.util.args import Parser, int_arg, read_json_report, run_main
+from softpvtol_gym.baselines.util.atomic import atomic_write_text
+from softpvtol_gym.baselines.util.blocks import write_block
+from softpvtol_gym.baselines.util.paths import Layout
+from softpvtol_gym.envs.tiers import registered_tiers
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
+from softpvtol_gym.tasks import registered_tasks
 
 
 def run_cell(task: str, tier: str, episodes: int, seed: int) -> dict:
@@ -44,30 +51,45 @@ def metrics_table(report: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--episodes", type=int, default=10)
-    ap.add_argument("--seed", type=int, default=100)
-    ap.add_argument("--json", type=Path, default=Path(__file__).resolve().parent / "results" / "passivity_metrics.json")
+BLOCK = "passivity_metrics.py"  # the generated block's name (docs/control.md in a checkout)
+
+
+def _main(argv, layout: Layout, prog: str) -> int:
+    default_json = layout.results / "passivity_metrics.json"
+    ap = Parser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--episodes", type=int_arg(1, 10_000), default=10)
+    ap.add_argument("--seed", type=int_arg(0, 2**62), default=100)
+    ap.add_argument("--json", type=Path, default=default_json, help="the report (default: %(default)s)")
+    ap.add_argument("--render-only", action="store_true",
+                    help="run nothing: print the table of the report in --json and refresh the generated block")
+    ap.add_argument("--page", type=Path, default=layout.doc("control.md"),
+                    help="Markdown file whose generated table block is refreshed (default: %(default)s)")
     args = ap.parse_args(argv)
-    if args.episodes < 1:
-        ap.error("--episodes must be >= 1")
-    cells, t0 = {}, time.perf_counter()
-    for task in TASKS:
-        for tier in TIERS:
-            cells[f"{task}/{tier}"] = m = run_cell(task, tier, args.episodes, args.seed)
-            print(f"{task:13s} {tier:9s} rms {m['rms_position_error_m']:.3f} m  crash {m['crash_rate']:.2f}",
-                  flush=True)
-    command = "python baselines/passivity_metrics.py" + (f" --episodes {args.episodes}" if args.episodes != 10 else "")
-    loop = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators")).loop
-    report = {"command": command, "seed": args.seed, "action_mode": "actuators", "loop": loop, "cells": cells,
-              "wall_time_s": round(time.perf_counter() - t0, 1)}
-    atomic_write_text(args.json, json.dumps(report, indent=2))
-    if args.json.resolve() == Path(__file__).resolve().parent / "results" / "passivity_metrics.json" \
-            and args.episodes == 10 and args.seed == 100:
-        readme.write_block("passivity_metrics.py", README_SOURCE, metrics_table(report))
+    if args.render_only:
+        report = read_json_report(args.json, "passivity metrics report")
+    else:
+        cells, t0 = {}, time.perf_counter()
+        for task in registered_tasks():
+            for tier in registered_tiers():
+                cells[f"{task}/{tier}"] = m = run_cell(task, tier, args.episodes, args.seed)
+                print(f"{task:13s} {tier:9s} rms {m['rms_position_error_m']:.3f} m  crash {m['crash_rate']:.2f}",
+                      flush=True)
+        command = "python baselines/passivity_metrics.py" + (f" --episodes {args.episodes}" if args.episodes != 10 else "")
+        loop = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators")).loop
+        report = {"command": command, "seed": args.seed, "action_mode": "actuators", "loop": loop, "cells": cells,
+                  "wall_time_s": round(time.perf_counter() - t0, 1)}
+        atomic_write_text(args.json, json.dumps(report, indent=2))
+    table = metrics_table(report)
+    if args.render_only:
+        print(table)
+    # the page's block shows the default run (10 episodes from seed 100) of the default report only
+    default_run = args.render_only or (args.episodes == 10 and args.seed == 100)
+    if args.page is not None and default_run and args.json.resolve() == default_json.resolve():
+        if write_block(BLOCK, README_SOURCE, table, args.page):
+            print(f"updated the table in {args.page}")
     return 0
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+def main(argv=None, *, layout: Layout | None = None, prog: str = "passivity_metrics.py") -> int:
+    """``softpvtol passivity-metrics``: the report under ``layout`` (default: ``./results/``)."""
+    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)

@@ -1,6 +1,10 @@
 """Reproduce the simulation section of the Soft-PVTOL paper (Sec. 4) and write figures + metrics.
 
-    python baselines/reproduce_paper.py [--out baselines/results/paper_reproduction] [--t-final 40] [--no-steady]
+    softpvtol reproduce-paper [--out results/paper_reproduction] [--t-final 40] [--no-steady]
+    softpvtol reproduce-paper --render-only --out baselines/results/paper_reproduction  # tables only
+
+In a source checkout ``python baselines/reproduce_paper.py`` writes ``baselines/results/paper_reproduction``
+and refreshes its two tables in ``docs/control.md``.
 
 The paper's case: default parameters and gains, q(0) = (5, 0, 0.2 pi, 0.01 pi, -0.15 pi), qdot(0) = 0,
 reference x = 4 sin(t/2), z = 3 cos(-t/10) + 4, theta = 0, fixed step 0.01 s, 40 s. Loops: "ideal"
@@ -27,9 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines import readme
-from baselines.atomic import atomic_path, atomic_write_text
 from softpvtol_gym import SoftPVTOLParams
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.util.args import Parser, float_arg, read_json_report, run_main
+from softpvtol_gym.baselines.util.atomic import atomic_path, atomic_write_text
+from softpvtol_gym.baselines.util.blocks import write_block
+from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.control import PassivityGains, simulate_closed_loop
 
 LOOP_NAMES = ("ideal", "paper", "improved", "bounded")
@@ -128,7 +135,6 @@ def plot_steady(study: dict, out: Path) -> str:
     plt.close(fig)
     return "steady_state.png"
 WINDOWS = ((0.0, 5.0), (5.0, 20.0), (20.0, 40.0))
-DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "paper_reproduction"
 
 
 def window_metrics(result: dict, t_final: float) -> dict:
@@ -318,34 +324,55 @@ def run(out: Path, t_final: float = 40.0, plots: bool = True, steady: bool = Tru
     return report
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (PNG figures + metrics.json)")
-    parser.add_argument("--t-final", type=float, default=40.0, help="simulated time [s] (paper: 40)")
+def _write_blocks(report: dict, page: Path) -> bool:
+    """Refresh the loops and steady-state tables in ``page``; False if it has neither block."""
+    wrote = write_block("reproduce_paper.py loops", README_SOURCE, loops_table(report), page)
+    return write_block("reproduce_paper.py steady state", README_SOURCE, steady_state_table(report["steady_state"]),
+                       page) or wrote
+
+
+def _main(argv, layout: Layout, prog: str) -> int:
+    default_out = layout.results / "paper_reproduction"
+    parser = Parser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=Path, default=default_out,
+                        help="output folder (PNG figures + metrics.json; default: %(default)s)")
+    parser.add_argument("--t-final", type=float_arg(0.0, lo_open=True), default=40.0,
+                        help="simulated time [s] (paper: 40)")
     parser.add_argument("--no-plots", action="store_true", help="write metrics.json only")
     parser.add_argument("--no-steady", action="store_true", help="skip the 80 s steady-state study (minutes)")
+    parser.add_argument("--render-only", action="store_true",
+                        help="simulate nothing: print the tables of --out/metrics.json and refresh the generated blocks")
+    parser.add_argument("--page", type=Path, default=layout.doc("control.md"),
+                        help="Markdown file whose generated table blocks are refreshed (default: %(default)s)")
     args = parser.parse_args(argv)
-    if not (np.isfinite(args.t_final) and args.t_final > 0):
-        parser.error(f"--t-final must be > 0, got {args.t_final}")
-    report = run(args.out, args.t_final, plots=not args.no_plots, steady=not args.no_steady)
-    for loop, m in report["loops"].items():
-        last = list(m["tracking_error"])[-1]
-        e = m["tracking_error"][last]
-        print(
-            f"{loop:26s} RMS over {last}: x {e['x']['rms']:.2e} m, z {e['z']['rms']:.2e} m, "
-            f"theta {e['theta']['rms']:.2e} rad; final |x err| {m['final_abs_error']['x']:.1e} m"
-        )
-    if "steady_state" in report:
-        print("steady state, worst over 6 initial states: max |x|,|z| error / RMS position error over 60-80 s [m]")
+    if args.render_only:
+        report = read_json_report(args.out / "metrics.json", "paper reproduction metrics")
+        if "loops" not in report or "steady_state" not in report:
+            raise ConfigError(f"{args.out / 'metrics.json'} lacks 'loops' or 'steady_state' (a run without "
+                              f"--no-steady writes both)")
+        print(loops_table(report))
         print(steady_state_table(report["steady_state"]))
-    print(f"wrote {args.out}")
-    if args.out.resolve() == DEFAULT_OUT and args.t_final == 40.0 and "steady_state" in report:
-        readme.write_block("reproduce_paper.py loops", README_SOURCE, loops_table(report))
-        readme.write_block("reproduce_paper.py steady state", README_SOURCE, steady_state_table(report["steady_state"]))
-        print("updated the README tables")
+    else:
+        report = run(args.out, args.t_final, plots=not args.no_plots, steady=not args.no_steady)
+        for loop, m in report["loops"].items():
+            last = list(m["tracking_error"])[-1]
+            e = m["tracking_error"][last]
+            print(
+                f"{loop:26s} RMS over {last}: x {e['x']['rms']:.2e} m, z {e['z']['rms']:.2e} m, "
+                f"theta {e['theta']['rms']:.2e} rad; final |x err| {m['final_abs_error']['x']:.1e} m"
+            )
+        if "steady_state" in report:
+            print("steady state, worst over 6 initial states: max |x|,|z| error / RMS position error over 60-80 s [m]")
+            print(steady_state_table(report["steady_state"]))
+        print(f"wrote {args.out}")
+    default_run = args.render_only or (args.t_final == 40.0 and "steady_state" in report)
+    if args.page is not None and default_run and args.out.resolve() == default_out.resolve():
+        if _write_blocks(report, args.page):
+            print(f"updated the tables in {args.page}")
     return 0
 
 
-if __name__ == "__main__":
+def main(argv: list[str] | None = None, *, layout: Layout | None = None, prog: str = "reproduce_paper.py") -> int:
+    """``softpvtol reproduce-paper``: figures and metrics under ``layout`` (default: ``./results/``)."""
     os.environ.setdefault("MPLBACKEND", "Agg")
-    raise SystemExit(main())
+    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)

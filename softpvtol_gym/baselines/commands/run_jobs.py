@@ -1,17 +1,19 @@
-"""Run the leaderboard's job list (``baselines/leaderboard.yml``) in parallel local processes or on Ray.
+"""Run the leaderboard's job list (the package's ``leaderboard.yml``, or ``--spec``) in local processes or on Ray.
 
-    python baselines/run_jobs.py [--workers 2] [--spec baselines/leaderboard.yml] [--only ppo_residual] [--list]
-    python baselines/run_jobs.py --executor ray [--workers 8]     # a local Ray instance with 8 CPUs
-    python baselines/run_jobs.py --executor ray --address auto    # the Ray cluster of `ray start`
+    softpvtol run-jobs [--workers 2] [--spec my_leaderboard.yml] [--only ppo_residual] [--list]
+    softpvtol run-jobs --executor ray [--workers 8]     # a local Ray instance with 8 CPUs
+    softpvtol run-jobs --executor ray --address auto    # the Ray cluster of `ray start`
 
-Jobs already done (their ``eval.json`` under ``baselines/results/leaderboard_runs/`` holds every task and
+Run directories go under ``--root`` (default ``./results/leaderboard_runs``; in a source checkout
+``python baselines/run_jobs.py`` uses ``baselines/results/leaderboard_runs``). Jobs already done (their
+``eval.json`` under the root holds every task and
 tier they are evaluated on) are skipped, so an interrupted run is continued by running the command again;
 a task added to a cell's ``also_evaluated_on`` only runs the missing evaluations. ``--reevaluate``
 re-runs every evaluation with the committed models (after a change of env or controller code).
 Each worker process (each Ray task: one CPU) runs with one numba and one torch thread. The same jobs
 and seeds give the same result files with either executor; on a Ray cluster ``--root`` must be on a
 file system that every node mounts at the same path (each task checks it, see docs/baselines.md).
-Afterwards ``python baselines/leaderboard.py`` builds LEADERBOARD.md from the results.
+Afterwards ``softpvtol leaderboard`` (``python baselines/leaderboard.py``) builds the leaderboard from the results.
 
 The spec is validated first (unknown keys, bad values and job names that would leave ``--root`` are
 errors); the root is locked while the jobs run (a second run_jobs.py on it gets exit 2 naming the
@@ -23,20 +25,22 @@ from __future__ import annotations
 import argparse
 import multiprocessing as mp
 import os
-import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from baselines._extras import DISTRIBUTED, require
-from baselines.cli import Parser, int_arg, run_main
-from baselines.jobs import RUNS_DIR, SPEC_FILE, load_jobs, pending, run_jobs
+from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_jobs, pending, run_jobs
+from softpvtol_gym.baselines.leaderboard.ray_executor import RayExecutor, start_ray
+from softpvtol_gym.baselines.util.args import Parser, int_arg, run_main
+from softpvtol_gym.baselines.util.extras import DISTRIBUTED, require
+from softpvtol_gym.baselines.util.locks import DirectoryLock
+from softpvtol_gym.baselines.util.paths import Layout
 
 MAX_WORKERS = 256
 EXECUTORS = ("pool", "ray")
 
 
-def _main(argv=None) -> int:
-    ap = Parser(prog="run_jobs.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def _main(argv, layout: Layout, prog: str) -> int:
+    ap = Parser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--executor", choices=EXECUTORS, default="pool",
                     help="pool: local processes (default); ray: Ray tasks, one CPU each (the 'distributed' extra)")
     ap.add_argument("--address", default=None,
@@ -44,8 +48,8 @@ def _main(argv=None) -> int:
                          "machine) or HOST:PORT; default: a local Ray instance with --workers CPUs")
     ap.add_argument("--workers", type=int_arg(), default=None,
                     help=f"parallel jobs, 1 to {MAX_WORKERS} (default: the number of CPUs; not with --address)")
-    ap.add_argument("--spec", type=Path, default=SPEC_FILE)
-    ap.add_argument("--root", type=Path, default=RUNS_DIR)
+    ap.add_argument("--spec", type=Path, default=SPEC_FILE, help="the job list (default: the package's leaderboard.yml)")
+    ap.add_argument("--root", type=Path, default=layout.runs, help="the jobs' run directories (default: %(default)s)")
     ap.add_argument("--only", default=None, help="run only jobs whose name contains this string")
     ap.add_argument("--list", action="store_true", help="print the pending jobs and exit")
     ap.add_argument("--reevaluate", action="store_true",
@@ -77,31 +81,27 @@ def _main(argv=None) -> int:
         print(f"{len(jobs)} pending jobs")
         return 0
     if args.executor == "ray":
-        require("run_jobs.py", DISTRIBUTED)
-    from baselines.locks import DirectoryLock
+        require("run_jobs.py", DISTRIBUTED, prog=prog)
 
     progress = not args.no_progress_bar
     with DirectoryLock(args.root, "job root"):
         if args.executor == "ray":
-            from baselines.ray_backend import RayExecutor, start_ray
-
             with start_ray(address=args.address, num_cpus=args.workers) as resources:
                 print(f"Ray: {len(jobs)} jobs on {resources.get('CPU', 0):g} CPUs", flush=True)
                 run_jobs(jobs, RayExecutor(num_cpus=1), args.root, reevaluate=args.reevaluate, check_root=True,
-                         progress=progress)
+                         progress=progress, base=layout.root)
         else:
             # numba's threading layer per worker would oversubscribe the cores: one thread per worker process
             os.environ.setdefault("NUMBA_NUM_THREADS", "1")
             workers = args.workers or os.cpu_count() or 1
             with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
-                run_jobs(jobs, ex, args.root, reevaluate=args.reevaluate, progress=progress)
+                run_jobs(jobs, ex, args.root, reevaluate=args.reevaluate, progress=progress,
+                         base=layout.root)
     return 0
 
 
-def main(argv=None) -> int:
-    require("run_jobs.py")
-    return run_main(_main, argv, prog="run_jobs.py")
+def main(argv=None, *, layout: Layout | None = None, prog: str = "run_jobs.py") -> int:
+    """``softpvtol run-jobs``: the leaderboard jobs, run directories under ``layout.runs`` (default ``./results/leaderboard_runs``)."""
+    require("run_jobs.py", prog=prog)
+    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -27,13 +27,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
-from softpvtol_gym.envs.core import ACTION_MODES, TASKS, TIERS
-
-from .cli import Parser, int_arg, run_main
-from .config import (
+from softpvtol_gym import PassivityPolicy
+from softpvtol_gym.baselines.checkpoints.store import checkpoint_candidates
+from softpvtol_gym.baselines.config.hyperparams import (
     ALGOS,
     CONFIG_FILE_NAME,
     ENV_OPTION_KEYS,
@@ -41,26 +39,37 @@ from .config import (
     MAX_N_ENVS,
     MAX_TIMESTEPS,
     TRAIN_SEED_LIMIT,
-    ConfigError,
-    RunConfig,
     apply_overrides,
     load_hyperparams,
     parse_env_options,
 )
-from .evaluation import EVAL_SEED_OFFSET
-from .models import DEVICES
+from softpvtol_gym.baselines.config.run_config import RunConfig
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, evaluate
+from softpvtol_gym.baselines.training.loop import prepare, train
+from softpvtol_gym.baselines.training.models import DEVICES
+from softpvtol_gym.baselines.training.policy import LearnedPolicy
+from softpvtol_gym.baselines.util.args import Parser, int_arg, run_main
+from softpvtol_gym.baselines.util.atomic import atomic_write_text
+from softpvtol_gym.baselines.util.extras import require
+from softpvtol_gym.baselines.util.locks import DirectoryLock
+from softpvtol_gym.baselines.util.paths import Layout
+from softpvtol_gym.envs.actions import ACTION_MODES
+from softpvtol_gym.envs.tiers import registered_tiers
+from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
+from softpvtol_gym.tasks import registered_tasks
 
 RESULT_FILE = "result.json"
 DEFAULTS = {"algo": "ppo", "action_mode": "residual", "task": "hover", "tier": "nominal", "seed": 0,
             "checkpoint_freq": 100_000, "eval_freq": 50_000, "eval_episodes": 10}
 
 
-def build_parser() -> Parser:
-    ap = Parser(prog="train.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser(prog: str = "train.py") -> Parser:
+    ap = Parser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--algo", default=None, choices=ALGOS, help="default: ppo")
     ap.add_argument("--action-mode", default=None, choices=ACTION_MODES, help="default: residual")
-    ap.add_argument("--task", default=None, choices=TASKS, help="default: hover")
-    ap.add_argument("--tier", default=None, choices=TIERS, help="default: nominal")
+    ap.add_argument("--task", default=None, choices=registered_tasks(), help="default: hover")
+    ap.add_argument("--tier", default=None, choices=registered_tiers(), help="default: nominal")
     ap.add_argument("--timesteps", type=int_arg(), default=None,
                     help=f"default: n_timesteps of the YAML entry (at most {MAX_TIMESTEPS:,})")
     ap.add_argument("--seed", type=int_arg(), default=None,
@@ -88,7 +97,6 @@ def build_parser() -> Parser:
 
 def _saved_config(out: Path) -> RunConfig | None:
     """The config of an existing run (its config.yaml, else its newest checkpoint's), or None."""
-    from .checkpoints import checkpoint_candidates
 
     for path in [out / CONFIG_FILE_NAME, *(c / CONFIG_FILE_NAME for c in checkpoint_candidates(out))]:
         if path.is_file():
@@ -162,19 +170,13 @@ def _print_comparison(config: RunConfig, out: Path, report: dict) -> None:
               f"{m['mean_rms_attitude_error']:14.3f} {m['mean_control_effort']:8.3f} {m['crash_rate']:6.2f}")
 
 
-def _main(argv: list[str] | None) -> int:
-    ap = build_parser()
+def _main(argv, layout: Layout, prog: str) -> int:
+    ap = build_parser(prog)
     args = ap.parse_args(argv)
     config, out = make_config(args, ap)
 
-    from .atomic import atomic_write_text
-    from .evaluation import evaluate
-    from .locks import DirectoryLock
-    from .training import LearnedPolicy, prepare, train
 
     prepared = prepare(config, out, device=args.device)  # bad hyperparameters or device end here: nothing written yet
-    from softpvtol_gym import PassivityPolicy
-    from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
     with DirectoryLock(out, "run directory"):
         run = train(config, out, resume=args.resume, progress_bar=not args.no_progress_bar, prepared=prepared,
@@ -202,12 +204,8 @@ def _main(argv: list[str] | None) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    from ._extras import require
+def main(argv=None, *, layout: Layout | None = None, prog: str = "train.py") -> int:
+    """``softpvtol train``: one training run (default run directory under ``./runs/``)."""
+    require("train.py", prog=prog)
+    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
 
-    require("train.py")
-    return run_main(_main, argv, prog="train.py")
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -5,7 +5,7 @@
     python baselines/tune.py --address auto                   # on the cluster of `ray start`
     python baselines/tune.py --hp n_envs=64 --space my_space.yml --out runs/best.yml
 
-The search space (``baselines/tune_space.yml``, or ``--space FILE``; format in that file) spans keys of the
+The search space (the package's ``tune_space.yml``, or ``--space FILE``; format in that file) spans keys of the
 hyperparameter entries of ``baselines/hyperparams/<algo>.yml``; the other keys keep the entry's value
 (read as ``train.py`` reads it, with ``--hp KEY=VALUE`` overrides). Each trial trains with
 :func:`baselines.training.train` (the code of ``train.py``, seed ``--seed``) for ``--timesteps`` env steps
@@ -39,26 +39,35 @@ import sys
 import tempfile
 from pathlib import Path
 
-from baselines.cli import Parser, int_arg, run_main
-from baselines.config import (
+import yaml
+
+from softpvtol_gym.baselines.config.hyperparams import (
     ALGOS,
-    ENV_ID,
     MAX_EPISODES,
     MAX_TIMESTEPS,
     TRAIN_SEED_LIMIT,
-    ConfigError,
-    RunConfig,
     apply_overrides,
     load_hyperparams,
     read_yaml,
-    valid_hyperparameter_keys,
-    validate_hyperparams,
 )
-from baselines.evaluation import EVAL_SEED_OFFSET
-from softpvtol_gym.envs.core import ACTION_MODES, TASKS, TIERS
+from softpvtol_gym.baselines.config.run_config import RunConfig
+from softpvtol_gym.baselines.config.validation import valid_hyperparameter_keys, validate_hyperparams
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes, summarize
+from softpvtol_gym.baselines.leaderboard.ray_executor import start_ray
+from softpvtol_gym.baselines.training.loop import train
+from softpvtol_gym.baselines.training.policy import LearnedPolicy
+from softpvtol_gym.baselines.util.args import Parser, int_arg, run_main
+from softpvtol_gym.baselines.util.atomic import atomic_write_text
+from softpvtol_gym.baselines.util.extras import require
+from softpvtol_gym.baselines.util.paths import Layout, data_file
+from softpvtol_gym.envs.actions import ACTION_MODES
+from softpvtol_gym.envs.registration import ENV_ID
+from softpvtol_gym.envs.tiers import registered_tiers
+from softpvtol_gym.tasks import registered_tasks
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-SPACE_FILE = Path(__file__).resolve().parent / "tune_space.yml"
+#: the search space shipped with the package (``--space`` passes another)
+SPACE_FILE = data_file("tune_space.yml")
 #: validation episodes: seeds from here on (training < 500,000; train.py and the leaderboard from 1,000,000)
 TUNE_EVAL_SEED = 3_000_000
 DISTRIBUTIONS = ("loguniform", "uniform", "randint", "choice")
@@ -153,8 +162,6 @@ def run_trial(sampled: dict, context: dict) -> None:
     import torch
     from ray import tune
 
-    from baselines.evaluation import run_episodes, summarize
-    from baselines.training import LearnedPolicy, train
 
     torch.set_num_threads(1)  # one CPU per trial: one torch thread, and one numba thread (the runtime env)
     searched = {k: _plain(v) for k, v in sampled.items()}
@@ -176,11 +183,12 @@ def run_trial(sampled: dict, context: dict) -> None:
 
 
 # ------------------------------------------------------------------------------------ provenance
-def git_state() -> dict:
-    """The checkout's commit and whether it has uncommitted changes (None where git cannot tell)."""
+def git_state(base: Path = Path(".")) -> dict:
+    """The commit of the git checkout at ``base`` and whether it has uncommitted changes (None where git cannot
+    tell, e.g. outside a checkout)."""
     def git(*args):
         try:
-            r = subprocess.run(["git", "-C", str(REPO_ROOT), *args], capture_output=True, text=True, timeout=30)
+            r = subprocess.run(["git", "-C", str(base), *args], capture_output=True, text=True, timeout=30)
         except (OSError, subprocess.SubprocessError):
             return None
         return r.stdout.strip() if r.returncode == 0 else None
@@ -254,12 +262,12 @@ class _TrialLines:
 
 
 # ------------------------------------------------------------------------------------ the CLI
-def build_parser() -> Parser:
-    ap = Parser(prog="tune.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser(prog: str = "tune.py") -> Parser:
+    ap = Parser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--algo", default="ppo", choices=ALGOS)
     ap.add_argument("--action-mode", default="residual", choices=ACTION_MODES)
-    ap.add_argument("--task", default="hover", choices=TASKS)
-    ap.add_argument("--tier", default="nominal", choices=TIERS)
+    ap.add_argument("--task", default="hover", choices=registered_tasks())
+    ap.add_argument("--tier", default="nominal", choices=registered_tiers())
     ap.add_argument("--trials", type=int_arg(1, 10_000), default=20, help="configurations tried (default 20)")
     ap.add_argument("--timesteps", type=int_arg(1, MAX_TIMESTEPS), default=200_000,
                     help="env steps per trial that ASHA does not stop (default 200,000)")
@@ -275,7 +283,7 @@ def build_parser() -> Parser:
     ap.add_argument("--metric", default="mean_return", choices=sorted(METRICS),
                     help="objective: mean_return (maximised, default) or mean_rms_position_error (minimised)")
     ap.add_argument("--space", type=Path, default=SPACE_FILE,
-                    help="search space YAML (default baselines/tune_space.yml)")
+                    help="search space YAML (default: the package's tune_space.yml)")
     ap.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE",
                     help="override a YAML hyperparameter for every trial (as train.py --hp)")
     ap.add_argument("--workers", type=int_arg(1, 4096), default=None,
@@ -301,8 +309,8 @@ def _check_out(ap: Parser, out: Path, force: bool) -> None:
         ap.error(f"--out {out}: {parent} is not a writable directory")
 
 
-def _main(argv=None) -> int:
-    ap = build_parser()
+def _main(argv, layout: Layout, prog: str) -> int:
+    ap = build_parser(prog)
     args = ap.parse_args(argv)
     if args.address is not None and args.workers is not None:
         ap.error("--workers with --address: the cluster's CPUs (its `ray start --num-cpus`) are used")
@@ -333,8 +341,6 @@ def _main(argv=None) -> int:
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
 
-    from baselines.atomic import atomic_write_text
-    from baselines.ray_backend import start_ray
 
     storage = args.storage.resolve() if args.storage is not None else Path(tempfile.mkdtemp(prefix="softpvtol-tune-"))
     started = _dt.datetime.now(_dt.timezone.utc)
@@ -389,12 +395,11 @@ def _main(argv=None) -> int:
                    "space_file": str(args.space), "space": space, "base_overrides": list(args.hp)},
         "seed": args.seed,
         "date": started.isoformat(timespec="seconds"),
-        "git": git_state(),
+        "git": git_state(layout.root),
         "versions": versions(),
         "command": "python baselines/tune.py " + " ".join(sys.argv[1:] if argv is None else argv),
         "trials": trials,
     }
-    import yaml
 
     text = yaml.safe_dump(json.loads(json.dumps(record)), sort_keys=False)  # plain data only
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -404,12 +409,8 @@ def _main(argv=None) -> int:
     return 0
 
 
-def main(argv=None) -> int:
-    from baselines._extras import require
+def main(argv=None, *, layout: Layout | None = None, prog: str = "tune.py") -> int:
+    """``softpvtol tune``: a hyperparameter search (the best configuration under ``./runs/`` by default)."""
+    require("tune.py", prog=prog)
+    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
 
-    require("tune.py")
-    return run_main(_main, argv, prog="tune.py")
-
-
-if __name__ == "__main__":
-    sys.exit(main())

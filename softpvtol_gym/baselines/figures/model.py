@@ -1,30 +1,9 @@
-"""Integration error of the paper's actuated loop at the paper's step (docs/model.md, difference #12).
-
-    python baselines/model_figures.py [--t-final 10] [--json baselines/results/model_figures.json]
-
-The paper integrates its closed loop with Simulink's ode5 at a fixed 0.01 s and this package's
-reproduction with classical RK4 at 0.01 s; docs/model.md used to say the two "agree to plotting
-accuracy". This script measures how far a 0.01 s RK4 solution of the paper's continuous-time actuated
-loop is from the converged solution: the same loop (``PassivityController`` "paper" loop, its algebraic
-loop solved to 1e-10 rad in at most ``--passes`` passes from the allocation at t = 0, evaluated as a pure
-function of (t, q, qdot) at every RK4 stage) integrated by RK4 at 0.01 s, 0.001 s and 0.0005 s from the
-paper's initial state. The 0.001 / 0.0005 s pair bounds the reference's own error. Output: the largest
-|x| and |z| differences and when they occur, and the largest change of the arm references (q_l^d, q_r^d)
-between two 0.01 s steps (with the printed arctan allocation they jumped by up to 2.7 rad and an
-adaptive DOP853 run, rtol = atol = 1e-7, did not finish 4 s of simulated time in 10 minutes; hence
-fixed steps).
-"""
+"""The paper model's closed loop under RK4 at several steps, against a reference (``softpvtol model-figures``)."""
 
 from __future__ import annotations
 
-import argparse
-import json
-import time
-from pathlib import Path
-
 import numpy as np
 
-from baselines.atomic import atomic_write_text
 from softpvtol_gym import SoftPVTOLParams
 from softpvtol_gym.control.closed_loop import PassivityController
 from softpvtol_gym.control.references import paper_reference
@@ -77,31 +56,3 @@ def compare(t_final: float, passes: int = 50, steps=STEPS) -> dict:
             "max_abs_z_m": float(d[:, 1].max()), "t_of_max_z_s": round(float(d[:, 1].argmax() * dt), 6),
         }
     return out
-
-
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--t-final", type=float, default=10.0)
-    ap.add_argument("--passes", type=int, default=50, help="fixed-point passes of the algebraic loop")
-    ap.add_argument("--json", type=Path, default=Path(__file__).resolve().parent / "results" / "model_figures.json")
-    args = ap.parse_args(argv)
-    if not (args.t_final > 0 and args.passes >= 1):
-        ap.error("--t-final must be > 0 and --passes >= 1")
-    t0 = time.perf_counter()
-    result = compare(args.t_final, args.passes)
-    for name, r in result.items():
-        if not isinstance(r, dict):
-            print(f"{name}: {r}")
-            continue
-        print(f"{name}: max |dx| {r['max_abs_x_m']:.4g} m at t = {r['t_of_max_x_s']:.2f} s, "
-              f"max |dz| {r['max_abs_z_m']:.4g} m at t = {r['t_of_max_z_s']:.2f} s")
-    report = {"command": "python baselines/model_figures.py", "t_final_s": args.t_final, "passes": args.passes,
-              "comparisons": {k: v for k, v in result.items() if isinstance(v, dict)},
-              "arm_reference_jumps": {k: v for k, v in result.items() if not isinstance(v, dict)},
-              "wall_time_s": round(time.perf_counter() - t0, 1)}
-    atomic_write_text(args.json, json.dumps(report, indent=2))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

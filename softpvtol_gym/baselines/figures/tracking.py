@@ -1,57 +1,30 @@
-"""The pictures of issue 16: tracking plots, learning curves against wall-clock time, a GIF of the best policy.
-
-    python baselines/tracking_figures.py                      # all three, the learned policy from the leaderboard
-    python baselines/tracking_figures.py --checkpoint baselines/results/leaderboard_runs/<cell>/seed_<k>
-    python baselines/tracking_figures.py --only curves        # one of them (repeat --only for more)
-
-``tracking`` (``baselines/results/tracking/track_paper.png``): one column per tier of the leaderboard spec,
-rows x(t), z(t) and the position error |e|(t), for one evaluation episode (``--seed``, default 1000000,
-the leaderboard's first evaluation episode) of ``passivity-bounded`` (``PassivityPolicy.from_env`` in the
-actuators mode, with the spec's allocation and loop, as the leaderboard's jobs run it) and of the learned
-policy, on the same seeded env. An episode that ends early (a crash) is marked with an X and its reason.
-
-``gif`` (``docs/best_policy_track_paper.gif``): the learned policy on ``track_paper`` nominal from the same
-seed, rendered with :mod:`baselines.render_gif`'s functions.
-
-The learned policy: ``--checkpoint PATH`` (a run or checkpoint folder, any training task), else the
-learned entry of the leaderboard JSON with the lowest IQM RMS position error on ``track_paper`` nominal
-(whatever task it was trained on), and of its seeds the one whose own mean RMS position error there is
-the median of the entry's seeds (the lower middle one for an even count): a typical seed, not the best.
-
-``curves`` (``baselines/results/tracking/learning_curves.png``): for every learned cell under ``--runs``
-(``ppo_*/seed_*/evaluations.json``), the periodic held-out evaluation's mean RMS position error against
-the run's training wall-clock time, per seed thin lines and their median thick, one panel per training
-task. Runs saved before ``train_seconds`` was recorded are drawn against environment steps (the panel says
-so). Reference: ``--curve-reference heldout`` (default) evaluates passivity-bounded on the same held-out
-episodes (each seed's ``eval_episodes`` episodes from seed 1000000 + seed, on the training tier) and draws
-the median over seeds; ``leaderboard`` draws the leaderboard's passivity-bounded IQM of the task's
-training tiers instead (labelled as such).
-
-Outputs are overwritten; their folders are checked before any work. Exit codes: 0 done, 2 bad input.
-"""
+"""Tracking plots, learning curves and the GIF of a learned policy against the strongest analytic entry
+(the pictures of issue 16); ``softpvtol figures`` (:mod:`softpvtol_gym.baselines.commands.figures`) draws them."""
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import math
-import os
 import statistics
-import sys
 import textwrap
 from pathlib import Path
 
-from baselines.cli import Parser, float_arg, int_arg, run_main
-from baselines.errors import ConfigError
-from baselines.evaluation import EVAL_SEED_OFFSET
-from baselines.jobs import REPO_ROOT, RUNS_DIR, SPEC_FILE
+import numpy as np
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
-LEADERBOARD_JSON = RESULTS_DIR / "leaderboard.json"
-TRACKING_PNG = RESULTS_DIR / "tracking" / "track_paper.png"
-CURVES_PNG = RESULTS_DIR / "tracking" / "learning_curves.png"
-GIF = REPO_ROOT / "docs" / "best_policy_track_paper.gif"
+from softpvtol_gym import PassivityPolicy
+from softpvtol_gym.baselines.config.run_config import RunConfig
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes
+from softpvtol_gym.baselines.leaderboard.jobs import load_spec
+from softpvtol_gym.baselines.training.loop import EVALUATIONS_FILE
+from softpvtol_gym.baselines.training.policy import LearnedPolicy
+from softpvtol_gym.baselines.util.atomic import atomic_path
+from softpvtol_gym.baselines.util.paths import relative_to_root
+from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
+
+#: the pictures' file names (under the layout's results: ``<results>/tracking/``)
+TRACKING_PNG_NAME, CURVES_PNG_NAME, GIF_NAME = "track_paper.png", "learning_curves.png", "best_policy_track_paper.gif"
 FIGURES = ("tracking", "curves", "gif")
 REFERENCE = "passivity-bounded"  # the strongest analytic entry of the leaderboard (the env's default loop)
 TASK, SELECTION_TIER = "track_paper", "nominal"
@@ -78,11 +51,12 @@ def _learned(row: dict) -> bool:
     return row.get("policy") == "ppo" or bool(row.get("checkpoint"))
 
 
-def select_learned(data: dict, source: str = "leaderboard JSON") -> Selection:
+def select_learned(data: dict, source: str = "leaderboard JSON", base: Path = Path(".")) -> Selection:
     """The learned entry with the lowest IQM RMS position error on track_paper nominal in leaderboard
     ``data`` (``aggregates`` rows: task, tier, entry, policy, rms_position_error_iqm; ``cells``: entry, task,
     tier, seed, checkpoint, episodes), and its median seed. Cells of entries trained on another task count
-    like any other (a ``train_task`` field, where rows carry one, must match between row and cells)."""
+    like any other (a ``train_task`` field, where rows carry one, must match between row and cells). A relative
+    checkpoint path in a cell is taken relative to ``base`` (where the jobs ran)."""
     if not isinstance(data, dict) or not isinstance(data.get("aggregates"), list) \
             or not isinstance(data.get("cells"), list):
         raise ConfigError(f"{source} is not a leaderboard JSON (expected an object with 'aggregates' and 'cells' "
@@ -106,7 +80,7 @@ def select_learned(data: dict, source: str = "leaderboard JSON") -> Selection:
                           f"with python baselines/leaderboard.py") from None
     rms, seed, cell = ranked[(len(ranked) - 1) // 2]
     path = Path(cell["checkpoint"])
-    return Selection(entry=best["entry"], seed=seed, checkpoint=path if path.is_absolute() else REPO_ROOT / path,
+    return Selection(entry=best["entry"], seed=seed, checkpoint=path if path.is_absolute() else Path(base) / path,
                      seeds=len(ranked), seed_rms=rms, entry_iqm=float(best["rms_position_error_iqm"]))
 
 
@@ -122,7 +96,6 @@ def read_leaderboard(path: Path) -> dict:
 
 def load_learned(checkpoint: Path, caption: str | None = None):
     """``(policy, run_config, label, caption)`` of a checkpoint (safe format only; nothing is unpickled)."""
-    from baselines.training import LearnedPolicy
 
     if not Path(checkpoint).exists():
         raise ConfigError(f"checkpoint {checkpoint} does not exist")
@@ -134,16 +107,12 @@ def load_learned(checkpoint: Path, caption: str | None = None):
 
 
 def _shown(path: Path) -> str:
-    """``path`` relative to the repository where it lies in it (shorter titles)."""
-    try:
-        return str(path.resolve().relative_to(REPO_ROOT))
-    except ValueError:
-        return str(path)
+    """``path`` relative to the current directory where it lies in it (shorter titles)."""
+    return relative_to_root(path, Path.cwd())
 
 
 def reference_env_kwargs(spec_path: Path) -> dict:
     """Env arguments of passivity-bounded as the leaderboard's jobs pass them (allocation, loop)."""
-    from baselines.jobs import load_spec
 
     for p in load_spec(spec_path)["passivity"]:
         if p["name"] == REFERENCE:
@@ -155,9 +124,7 @@ def reference_env_kwargs(spec_path: Path) -> dict:
 def run_trajectory(policy, action_mode: str, task: str, tier: str, seed: int, seconds: float | None,
                    env_kwargs: dict) -> dict:
     """One deterministic episode on a one-env vector env: time, position, reference, how it ended."""
-    import numpy as np
 
-    from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
     env = SoftPVTOLVectorEnv(num_envs=1, action_mode=action_mode, task=task, tier=tier, **env_kwargs)
     obs, _ = env.reset(seed=seed)
@@ -191,9 +158,6 @@ def tracking_figure(tiers, seed: int, seconds: float | None, learned, passivity_
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from baselines.atomic import atomic_path
-    from softpvtol_gym import PassivityPolicy
-    from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
     policy, config, label, caption = learned
     analytic = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=TASK,
@@ -257,7 +221,6 @@ CLOSE, SETTLED = 0.2, 10.0  # [m], [s]
 
 def episode_summary(run: dict) -> dict:
     """RMS position error, crash, length, the first time |e| < CLOSE (None: never) and max |e| from SETTLED on."""
-    import numpy as np
 
     below = np.flatnonzero(run["err"] < CLOSE)
     late = run["err"][run["t"] >= SETTLED]
@@ -276,8 +239,6 @@ def _summary_text(v: dict) -> str:
 # ------------------------------------------------------------------------------- learning curves
 def read_curves(runs_dir: Path) -> list[dict]:
     """Every learned run under ``runs_dir`` with an evaluations.json: its config and curve."""
-    from baselines.config import RunConfig
-    from baselines.training import EVALUATIONS_FILE
 
     out = []
     for path in sorted(Path(runs_dir).glob(f"ppo_*/seed_*/{EVALUATIONS_FILE}")):
@@ -298,9 +259,6 @@ def read_curves(runs_dir: Path) -> list[dict]:
 
 def heldout_reference(task: str, tier: str, configs: list, passivity_kwargs: dict) -> float:
     """passivity-bounded's mean RMS position error on each run's held-out episodes, median over the runs."""
-    from baselines.evaluation import run_episodes
-    from softpvtol_gym import PassivityPolicy
-    from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
     policy = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=task,
                                                          **passivity_kwargs))
@@ -324,9 +282,7 @@ def curves_figure(curves: list[dict], reference: str, passivity_kwargs: dict, le
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
 
-    from baselines.atomic import atomic_path
 
     tasks = sorted({c["config"].task for c in curves})
     fig, axes = plt.subplots(1, len(tasks), figsize=(5.6 * len(tasks), 5.0), squeeze=False)
@@ -372,109 +328,3 @@ def curves_figure(curves: list[dict], reference: str, passivity_kwargs: dict, le
         fig.savefig(tmp, format="png", dpi=100, metadata={"Software": None})
     plt.close(fig)
     return levels
-
-
-# ------------------------------------------------------------------------------------------ main
-def _check_output(path: Path, option: str, suffix: str) -> None:
-    if path.is_dir():
-        raise ConfigError(f"{option} {path} is a directory; expected a file name")
-    if path.suffix.lower() != suffix:
-        raise ConfigError(f"{option} must name a {suffix} file, got {path}")
-    parent = path.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise ConfigError(f"{option} {path}: {parent} is not a writable directory")
-
-
-def build_parser() -> Parser:
-    from softpvtol_gym.envs.core import TIERS
-
-    ap = Parser(prog="tracking_figures.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--only", action="append", choices=FIGURES, default=None,
-                    help="write only this picture (repeatable; default: all three)")
-    ap.add_argument("--checkpoint", type=Path, default=None,
-                    help="the learned policy (run or checkpoint folder); default: chosen from --leaderboard")
-    ap.add_argument("--leaderboard", type=Path, default=LEADERBOARD_JSON)
-    ap.add_argument("--spec", type=Path, default=SPEC_FILE, help="the leaderboard spec (tiers, passivity-bounded)")
-    ap.add_argument("--runs", type=Path, default=RUNS_DIR, help="learned runs for the learning curves")
-    ap.add_argument("--tiers", nargs="+", choices=TIERS, default=None, help="default: the spec's evaluation tiers")
-    ap.add_argument("--seed", type=int_arg(0, 2**62), default=EVAL_SEED_OFFSET, help="the evaluation episode's seed")
-    ap.add_argument("--seconds", type=float_arg(0.01, 600.0), default=None,
-                    help="cut the tracking episodes after this long [s] (default: the whole episode)")
-    ap.add_argument("--curve-reference", choices=("heldout", "leaderboard"), default="heldout")
-    ap.add_argument("--gif-seconds", type=float_arg(0.1, 600.0), default=None,
-                    help="cut the GIF's episode after this long [s] (default: the whole episode)")
-    ap.add_argument("--gif-fps", type=int_arg(1, 100), default=10, help="divides 100")
-    ap.add_argument("--gif-scale", type=float_arg(0.1, 1.0), default=0.6, help="frame size x 600 x 450")
-    ap.add_argument("--tracking-out", type=Path, default=TRACKING_PNG)
-    ap.add_argument("--curves-out", type=Path, default=CURVES_PNG)
-    ap.add_argument("--gif-out", type=Path, default=GIF)
-    return ap
-
-
-def _main(argv) -> int:
-    args = build_parser().parse_args(argv)
-    only = tuple(dict.fromkeys(args.only or FIGURES))
-    outputs = {"tracking": (args.tracking_out, "--tracking-out", ".png"),
-               "curves": (args.curves_out, "--curves-out", ".png"), "gif": (args.gif_out, "--gif-out", ".gif")}
-    for name in only:
-        _check_output(*outputs[name])
-    if "gif" in only and 100 % args.gif_fps:
-        raise ConfigError(f"--gif-fps must divide 100 (the env's rate), got {args.gif_fps}")
-    if args.checkpoint is not None and not args.checkpoint.exists():
-        raise ConfigError(f"--checkpoint {args.checkpoint} does not exist")
-    if "curves" in only and not args.runs.is_dir():
-        raise ConfigError(f"--runs {args.runs} is not a directory")
-    from baselines.jobs import load_spec
-
-    spec = load_spec(args.spec)
-    tiers = args.tiers or spec["evaluation"]["tiers"]
-    passivity_kwargs = reference_env_kwargs(args.spec)
-    need_leaderboard = (args.checkpoint is None and {"tracking", "gif"} & set(only)) or (
-        "curves" in only and args.curve_reference == "leaderboard")
-    leaderboard = read_leaderboard(args.leaderboard) if need_leaderboard else None
-    learned = None
-    if {"tracking", "gif"} & set(only):
-        if args.checkpoint is not None:
-            learned = load_learned(args.checkpoint)
-        else:
-            chosen = select_learned(leaderboard, f"leaderboard JSON {args.leaderboard}")
-            learned = load_learned(chosen.checkpoint, chosen.caption())
-    curves = read_curves(args.runs) if "curves" in only else None
-    if learned is not None:
-        print(f"learned policy: {learned[3]}")
-    if "tracking" in only:
-        result = tracking_figure(tiers, args.seed, args.seconds, learned, passivity_kwargs, args.tracking_out)
-        for tier, r in result.items():
-            for name, v in r.items():
-                print(f"  {TASK} {tier}, {name}: {_summary_text(v)}")
-        print(f"wrote {args.tracking_out}")
-    if "curves" in only:
-        levels = curves_figure(curves, args.curve_reference, passivity_kwargs, leaderboard, args.curves_out)
-        print(f"wrote {args.curves_out} ({len(curves)} runs; {REFERENCE} levels: "
-              + ", ".join(f"{k} {v:.3f} m" for k, v in levels.items()) + ")")
-    if "gif" in only:
-        from baselines.render_gif import render_frames, save_gif
-        from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
-
-        policy, config, label, _ = learned
-        env = SoftPVTOLVectorEnv(num_envs=1, action_mode=config.action_mode, task=TASK, tier="nominal",
-                                 render_mode="rgb_array", **config.eval_env_kwargs())
-        seconds = args.gif_seconds or env.config.episode_seconds
-        frames, steps = render_frames(policy, env, args.seed, seconds, args.gif_fps, args.gif_scale)
-        size = save_gif(frames, args.gif_out, args.gif_fps)
-        print(f"wrote {args.gif_out}: {label} on {TASK} nominal, seed {args.seed}, {len(frames)} frames "
-              f"({steps} steps), {size / 1e6:.2f} MB")
-    return 0
-
-
-def main(argv=None) -> int:
-    from baselines._extras import require
-
-    require("tracking_figures.py")
-    return run_main(_main, argv, prog="tracking_figures.py")
-
-
-if __name__ == "__main__":
-    sys.exit(main())

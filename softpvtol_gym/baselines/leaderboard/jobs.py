@@ -36,12 +36,36 @@ import uuid
 from concurrent.futures import Executor, as_completed
 from pathlib import Path
 
-from .errors import ConfigError
-from .paths import check_slug, under
+from softpvtol_gym import PassivityPolicy
+from softpvtol_gym.baselines.checkpoints.manifest import MANIFEST_FILE, MODEL_FILE, MODEL_FILES
+from softpvtol_gym.baselines.checkpoints.store import legacy_files
+from softpvtol_gym.baselines.config.hyperparams import (
+    MAX_EPISODES,
+    MAX_TIMESTEPS,
+    TRAIN_SEED_LIMIT,
+    apply_overrides,
+    load_hyperparams,
+    read_yaml,
+)
+from softpvtol_gym.baselines.config.run_config import RunConfig
+from softpvtol_gym.baselines.config.validation import validate_hyperparams
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes
+from softpvtol_gym.baselines.training.loop import EVALUATIONS_FILE, train
+from softpvtol_gym.baselines.training.policy import LearnedPolicy
+from softpvtol_gym.baselines.util.atomic import atomic_copy, atomic_write_text
+from softpvtol_gym.baselines.util.paths import Layout, check_slug, data_file, relative_to_root, under
+from softpvtol_gym.control import LOOPS
+from softpvtol_gym.envs.actions import ACTION_MODES
+from softpvtol_gym.envs.tiers import registered_tiers
+from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
+from softpvtol_gym.tasks import registered_tasks
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-SPEC_FILE = Path(__file__).resolve().parent / "leaderboard.yml"
-RUNS_DIR = Path(__file__).resolve().parent / "results" / "leaderboard_runs"
+#: the leaderboard spec shipped with the package (``--spec`` passes another)
+SPEC_FILE = data_file("leaderboard.yml")
+#: the jobs' run directories by default: ``./results/leaderboard_runs`` (a checkout's scripts pass
+#: ``baselines/results/leaderboard_runs``)
+RUNS_DIR = Layout().runs
 EVAL_FILE = "eval.json"
 #: written into the job root while run_jobs(check_root=True) runs (see check_shared_root)
 ROOT_TOKEN_FILE = ".run_jobs.token"
@@ -97,7 +121,7 @@ class Job:
 
 
 # ------------------------------------------------------------------------------------- the spec
-def _is_int(v) -> bool:
+def is_int(v) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
 
@@ -127,29 +151,25 @@ def _choice(value, valid, where: str):
 
 def validate_spec(spec, source: str = "leaderboard spec") -> dict:
     """``spec`` if it is a valid leaderboard spec, else ConfigError naming the key and what is expected."""
-    from softpvtol_gym.envs.core import ACTION_MODES, TASKS, TIERS
-
-    from .config import MAX_EPISODES, MAX_TIMESTEPS, TRAIN_SEED_LIMIT
-    from .evaluation import EVAL_SEED_OFFSET
 
     if spec is None:
         raise ConfigError(f"{source} is empty; expected a mapping with the keys {list(SPEC_KEYS)}")
     _mapping(spec, SPEC_KEYS, source)
     ev = _mapping(spec["evaluation"], EVALUATION_KEYS, f"{source}: evaluation")
-    if not _is_int(ev["episodes"]) or not 1 <= ev["episodes"] <= MAX_EPISODES:
+    if not is_int(ev["episodes"]) or not 1 <= ev["episodes"] <= MAX_EPISODES:
         raise ConfigError(f"{source}: evaluation.episodes must be an integer in [1, {MAX_EPISODES:,}], "
                           f"got {ev['episodes']!r}")
-    if not _is_int(ev["seed"]) or ev["seed"] < EVAL_SEED_OFFSET:
+    if not is_int(ev["seed"]) or ev["seed"] < EVAL_SEED_OFFSET:
         raise ConfigError(f"{source}: evaluation.seed must be an integer >= {EVAL_SEED_OFFSET:,} (evaluation seeds "
                           f"never overlap training seeds), got {ev['seed']!r}")
     tiers = _list(ev["tiers"], f"{source}: evaluation.tiers", allow_empty=False)
     for t in tiers:
-        _choice(t, TIERS, f"{source}: each of evaluation.tiers")
+        _choice(t, registered_tiers(), f"{source}: each of evaluation.tiers")
     if len(set(tiers)) != len(tiers):
         raise ConfigError(f"{source}: evaluation.tiers lists a tier twice: {tiers}")
     tasks = _list(spec["tasks"], f"{source}: tasks", allow_empty=False)
     for t in tasks:
-        _choice(t, TASKS, f"{source}: each of tasks")
+        _choice(t, registered_tasks(), f"{source}: each of tasks")
     if len(set(tasks)) != len(tasks):
         raise ConfigError(f"{source}: tasks lists a task twice: {tasks}")
     names = set()
@@ -161,17 +181,15 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
         names.add(p["name"])
         _choice(p["allocation"], ALLOCATIONS, f"{source}: passivity[{i}].allocation")
         if "loop" in p:
-            from softpvtol_gym.control import LOOPS
-
             _choice(p["loop"], [k for k in LOOPS if LOOPS[k]["allocation"] == p["allocation"]],
                     f"{source}: passivity[{i}].loop (a loop with the {p['allocation']} allocation)")
     cells = set()
     for i, c in enumerate(_list(spec["trained"], f"{source}: trained")):
         _mapping(c, TRAINED_KEYS, f"{source}: trained[{i}]", required=TRAINED_KEYS[:4])
         _choice(c["action_mode"], ACTION_MODES, f"{source}: trained[{i}].action_mode")
-        _choice(c["task"], TASKS, f"{source}: trained[{i}].task")
-        _choice(c["tier"], TIERS, f"{source}: trained[{i}].tier")
-        if not _is_int(c["timesteps"]) or not 1 <= c["timesteps"] <= MAX_TIMESTEPS:
+        _choice(c["task"], registered_tasks(), f"{source}: trained[{i}].task")
+        _choice(c["tier"], registered_tiers(), f"{source}: trained[{i}].tier")
+        if not is_int(c["timesteps"]) or not 1 <= c["timesteps"] <= MAX_TIMESTEPS:
             raise ConfigError(f"{source}: trained[{i}].timesteps must be an integer in [1, {MAX_TIMESTEPS:,}], "
                               f"got {c['timesteps']!r}")
         also = _list(c.get("also_evaluated_on", []), f"{source}: trained[{i}].also_evaluated_on")
@@ -184,8 +202,6 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
         if not all(isinstance(h, str) for h in hp):
             raise ConfigError(f"{source}: trained[{i}].hp must be a list of 'key=value' strings, got {hp!r}")
         if hp:
-            from .config import apply_overrides, load_hyperparams, validate_hyperparams
-
             try:  # validated as train.py --hp would be, before anything runs
                 validate_hyperparams("ppo", apply_overrides(load_hyperparams("ppo", c["action_mode"]), hp))
             except ConfigError as exc:
@@ -196,7 +212,7 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
         cells.add(key)
     seeds = _list(spec["seeds"], f"{source}: seeds", allow_empty=not spec["trained"])
     for s in seeds:
-        if not _is_int(s) or not 0 <= s < TRAIN_SEED_LIMIT:
+        if not is_int(s) or not 0 <= s < TRAIN_SEED_LIMIT:
             raise ConfigError(f"{source}: seeds must be integers in [0, {TRAIN_SEED_LIMIT:,}), got {s!r}")
     if len(set(seeds)) != len(seeds):
         raise ConfigError(f"{source}: seeds lists a seed twice: {seeds}")
@@ -205,7 +221,6 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
 
 def load_spec(spec_path: Path = SPEC_FILE) -> dict:
     """The validated leaderboard spec at ``spec_path`` (ConfigError naming the problem otherwise)."""
-    from .config import read_yaml
 
     return validate_spec(read_yaml(spec_path, "leaderboard spec"), f"leaderboard spec {spec_path}")
 
@@ -247,17 +262,13 @@ def read_eval(path: Path) -> dict:
     return rec
 
 
-def _checkpoint_field(out: Path) -> str:
-    from .checkpoints import MODEL_FILE
-
-    path = (out / MODEL_FILE).resolve()
-    try:
-        return str(path.relative_to(REPO_ROOT))
-    except ValueError:
-        return str(out / MODEL_FILE)
+def _checkpoint_field(out: Path, base: Path | None) -> str:
+    """The final model's path as recorded in ``eval.json``: relative to ``base`` (default: the current
+    directory) where it lies under it."""
+    return relative_to_root(out / MODEL_FILE, Path.cwd() if base is None else base)
 
 
-def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
+def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Path | None = None) -> dict:
     """Train (learned policies) and evaluate one job; writes ``<root>/<job.name>/eval.json``.
 
     A learned job whose final model exists (a checkpoint folder that verifies) is not trained again, only
@@ -265,12 +276,6 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
     controller code). Training happens in ``<job>.run/`` (resumed if a run was interrupted, started over if
     it never reached a checkpoint); the final model is copied into the job's folder (manifest last) and
     the training folder removed."""
-    from softpvtol_gym import PassivityPolicy
-    from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
-
-    from .atomic import atomic_copy, atomic_write_text
-    from .checkpoints import MANIFEST_FILE, MODEL_FILES
-    from .evaluation import run_episodes
 
     out = job.folder(root)
     previous = read_eval(out / EVAL_FILE) if (out / EVAL_FILE).is_file() else None
@@ -280,21 +285,14 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
     env_kwargs = {}
     train_seconds = None
     if job.learned and (out / MANIFEST_FILE).is_file():
-        from .training import LearnedPolicy
-
         policy, run_config = LearnedPolicy.load(out)
         env_kwargs = run_config.eval_env_kwargs()  # the base loop the policy was trained on
         train_seconds = None if previous is None else previous["train_seconds"]
     elif job.learned:
-        from .checkpoints import legacy_files
-        from .config import RunConfig, load_hyperparams
-        from .training import LearnedPolicy, train
-
         if legacy_files(out):
             raise ConfigError(f"{out} holds a model in the earlier pickle-based format ({legacy_files(out)}); convert "
                               f"it once with python baselines/export.py from-sb3 --trust-pickle {out} if you trust it")
         run_dir = under(root, job.name + ".run", "job training folder")
-        from .config import apply_overrides
 
         hp = apply_overrides(load_hyperparams("ppo", job.action_mode), list(job.hp))
         config = RunConfig(algo="ppo", action_mode=job.action_mode, task=job.task, tier=job.train_tier,
@@ -306,7 +304,6 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
         env_kwargs = config.eval_env_kwargs()
         train_seconds = run["seconds"] if run["status"] == "trained" else None
         policy = LearnedPolicy(run["model"], run["vecnorm"])
-        from .training import EVALUATIONS_FILE
 
         for fname in (*MODEL_FILES, EVALUATIONS_FILE, MANIFEST_FILE):  # the manifest last: it marks the copy done
             if (run_dir / fname).is_file():
@@ -327,7 +324,7 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False) -> dict:
                 policy, job.action_mode, task, tier, job.eval_episodes, job.eval_seed, env_kwargs=env_kwargs)
     record = {
         "job": dataclasses.asdict(job),
-        "checkpoint": _checkpoint_field(out) if job.learned else None,
+        "checkpoint": _checkpoint_field(out, base) if job.learned else None,
         "train_seconds": None if train_seconds is None else round(train_seconds, 1),
         "eval": evaluations[job.task],
     }
@@ -355,7 +352,8 @@ def reevaluate_job(job: Job, root: Path = RUNS_DIR) -> dict:
     return run_job(job, root, reevaluate=True)
 
 
-def _run_job_entry(job: Job, root: str, reevaluate: bool = False, root_token: str | None = None) -> tuple[str, float]:
+def _run_job_entry(job: Job, root: str, reevaluate: bool = False, root_token: str | None = None,
+                   base: str | None = None) -> tuple[str, float]:
     """Executor entry point (process pool, Ray task): one thread for torch per worker process; with
     ``root_token``, first check that ``root`` is the driver's (:func:`check_shared_root`)."""
     import torch
@@ -364,7 +362,7 @@ def _run_job_entry(job: Job, root: str, reevaluate: bool = False, root_token: st
         check_shared_root(Path(root), root_token)
     torch.set_num_threads(1)
     t0 = time.perf_counter()
-    run_job(job, Path(root), reevaluate=reevaluate)
+    run_job(job, Path(root), reevaluate=reevaluate, base=None if base is None else Path(base))
     return job.name, time.perf_counter() - t0
 
 
@@ -373,7 +371,6 @@ def _run_job_entry(job: Job, root: str, reevaluate: bool = False, root_token: st
 def shared_root_token(root: Path):
     """Write a random token into ``<root>/.run_jobs.token`` while a run lasts (removed afterwards) and
     yield it; tasks check it with :func:`check_shared_root`."""
-    from .atomic import atomic_write_text
 
     token = uuid.uuid4().hex
     path = Path(root) / ROOT_TOKEN_FILE
@@ -401,21 +398,23 @@ def check_shared_root(root: Path, token: str) -> None:
 
 
 def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevaluate: bool = False,
-             check_root: bool = False, progress: bool = True) -> list[str]:
+             check_root: bool = False, progress: bool = True, base: Path | None = None) -> list[str]:
     """Submit every job to ``executor`` (anything with ``submit`` returning futures: a process pool, a
     :class:`baselines.ray_backend.RayExecutor`); returns the names of the jobs that finished, in
     completion order, printing one line per job (and a progress bar on a terminal, ``progress``). A job
     that fails on a :class:`~baselines.errors.ConfigError` (an unusable checkpoint, a busy folder) is
     reported in one line and the others go on; a ConfigError listing the failed jobs is raised at the end.
     ``check_root``: every job first checks that it sees the same ``root`` as this process (for executors
-    on other machines)."""
+    on other machines). ``base``: the checkpoint paths in ``eval.json`` are recorded relative to it (default:
+    the current directory)."""
     from tqdm import tqdm
 
     for job in jobs:
         job.folder(root)  # every output path checked before anything runs
     with contextlib.ExitStack() as stack:
         token = stack.enter_context(shared_root_token(root)) if check_root else None
-        futures = {executor.submit(_run_job_entry, job, str(root), reevaluate, token): job for job in jobs}
+        base = str((Path.cwd() if base is None else Path(base)).resolve())  # checkpoint paths recorded relative to it
+        futures = {executor.submit(_run_job_entry, job, str(root), reevaluate, token, base): job for job in jobs}
         # disable=None: a bar on a terminal only (logs get the one line per job below)
         bar = stack.enter_context(tqdm(total=len(jobs), unit="job", file=sys.stderr,
                                        disable=None if progress else True))
@@ -443,6 +442,3 @@ def pending(jobs: list[Job], root: Path = RUNS_DIR) -> list[Job]:
 
     return [j for j in jobs if not done(j)]
 
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit("use python baselines/run_jobs.py")

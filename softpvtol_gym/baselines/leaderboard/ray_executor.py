@@ -26,14 +26,16 @@ import tempfile
 from concurrent.futures import Future
 from pathlib import Path
 
-from .errors import ConfigError
+import softpvtol_gym
+from softpvtol_gym.baselines.errors import ConfigError
 
 #: environment of every Ray task and actor this project starts: one numba / BLAS thread per CPU asked
 TASK_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
             "OPENBLAS_NUM_THREADS": "1"}
 #: Ray's Unix sockets live under the temporary directory; their paths must stay under ~107 characters
 MAX_TEMP_DIR_CHARS = 40
-REPO_ROOT = Path(__file__).resolve().parents[1]
+#: the folder this process imports ``softpvtol_gym`` from (a checkout's root with an editable install)
+IMPORT_ROOT = Path(softpvtol_gym.__file__).resolve().parents[1]
 
 
 def _short_temp_dir() -> str:
@@ -46,9 +48,10 @@ def _short_temp_dir() -> str:
 
 def runtime_env() -> dict:
     """Ray's runtime environment for this project's tasks: :data:`TASK_ENV`, and the driver's
-    ``PYTHONPATH`` with this checkout first (so that a local instance imports the same code as the
+    ``PYTHONPATH`` with the folder this process imports ``softpvtol_gym`` from first (so that a local
+    instance imports the same code as the
     driver; on a cluster, the project must be installed, or checked out at the same path, on every node)."""
-    path = os.pathsep.join(p for p in (str(REPO_ROOT), os.environ.get("PYTHONPATH", "")) if p)
+    path = os.pathsep.join(p for p in (str(IMPORT_ROOT), os.environ.get("PYTHONPATH", "")) if p)
     return {"env_vars": {**TASK_ENV, "PYTHONPATH": path}}
 
 

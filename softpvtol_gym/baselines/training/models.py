@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import warnings
 
-from .config import RunConfig, algo_kwargs, frame_stack, normalize_kwargs
-from .errors import ConfigError
+from softpvtol_gym.baselines.config.hyperparams import algo_kwargs, frame_stack, normalize_kwargs
+from softpvtol_gym.baselines.config.run_config import RunConfig
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
 
 
 def algo_class(algo: str):
@@ -22,7 +24,6 @@ def algo_class(algo: str):
 
 def make_env(config: RunConfig, n_envs: int | None = None):
     """The SB3 adapter over a native vector env of the run's cell (``n_envs`` sub-envs, default the run's)."""
-    from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
 
     return SoftPVTOLSB3VecEnv(num_envs=config.n_envs if n_envs is None else n_envs, **config.env_kwargs())
 

@@ -10,10 +10,13 @@ exit 130.
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import os
 import sys
+from pathlib import Path
 
-from .errors import ConfigError
+from softpvtol_gym.baselines.errors import ConfigError
 
 
 def one_line(message: str) -> str:
@@ -81,3 +84,32 @@ def float_arg(lo: float | None = None, hi: float | None = None, lo_open: bool = 
 
     parse.__name__ = "number"
     return parse
+
+
+def check_output_file(path: Path, force: bool, option: str = "--json") -> None:
+    """ConfigError unless ``path`` can be written as a file (checked before any work is done)."""
+    if path.is_dir():
+        raise ConfigError(f"{option} {path} is a directory; expected a file name")
+    if path.exists() and not force:
+        raise ConfigError(f"{option} {path} exists; pass --force to overwrite it (nothing was written)")
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ConfigError(f"{option} {path}: {parent} is a file, not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ConfigError(f"{option} {path}: directory {parent} is not writable")
+
+
+def read_json_report(path: Path, what: str) -> dict:
+    """A JSON object written by a command (``what`` names it in errors); ConfigError if unreadable."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"no {what} at {path}")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ConfigError(f"{what} {path} is not valid JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{what} {path} is not a JSON object")
+    return data

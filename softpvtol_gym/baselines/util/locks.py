@@ -18,8 +18,10 @@ import sys
 import threading
 from pathlib import Path
 
-from .atomic import atomic_write_text
-from .errors import LockedError
+from filelock import FileLock, Timeout
+
+from softpvtol_gym.baselines.errors import LockedError
+from softpvtol_gym.baselines.util.atomic import atomic_write_text
 
 LOCK_FILE = ".softpvtol.lock"
 OWNER_FILE = ".softpvtol.lock.json"
@@ -47,8 +49,6 @@ class DirectoryLock:
         self._key: tuple[str, int] | None = None
 
     def acquire(self) -> DirectoryLock:
-        from filelock import FileLock, Timeout
-
         self.directory.mkdir(parents=True, exist_ok=True)
         key = (str(self.directory.resolve()), threading.get_ident())
         with _guard:

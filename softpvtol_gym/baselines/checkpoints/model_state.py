@@ -1,0 +1,213 @@
+"""The SB3 model's tensors and training state (safetensors + JSON), and VecNormalize's statistics, without pickle."""
+
+from __future__ import annotations
+
+import json
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+
+from softpvtol_gym.baselines.checkpoints.manifest import (
+    ARRAY_ATTRIBUTES,
+    COUNTERS,
+    FORMAT,
+    FORMAT_VERSION,
+    MODEL_FILE,
+    MODEL_STATE_FILE,
+    VECNORM_FILE,
+    from_json,
+    generator_from_state,
+    generator_state,
+    read_verified,
+    to_json,
+)
+from softpvtol_gym.baselines.errors import CheckpointError
+from softpvtol_gym.baselines.util.atomic import (
+    atomic_write_bytes,
+    atomic_write_text,
+)
+
+
+# ------------------------------------------------------------------------------------- the model
+def _torch_objects(model):
+    """(name, object) of every state_dict SB3 saves for ``model``, and (name, tensor) of its variables."""
+    def get(name: str):
+        obj = model
+        for part in name.split("."):
+            obj = getattr(obj, part)
+        return obj
+
+    state_dicts, variables = model._get_torch_save_params()
+    return [(n, get(n)) for n in state_dicts], [(n, get(n)) for n in variables or []]
+
+
+def model_payload(model) -> tuple[dict, dict]:
+    """(tensors, JSON metadata) of everything of an SB3 model that a resume needs."""
+    import torch
+
+    tensors: dict[str, torch.Tensor] = {}
+    optimizers = {}
+    state_dicts, variables = _torch_objects(model)
+    for name, obj in state_dicts:
+        if isinstance(obj, torch.nn.Module):
+            for k, v in obj.state_dict().items():
+                tensors[f"{name}/{k}"] = v
+        elif isinstance(obj, torch.optim.Optimizer):
+            sd = obj.state_dict()
+            scalars: dict[str, dict] = {}
+            for pid, entries in sd["state"].items():
+                for k, v in entries.items():
+                    if torch.is_tensor(v):
+                        tensors[f"{name}/state/{pid}/{k}"] = v
+                    else:
+                        scalars.setdefault(str(pid), {})[k] = to_json(v)
+            optimizers[name] = {"param_groups": to_json(sd["param_groups"]), "scalar_state": scalars,
+                                "params_with_state": sorted(int(p) for p in sd["state"])}
+        else:  # pragma: no cover (SB3 saves modules and optimizers only)
+            raise TypeError(f"cannot save {name}: {type(obj).__name__}")
+    for name, tensor in variables:
+        tensors[f"variables/{name}"] = tensor.detach()
+    for attr in ARRAY_ATTRIBUTES:
+        value = getattr(model, attr, None)
+        if value is not None:
+            tensors[f"attributes/{attr}"] = torch.from_numpy(np.ascontiguousarray(value))
+    tensors = {k: v.detach().cpu().clone().contiguous() for k, v in tensors.items()}
+    meta = {
+        "format": FORMAT, "version": FORMAT_VERSION, "algo": type(model).__name__.lower(),
+        "counters": {c: getattr(model, c) for c in COUNTERS},
+        "optimizers": optimizers,
+        "ep_info_buffer": to_json(list(model.ep_info_buffer or [])),
+        "ep_success_buffer": to_json(list(model.ep_success_buffer or [])),
+        "action_space_rng": generator_state(getattr(model.action_space, "_np_random", None)),
+        "observation_space_rng": generator_state(getattr(model.observation_space, "_np_random", None)),
+    }
+    return tensors, meta
+
+
+def save_model(model, folder: Path) -> list[str]:
+    """Write ``model.safetensors`` and ``model.json`` of ``model`` into ``folder``; returns their names."""
+    from safetensors.torch import save as st_save
+
+    tensors, meta = model_payload(model)
+    atomic_write_bytes(Path(folder) / MODEL_FILE, st_save(tensors, metadata={"format": FORMAT,
+                                                                            "version": str(FORMAT_VERSION)}))
+    atomic_write_text(Path(folder) / MODEL_STATE_FILE, json.dumps(meta, indent=1))
+    return [MODEL_FILE, MODEL_STATE_FILE]
+
+
+def load_tensors(folder: Path, manifest: dict) -> dict:
+    from safetensors import SafetensorError
+    from safetensors.torch import load as st_load
+
+    data = read_verified(folder, manifest, MODEL_FILE)
+    try:
+        return st_load(data)
+    except (SafetensorError, ValueError, RuntimeError) as exc:
+        raise CheckpointError(f"{Path(folder) / MODEL_FILE} is not a readable safetensors file ({exc})") from None
+
+
+def load_model_state(model, tensors: dict, meta: dict, source: str) -> None:
+    """Fill a freshly built SB3 ``model`` with saved tensors and metadata (strict: every tensor must fit)."""
+    import torch
+
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT or meta.get("version") != FORMAT_VERSION:
+        raise CheckpointError(f"{source}: {MODEL_STATE_FILE} is not a version-{FORMAT_VERSION} model description")
+    algo = type(model).__name__.lower()
+    if meta.get("algo") != algo:
+        raise CheckpointError(f"{source}: the weights are of a {str(meta.get('algo')).upper()} model, config.yaml "
+                              f"says {algo.upper()}")
+    used = set()
+    state_dicts, variables = _torch_objects(model)
+    try:
+        for name, obj in state_dicts:
+            prefix = f"{name}/"
+            if isinstance(obj, torch.nn.Module):
+                sd = {k[len(prefix):]: v for k, v in tensors.items() if k.startswith(prefix)}
+                used.update(prefix + k for k in sd)
+                obj.load_state_dict(sd, strict=True)
+            else:
+                info = meta["optimizers"][name]
+                state: dict[int, dict] = {}
+                for pid in info["params_with_state"]:
+                    entry = dict(from_json(info["scalar_state"].get(str(pid), {})))
+                    p = f"{prefix}state/{pid}/"
+                    for k, v in tensors.items():
+                        if k.startswith(p):
+                            entry[k[len(p):]] = v
+                            used.add(k)
+                    state[int(pid)] = entry
+                obj.load_state_dict({"state": state, "param_groups": from_json(info["param_groups"])})
+        for name, var in variables:
+            key = f"variables/{name}"
+            if key not in tensors:
+                raise KeyError(key)
+            with torch.no_grad():
+                var.copy_(tensors[key])
+            used.add(key)
+    except (KeyError, RuntimeError, ValueError, TypeError, IndexError) as exc:
+        raise CheckpointError(f"{source}: the saved weights do not fit the network that config.yaml describes "
+                              f"({type(exc).__name__}: {str(exc)[:300]})") from None
+    for attr in ARRAY_ATTRIBUTES:
+        key = f"attributes/{attr}"
+        if key in tensors:
+            setattr(model, attr, tensors[key].numpy().copy())
+            used.add(key)
+    extra = sorted(set(tensors) - used)
+    if extra:
+        raise CheckpointError(f"{source}: {MODEL_FILE} holds tensors the model does not have: {extra[:5]}")
+    counters = meta.get("counters", {})
+    for c in COUNTERS:
+        if c in counters:
+            setattr(model, c, counters[c])
+    model.ep_info_buffer = deque(from_json(meta.get("ep_info_buffer", [])), maxlen=model._stats_window_size)
+    model.ep_success_buffer = deque(from_json(meta.get("ep_success_buffer", [])), maxlen=model._stats_window_size)
+    for space, key in ((model.action_space, "action_space_rng"), (model.observation_space, "observation_space_rng")):
+        if meta.get(key) is not None:
+            space._np_random = generator_from_state(meta[key], f"{source}: {key}")
+
+
+# ------------------------------------------------------------------------------------ VecNormalize
+def vecnorm_dict(vecnorm) -> dict:
+    def rms(r):
+        return {"mean": np.asarray(r.mean, dtype=np.float64).tolist(), "var": np.asarray(r.var, np.float64).tolist(),
+                "count": float(r.count), "shape": list(np.shape(r.mean))}
+
+    return {"format": FORMAT, "version": FORMAT_VERSION,
+            "norm_obs": bool(vecnorm.norm_obs), "norm_reward": bool(vecnorm.norm_reward),
+            "clip_obs": float(vecnorm.clip_obs), "clip_reward": float(vecnorm.clip_reward),
+            "gamma": float(vecnorm.gamma), "epsilon": float(vecnorm.epsilon),
+            "obs_rms": rms(vecnorm.obs_rms), "ret_rms": rms(vecnorm.ret_rms)}
+
+
+def save_vecnorm(vecnorm, folder: Path) -> list[str]:
+    atomic_write_text(Path(folder) / VECNORM_FILE, json.dumps(vecnorm_dict(vecnorm), indent=1, allow_nan=False))
+    return [VECNORM_FILE]
+
+
+def vecnorm_from_dict(data, venv, training: bool, source: str):
+    """A VecNormalize over ``venv`` with the saved settings and statistics (validated)."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    try:
+        if data.get("format") != FORMAT or data.get("version") != FORMAT_VERSION:
+            raise ValueError("not a version-1 VecNormalize description")
+        vn = VecNormalize(venv, training=training, norm_obs=bool(data["norm_obs"]),
+                          norm_reward=bool(data["norm_reward"]), clip_obs=float(data["clip_obs"]),
+                          clip_reward=float(data["clip_reward"]), gamma=float(data["gamma"]),
+                          epsilon=float(data["epsilon"]))
+        for name in ("obs_rms", "ret_rms"):
+            r, saved = getattr(vn, name), data[name]
+            mean = np.asarray(saved["mean"], dtype=np.float64)
+            var = np.asarray(saved["var"], dtype=np.float64)
+            if mean.shape != np.shape(r.mean) or var.shape != np.shape(r.var):
+                raise ValueError(f"{name} has shape {mean.shape}, the env needs {np.shape(r.mean)}")
+            if not (np.isfinite(mean).all() and np.isfinite(var).all() and (var >= 0).all()):
+                raise ValueError(f"{name} holds non-finite or negative values")
+            count = float(saved["count"])
+            if not (np.isfinite(count) and count > 0):
+                raise ValueError(f"{name}.count must be > 0, got {count}")
+            r.mean, r.var, r.count = (mean if mean.ndim else float(mean)), (var if var.ndim else float(var)), count
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise CheckpointError(f"{source}: {VECNORM_FILE} is invalid ({type(exc).__name__}: {exc})") from None
+    return vn

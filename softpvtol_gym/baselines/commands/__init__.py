@@ -1,0 +1,1 @@
+"""One module per ``softpvtol`` subcommand: its options (``build_parser``/``_main``) and ``main(argv, layout, prog)``."""

@@ -1,0 +1,151 @@
+"""RunConfig: everything a training run needs, saved as ``<out>/config.yaml`` next to its checkpoints."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from softpvtol_gym.baselines.config.hyperparams import (
+    ALGOS,
+    ENV_OPTION_KEYS,
+    LEGACY_CONTROLLER_LOOP,
+    LEGACY_ENV_OPTIONS,
+    MAX_EPISODES,
+    MAX_N_ENVS,
+    MAX_TIMESTEPS,
+    TRAIN_SEED_LIMIT,
+    read_yaml,
+)
+from softpvtol_gym.baselines.config.validation import is_int, validate_hyperparams
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.util.atomic import atomic_write_text
+from softpvtol_gym.envs.actions import ACTION_MODES
+from softpvtol_gym.envs.config import EnvConfig
+from softpvtol_gym.envs.registration import ENV_ID
+from softpvtol_gym.envs.tiers import registered_tiers
+from softpvtol_gym.tasks import registered_tasks
+
+
+# ------------------------------------------------------------------------------- RunConfig
+@dataclasses.dataclass
+class RunConfig:
+    """Everything a training run needs; saved as ``<out>/config.yaml``.
+
+    ``hyperparams`` is the YAML entry after CLI overrides; ``overrides`` lists what the CLI changed
+    (``--hp`` strings and explicit ``--n-envs``), for the record. Every field is validated on creation
+    (and therefore on loading a saved config).
+    """
+
+    algo: str = "ppo"
+    action_mode: str = "residual"
+    task: str = "hover"
+    tier: str = "nominal"
+    timesteps: int = 1_000_000
+    seed: int = 0
+    n_envs: int = 16
+    hyperparams: dict = dataclasses.field(default_factory=dict)
+    overrides: list = dataclasses.field(default_factory=list)
+    checkpoint_freq: int = 100_000
+    eval_freq: int = 100_000
+    eval_episodes: int = 10
+    env_id: str = ENV_ID
+    #: the analytic loop of the residual base controller (and of the passivity comparison): None ->
+    #: the env's default, stored resolved so that a saved run records it (control.LOOPS)
+    controller_loop: str | None = None
+    #: env arguments of the run's training and evaluation envs besides the above (:data:`ENV_OPTION_KEYS`,
+    #: e.g. ``{"residual_scale": 0.4}``; train.py ``--env key=value``); empty: the env's defaults
+    env_options: dict = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.algo not in ALGOS:
+            raise ConfigError(f"algo must be one of {list(ALGOS)}, got {self.algo!r}")
+        for name, valid in (("action_mode", ACTION_MODES), ("task", registered_tasks()), ("tier", registered_tiers())):
+            if getattr(self, name) not in valid:
+                raise ConfigError(f"{name} must be one of {list(valid)}, got {getattr(self, name)!r}")
+        if self.env_id != ENV_ID:
+            raise ConfigError(f"env_id must be {ENV_ID!r}, got {self.env_id!r}")
+        for name, hi in (("timesteps", MAX_TIMESTEPS), ("n_envs", MAX_N_ENVS), ("checkpoint_freq", MAX_TIMESTEPS),
+                         ("eval_freq", MAX_TIMESTEPS)):
+            v = getattr(self, name)
+            if not is_int(v) or v < 1 or v > hi:
+                raise ConfigError(f"{name} must be an integer in [1, {hi:,}], got {v!r}")
+        if not is_int(self.eval_episodes) or not 0 <= self.eval_episodes <= MAX_EPISODES:
+            raise ConfigError(f"eval_episodes must be an integer in [0, {MAX_EPISODES:,}], got {self.eval_episodes!r}")
+        if not is_int(self.seed) or not 0 <= self.seed < TRAIN_SEED_LIMIT:
+            raise ConfigError(f"seed must be an integer in [0, {TRAIN_SEED_LIMIT:,}) (evaluation seeds start at "
+                              f"1,000,000), got {self.seed!r}")
+        if not isinstance(self.overrides, list) or not all(isinstance(o, str) for o in self.overrides):
+            raise ConfigError(f"overrides must be a list of 'key=value' strings, got {self.overrides!r}")
+        validate_hyperparams(self.algo, self.hyperparams, self.n_envs)
+
+        try:
+            env_config = EnvConfig(action_mode=self.action_mode, controller_loop=self.controller_loop)
+        except (ValueError, TypeError) as exc:
+            raise ConfigError(f"controller_loop: {exc}") from None
+        self.controller_loop = env_config.resolved_controller_loop
+        self._check_env_options(EnvConfig)
+
+    def _check_env_options(self, env_config_class) -> None:
+        """env_options: a mapping of :data:`ENV_OPTION_KEYS` that the env accepts (each value checked by
+        EnvConfig; a ConfigError names the key), each of which has an effect in the run's action mode."""
+        opts = self.env_options
+        if not isinstance(opts, dict):
+            raise ConfigError(f"env_options must be a mapping of {list(ENV_OPTION_KEYS)} to values, got {opts!r}")
+        for key, value in opts.items():
+            if key not in ENV_OPTION_KEYS:
+                raise ConfigError(f"unknown env option {key!r}; a run may set {list(ENV_OPTION_KEYS)}")
+            if self.action_mode != "residual":  # both options shape the residual action only
+                raise ConfigError(f"env option {key} acts on the residual action mode only; this run's action mode "
+                                  f"is {self.action_mode!r} (leave {key} out)")
+            try:
+                env_config_class(action_mode=self.action_mode, controller_loop=self.controller_loop, **{key: value})
+            except (ValueError, TypeError) as exc:
+                raise ConfigError(f"env option {key}: {exc}") from None
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str = "run config", strict: bool = False) -> RunConfig:
+        """A RunConfig from a mapping; ``strict``: every field must be present (saved configs)."""
+        names = [f.name for f in dataclasses.fields(cls)]
+        if not isinstance(data, dict):
+            what = "empty" if data is None else f"a {type(data).__name__}"
+            raise ConfigError(f"{source} is {what}; expected a mapping with the keys {names}")
+        unknown = set(data) - set(names)
+        if unknown:
+            raise ConfigError(f"{source}: unknown keys {sorted(map(str, unknown))}; valid ones are {sorted(names)}")
+        if strict and "controller_loop" not in data:
+            # saved before the field existed (2026-12-01): those runs trained on the "exact" base loop
+            data = {**data, "controller_loop": LEGACY_CONTROLLER_LOOP}
+        if strict and "env_options" not in data:
+            # saved before the field existed (2026-12-01, issue 16): those runs used the env's defaults
+            data = {**data, "env_options": dict(LEGACY_ENV_OPTIONS)}
+        if strict:
+            lost = [n for n in names if n not in data]
+            if lost:
+                raise ConfigError(f"{source} lacks the keys {lost} (a saved run config has all of {names})")
+        return cls(**data)
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+    def save(self, path: Path) -> None:
+        atomic_write_text(path, self.to_yaml())
+
+    @classmethod
+    def load(cls, path: Path) -> RunConfig:
+        path = Path(path)
+        return cls.from_dict(read_yaml(path, "run config"), source=f"run config {path}", strict=True)
+
+    def env_kwargs(self) -> dict:
+        """Env arguments of this run's training env."""
+        return {"action_mode": self.action_mode, "task": self.task, "tier": self.tier, **self.eval_env_kwargs()}
+
+    def eval_env_kwargs(self) -> dict:
+        """Env arguments of this run's evaluations besides mode, task and tier (the base loop and the env
+        options): a policy is evaluated on the action space it was trained on, on any task and tier."""
+        return {"controller_loop": self.controller_loop, **self.env_options}

@@ -1,0 +1,278 @@
+"""Leaderboard statistics (rliable): the job results collected into cells, IQMs with stratified-bootstrap CIs, the headline, and the JSON that holds them (built and validated)."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import subprocess
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.evaluation import summarize
+from softpvtol_gym.baselines.leaderboard.jobs import (
+    EVAL_FILE,
+    RUNS_DIR,
+    SPEC_FILE,
+    evaluations_of,
+    load_jobs,
+    load_spec,
+    missing_evaluations,
+    read_eval,
+)
+
+REFERENCE = "passivity-bounded"   # the strongest analytic loop, the env's default (docs/control.md)
+BOOTSTRAP_REPS = 2000
+POI_BOOTSTRAP_REPS = 300  # rliable's probability of improvement runs scipy per episode: slow
+BOOTSTRAP_SEED = 0
+COMMAND = "python baselines/run_jobs.py && python baselines/leaderboard.py"
+
+
+def entry_label(job: dict, task: str | None = None) -> str:
+    """The row label of a job evaluated on ``task`` (default: its own): a PPO entry names the tier it was
+    trained on, and the task too where that is not the one evaluated."""
+    if job["policy"] == "ppo":
+        where = job["train_tier"] if task in (None, job["task"]) else f"{job['task']}, {job['train_tier']}"
+        return f"PPO-{job['action_mode']} (trained on {where})"
+    return job["policy"]
+
+
+# ------------------------------------------------------------------------------------ collect
+def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> tuple[list[dict], list[str]]:
+    """Every (job, evaluation tier) as a cell with its per-episode metrics; and the missing job names."""
+    cells, missing = [], []
+    for job in load_jobs(spec):
+        path = job.folder(root) / EVAL_FILE
+        if not path.is_file():
+            missing.append(job.name)
+            continue
+        rec = read_eval(path)
+        j = rec["job"]
+        if (j.get("policy"), j.get("task"), j.get("seed")) != (job.policy, job.task, job.seed):
+            raise ConfigError(f"{path} holds the result of another job ({j.get('policy')}, {j.get('task')}, seed "
+                              f"{j.get('seed')}); expected {job.name}")
+        evaluations = evaluations_of(rec)
+        lost = missing_evaluations(job, rec)
+        if lost:
+            missing.append(f"{job.name} on {', '.join(f'{t}/{tier}' for t, tier in lost)}")
+        for task in job.eval_tasks:  # what the spec lists now (a result may hold more)
+            for tier, episodes in evaluations.get(task, {}).items():
+                if tier not in job.eval_tiers:
+                    continue
+                cells.append({
+                    "entry": entry_label(j, task), "policy": j["policy"], "action_mode": j["action_mode"],
+                    "task": task, "train_task": j["task"], "train_tier": j["train_tier"], "tier": tier,
+                    "seed": j["seed"], "timesteps": j.get("timesteps") or None, "checkpoint": rec["checkpoint"],
+                    "train_seconds": rec["train_seconds"],
+                    "eval_seed": j["eval_seed"], "episodes": episodes, "summary": _summary(episodes),
+                })
+    return cells, missing
+
+
+def _summary(episodes: list[dict]) -> dict:
+    return summarize(episodes)
+
+
+# ----------------------------------------------------------------------------------- statistics
+def _matrix(cells: list[dict], key: str, sign: float = 1.0) -> np.ndarray:
+    """(runs x episodes) scores of one entry, runs sorted by seed."""
+    rows = [[sign * float(e[key]) for e in c["episodes"]] for c in sorted(cells, key=lambda c: c["seed"])]
+    return np.asarray(rows, dtype=float)
+
+
+def _three_metrics(scores: np.ndarray) -> np.ndarray:
+    """(IQM RMS position error, IQM return, mean crash rate) of a (runs x episodes x 3) score array."""
+    from rliable import metrics
+
+    return np.array([metrics.aggregate_iqm(scores[..., 0]), metrics.aggregate_iqm(scores[..., 1]),
+                     metrics.aggregate_mean(scores[..., 2])])
+
+
+def _seeded_interval_estimates(score_dict, func, reps):
+    """rliable's get_interval_estimates, reproducible: its StratifiedBootstrap draws its indices from
+    numpy's global RNG (np.random.choice), not from the random_state it is given, so the global RNG is
+    seeded for the call and restored afterwards."""
+    from rliable import library as rly
+
+    saved = np.random.get_state()
+    np.random.seed(BOOTSTRAP_SEED)
+    try:
+        return rly.get_interval_estimates(score_dict, func, task_bootstrap=True, reps=reps,
+                                          random_state=np.random.RandomState(BOOTSTRAP_SEED))
+    finally:
+        np.random.set_state(saved)
+
+
+def aggregate(cells: list[dict]) -> list[dict]:
+    """Per (task, tier, entry): IQM RMS position error, IQM return, mean crash rate, P(improvement)
+    over the reference passivity controller; each with a 95 % stratified-bootstrap CI."""
+    from rliable import metrics
+
+    warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
+    groups: dict[tuple, list[dict]] = {}
+    for c in cells:
+        groups.setdefault((c["task"], c["tier"], c["entry"]), []).append(c)
+    rows = []
+    for (task, tier, entry), group in sorted(groups.items()):
+        row = {"task": task, "tier": tier, "entry": entry, "policy": group[0]["policy"],
+               "action_mode": group[0]["action_mode"], "train_task": group[0].get("train_task", task),
+               "train_tier": group[0]["train_tier"],
+               "runs": len(group), "episodes": len(group[0]["episodes"])}
+        # one bootstrap for the three metrics: scores (runs x episodes x 3)
+        scores = np.stack([_matrix(group, "rms_position_error"), _matrix(group, "return"),
+                           _matrix(group, "crashed")], axis=-1)
+        point, ci = _seeded_interval_estimates({"x": scores}, _three_metrics, BOOTSTRAP_REPS)
+        for k, name in enumerate(("rms_position_error_iqm", "return_iqm", "crash_rate")):
+            row[name] = float(point["x"][k])
+            row[name.replace("_iqm", "") + "_ci"] = [float(ci["x"][0, k]), float(ci["x"][1, k])]
+        ref = groups.get((task, tier, REFERENCE))
+        if ref is not None and entry != REFERENCE:
+            x = _matrix(group, "rms_position_error", -1.0)  # higher is better for rliable
+            y = _matrix(ref, "rms_position_error", -1.0)
+            point, ci = _seeded_interval_estimates({"p": (x, y)}, metrics.probability_of_improvement,
+                                                   POI_BOOTSTRAP_REPS)
+            row["prob_improvement"] = float(np.asarray(point["p"]).reshape(-1)[0])
+            row["prob_improvement_ci"] = [float(v) for v in np.asarray(ci["p"]).reshape(-1)[:2]]
+        rows.append(row)
+    return rows
+
+
+# ------------------------------------------------------------------------------------- headline
+HEADLINE_TASKS = ("track_paper", "track_random")  # the tracking tasks of issue 16's goal
+
+
+def _policy_key(row: dict) -> tuple:
+    """A learned policy across the tasks it is evaluated on: (action mode, training task, training tier)."""
+    return (row["action_mode"], row.get("train_task", row["task"]), row["train_tier"])
+
+
+def _disjoint_below(a: list[float], b: list[float]) -> bool:
+    return a[1] < b[0]
+
+
+def headline(data: dict) -> dict | None:
+    """The best learned policy against the strongest analytic controller on every (tracking task, tier).
+
+    The learned policy is one policy for all of them (an action mode trained on one task and tier): of
+    the learned policies evaluated on every tier of every tracking task of the leaderboard, the one with
+    the smallest sum over (task, tier) of its IQM RMS position error relative to that of the strongest
+    analytic controller there. The strongest analytic controller is chosen per (task, tier): the
+    passivity entry with the lowest IQM RMS position error. None if no learned policy qualifies."""
+    meta, rows = data["meta"], data["aggregates"]
+    tasks = [t for t in HEADLINE_TASKS if t in meta["tasks"]]
+    pairs = [(t, tier) for t in tasks for tier in meta["tiers"]]
+    analytic = {}
+    for t, tier in pairs:
+        candidates = [r for r in rows if r["task"] == t and r["tier"] == tier and r["policy"] != "ppo"]
+        if candidates:
+            analytic[(t, tier)] = min(candidates, key=lambda r: r["rms_position_error_iqm"])
+    learned: dict[tuple, dict] = {}
+    for r in rows:
+        if r["policy"] == "ppo" and (r["task"], r["tier"]) in analytic:
+            learned.setdefault(_policy_key(r), {})[(r["task"], r["tier"])] = r
+    complete = {k: v for k, v in learned.items() if len(v) == len(pairs)}
+    if not pairs or len(analytic) < len(pairs) or not complete:
+        return None
+
+    def relative(k):
+        return sum(complete[k][p]["rms_position_error_iqm"] / analytic[p]["rms_position_error_iqm"] for p in pairs)
+
+    best = min(sorted(complete), key=relative)
+    out = []
+    for t, tier in pairs:
+        a, b = analytic[(t, tier)], complete[best][(t, tier)]
+        out.append({"task": t, "tier": tier, "analytic": a, "learned": b,
+                    "lower": b["rms_position_error_iqm"] < a["rms_position_error_iqm"],
+                    "disjoint": _disjoint_below(b["rms_position_error_ci"], a["rms_position_error_ci"]),
+                    "crash_no_higher": b["crash_rate"] <= a["crash_rate"]})
+    mode, train_task, train_tier = best
+    return {"policy": f"PPO-{mode} trained on {train_task} ({train_tier} tier)", "rows": out}
+
+
+# ------------------------------------------------------------------------------------------ main
+def _commit(base: Path) -> str:
+    """The commit of the git checkout at ``base`` ("unknown" outside one)."""
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=base, capture_output=True, text=True,
+                              check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def build(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, base: Path = Path(".")) -> dict:
+    """The leaderboard JSON from the job results under ``root``; ``base``: where the recorded commit is read."""
+    s = load_spec(spec)
+    cells, missing = collect(root, spec)
+    if not cells:
+        raise ConfigError(f"no results under {root}; run python baselines/run_jobs.py first")
+    meta = {"command": COMMAND, "commit": _commit(base), "date": _dt.date.today().isoformat(),
+            "tasks": list(s["tasks"]), "tiers": list(s["evaluation"]["tiers"]),
+            "episodes": int(s["evaluation"]["episodes"]), "eval_seed": int(s["evaluation"]["seed"]),
+            "seeds": len(s["seeds"]), "bootstrap_reps": BOOTSTRAP_REPS, "poi_bootstrap_reps": POI_BOOTSTRAP_REPS,
+            "bootstrap_seed": BOOTSTRAP_SEED,
+            "reference": REFERENCE, "missing_jobs": missing}
+    return {"meta": meta, "aggregates": aggregate(cells), "cells": cells}
+
+
+_META_KEYS = {"command": str, "commit": str, "date": str, "tasks": list, "tiers": list, "episodes": int,
+              "eval_seed": int, "seeds": int, "bootstrap_reps": int, "poi_bootstrap_reps": int}
+_ROW_NUMBERS = ("rms_position_error_iqm", "crash_rate", "return_iqm")
+_ROW_CIS = ("rms_position_error_ci", "crash_rate_ci", "return_ci")
+
+
+def validate_data(data, source: str) -> dict:
+    """``data`` if it is a leaderboard JSON that renders, else ConfigError naming the first problem."""
+    def bad(what: str):
+        raise ConfigError(f"leaderboard JSON {source}: {what}; re-create it with python baselines/leaderboard.py")
+
+    def number(v) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    if not isinstance(data, dict):
+        bad(f"expected an object with meta, aggregates and cells, got {type(data).__name__}")
+    for key in ("meta", "aggregates", "cells"):
+        if key not in data:
+            bad(f"{key} is missing")
+    meta = data["meta"]
+    if not isinstance(meta, dict):
+        bad("meta must be an object")
+    for key, typ in _META_KEYS.items():
+        if not isinstance(meta.get(key), typ) or isinstance(meta.get(key), bool):
+            bad(f"meta.{key} must be a {typ.__name__}, got {meta.get(key)!r}")
+    if not isinstance(data["aggregates"], list) or not isinstance(data["cells"], list):
+        bad("aggregates and cells must be lists")
+    for i, r in enumerate(data["aggregates"]):
+        where = f"aggregates[{i}]"
+        if not isinstance(r, dict):
+            bad(f"{where} must be an object")
+        for key in ("task", "tier", "entry"):
+            if not isinstance(r.get(key), str):
+                bad(f"{where}.{key} must be a string, got {r.get(key)!r}")
+        if r["tier"] not in meta["tiers"]:
+            bad(f"{where}.tier {r['tier']!r} is not one of meta.tiers {meta['tiers']}")
+        if not isinstance(r.get("runs"), int):
+            bad(f"{where}.runs must be an integer")
+        for key in _ROW_NUMBERS + (("prob_improvement",) if "prob_improvement" in r else ()):
+            if not number(r.get(key)):
+                bad(f"{where}.{key} must be a finite number, got {r.get(key)!r}")
+        for key in _ROW_CIS + (("prob_improvement_ci",) if "prob_improvement" in r else ()):
+            ci = r.get(key)
+            if not (isinstance(ci, list) and len(ci) == 2 and all(number(v) for v in ci)):
+                bad(f"{where}.{key} must be a list of two finite numbers, got {ci!r}")
+    return data
+
+
+def read_data(path: Path) -> dict:
+    if path.is_dir():
+        raise ConfigError(f"--json {path} is a directory; expected the leaderboard JSON file")
+    if not path.is_file():
+        raise ConfigError(f"no leaderboard JSON at {path}")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ConfigError(f"leaderboard JSON {path} is not valid JSON ({exc}); re-create it with python "
+                          f"baselines/leaderboard.py") from None
+    return validate_data(data, str(path))

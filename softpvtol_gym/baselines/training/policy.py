@@ -1,0 +1,96 @@
+"""LearnedPolicy: an SB3 model plus its observation normalisation and frame stack, with SB3's ``predict``
+on raw observations of the native vector env."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from softpvtol_gym.baselines.checkpoints.load import load_folder
+from softpvtol_gym.baselines.checkpoints.sb3_compat import load_pickled
+from softpvtol_gym.baselines.checkpoints.store import (
+    find_checkpoint,
+)
+from softpvtol_gym.baselines.config.hyperparams import frame_stack
+from softpvtol_gym.baselines.config.run_config import RunConfig
+from softpvtol_gym.baselines.errors import CheckpointError
+from softpvtol_gym.baselines.training.models import (
+    frame_stack_wrapper,
+)
+
+
+class LearnedPolicy:
+    """An SB3 model plus its observation normalisation and frame stack, with SB3's ``predict`` on raw
+    observations of the native vector env.
+
+    ``frame_stack`` (K, the run's ``frame_stack`` hyperparameter; None: the K of the VecFrameStack the model's
+    env is wrapped in, 1 without one): the model sees the last K (normalised) observations of each sub-env,
+    oldest first, as SB3's VecFrameStack feeds it in training. The policy keeps one stack per sub-env
+    between calls: ``episode_start[i]`` true empties sub-env i's stack (zeros) before observation i goes in,
+    as VecFrameStack does on a reset or a done. Pass ``episode_start`` (true on the first call and after each
+    reset, as :func:`baselines.evaluation.run_episodes` does); without it the first call starts every stack
+    and later calls continue them.
+    """
+
+    def __init__(self, model, vecnorm=None, frame_stack: int | None = None):
+        self.model = model
+        self.vecnorm = vecnorm
+        if frame_stack is None:
+            wrapper = frame_stack_wrapper(model.get_env())
+            frame_stack = 1 if wrapper is None else int(wrapper.stacked_obs.n_stack)
+        if isinstance(frame_stack, bool) or not isinstance(frame_stack, int) or frame_stack < 1:
+            raise ValueError(f"frame_stack must be an integer >= 1, got {frame_stack!r}")
+        self.frame_stack = frame_stack
+        self._stack: np.ndarray | None = None
+
+    def reset_stack(self) -> None:
+        """Forget the stacked observations (the next call starts every sub-env's stack afresh)."""
+        self._stack = None
+
+    def stacked(self, obs: np.ndarray, episode_start) -> np.ndarray:
+        """The model's input for normalised observations ``obs`` (n_envs, obs_dim): the per-sub-env stack
+        shifted by one observation, emptied where ``episode_start`` is true, with ``obs`` last."""
+        if obs.ndim != 2:
+            raise ValueError(f"a frame-stacked policy takes a batch of observations (n_envs, obs_dim), got an "
+                             f"array of shape {obs.shape}")
+        n, dim = obs.shape
+        expected = self.model.observation_space.shape[-1]
+        if dim * self.frame_stack != expected:
+            raise ValueError(f"the model takes {expected} numbers ({self.frame_stack} stacked observations), "
+                             f"got observations of {dim}")
+        starts = np.ones(n, bool) if episode_start is None else np.asarray(episode_start, bool).reshape(n)
+        if self._stack is None or self._stack.shape[0] != n:
+            if not starts.all():
+                raise ValueError(f"the frame stack holds {0 if self._stack is None else self._stack.shape[0]} "
+                                 f"sub-envs, the call has {n}: pass episode_start all true to start new stacks")
+            self._stack = np.zeros((n, expected), dtype=self.model.observation_space.dtype)
+        # VecFrameStack's update: shift by one observation, zeros where an episode starts, the new one last
+        self._stack = np.roll(self._stack, -dim, axis=-1)
+        self._stack[starts] = 0
+        self._stack[:, -dim:] = obs
+        return self._stack.copy()
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        obs = np.asarray(observation, dtype=np.float32)
+        if self.vecnorm is not None and self.vecnorm.norm_obs:
+            obs = self.vecnorm.normalize_obs(obs)
+        if self.frame_stack > 1:
+            obs = self.stacked(obs, episode_start)
+        return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
+
+    @classmethod
+    def load(cls, path: Path, trust_pickle: bool = False) -> tuple[LearnedPolicy, RunConfig]:
+        """Load from a run directory, a checkpoint directory or a file in one (``model.safetensors``), in the
+        safe format (nothing is unpickled). ``trust_pickle=True`` also accepts pickle-based files (an SB3
+        ``model.zip``, ``vecnormalize.pkl``: they can run code) where no safe checkpoint is found, with a
+        warning."""
+        try:
+            folder = find_checkpoint(path)
+        except CheckpointError:
+            if not trust_pickle:
+                raise
+            model, vecnorm, config = load_pickled(Path(path))
+            return cls(model, vecnorm, frame_stack=frame_stack(config.hyperparams)), config
+        model, vecnorm, config, _ = load_folder(folder)
+        return cls(model, vecnorm), config

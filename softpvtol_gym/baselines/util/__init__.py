@@ -1,0 +1,2 @@
+"""Utilities: argument parsing and one-line errors (``args``), optional extras (``extras``), atomic writes
+(``atomic``), locks (``locks``), paths and output layouts (``paths``), generated Markdown blocks (``blocks``)."""
