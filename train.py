@@ -3,15 +3,13 @@
     python train.py            # PPO, residual mode, hover task, nominal tier (the default agent)
     python train.py --help     # every option
 
-Thin CLI; the logic lives in ``baselines/`` (``baselines/train_agent.py``, ``baselines/training.py``).
+Thin wrapper (as rl-baselines3-zoo's train.py): it runs ``softpvtol train`` with this checkout's paths
+(``baselines/_clone.py``); the logic lives in ``softpvtol_gym/baselines/``.
 """
 
 import sys
 
-from softpvtol_gym.baselines.util.extras import require
+from baselines._clone import run
 
 if __name__ == "__main__":
-    require("train.py")  # a plain install lacks the 'baselines' extra: say which one, before any import fails
-    from softpvtol_gym.baselines.commands.train import main
-
-    sys.exit(main())
+    sys.exit(run("train", "train.py"))
