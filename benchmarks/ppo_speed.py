@@ -5,7 +5,7 @@
         --config "n256=n_envs=256;n_steps=64;batch_size=4096;n_epochs=5" --out benchmarks/ppo_speed_residual.json
 
 Each configuration is the YAML entry of the mode (``baselines/hyperparams/ppo.yml``) with the given
-overrides, trained by the same code as ``train.py`` (:func:`baselines.training.train`: the native vector
+overrides, trained by the same code as ``train.py`` (:func:`softpvtol_gym.baselines.training.loop.train`: the native vector
 env through the SB3 adapter, VecNormalize, ``torch.set_num_threads(1)``, the periodic held-out evaluation
 of 10 episodes every ``--eval-freq`` steps). Per configuration it records
 
@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from softpvtol_gym.baselines.util.atomic import atomic_write_text
+from softpvtol_gym.baselines.util.atomic import atomic_write_text  # noqa: E402
 
 
 def parse_config(text: str) -> tuple[str, list[str]]:
@@ -50,11 +50,11 @@ def parse_config(text: str) -> tuple[str, list[str]]:
 
 
 def run_one(name: str, overrides: list[str], mode: str, timesteps: int, eval_freq: int, seed: int) -> dict:
-    import baselines.training as training
-    from softpvtol_gym.baselines.config.run_config import RunConfig
-    from softpvtol_gym.baselines.config.hyperparams import apply_overrides, load_hyperparams
-    from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, evaluate
+    import softpvtol_gym.baselines.training.loop as training
     from softpvtol_gym import PassivityPolicy
+    from softpvtol_gym.baselines.config.hyperparams import apply_overrides, load_hyperparams
+    from softpvtol_gym.baselines.config.run_config import RunConfig
+    from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, evaluate
     from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
     hp = apply_overrides(load_hyperparams("ppo", mode), overrides)

@@ -616,7 +616,7 @@ BENCHES = {"single": bench_single, "vector": bench_vector, "controller": bench_c
 
 
 # ------------------------------------------------------------------------------- README table
-README = ROOT / "README.md"
+README = ROOT / "docs" / "performance.md"  # the page with the generated Performance table
 README_START = "<!-- benchmarks/run.py: table start (generated from benchmarks/results.json, do not edit) -->"
 README_END = "<!-- benchmarks/run.py: table end -->"
 

@@ -4,7 +4,7 @@
         --out benchmarks/tracking_probes.json --table benchmarks/TRACKING_PROBES.md --docs docs/baselines.md
 
 Every run directory under ``--runs-dir`` (a finished ``train.py`` run) is loaded with
-:meth:`baselines.training.LearnedPolicy.load` and evaluated with :func:`baselines.evaluation.run_episodes`
+:meth:`softpvtol_gym.baselines.training.policy.LearnedPolicy.load` and evaluated with :func:`softpvtol_gym.baselines.evaluation.run_episodes`
 on ``track_paper`` and ``track_random``, tiers ``nominal``, ``mismatch`` and ``hard``: 20 episodes each,
 evaluation seed 1,000,000 (the same episodes for every run), with the env arguments the run trained with
 (``config.eval_env_kwargs()``: its base loop and env options; its frame stack comes from its config). The
@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from softpvtol_gym.baselines.util.atomic import atomic_write_text
+from softpvtol_gym.baselines.util.atomic import atomic_write_text  # noqa: E402
 
 TASKS = ("track_paper", "track_random")
 TIERS = ("nominal", "mismatch", "hard")
@@ -100,8 +100,8 @@ def evaluate_run(run_dir: Path) -> dict:
 
 
 def evaluate_reference() -> dict:
-    from softpvtol_gym.baselines.evaluation import run_episodes
     from softpvtol_gym import PassivityPolicy
+    from softpvtol_gym.baselines.evaluation import run_episodes
     from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
     result = {}

@@ -11,6 +11,13 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "baselines"))  # the checkout's layout (baselines/_clone.py), as its scripts see it
+from _clone import LAYOUT  # noqa: E402
+
+#: the committed results of the checkout, where its scripts write them
+RESULTS = LAYOUT.results
+RUNS_DIR = LAYOUT.runs
+LEADERBOARD_JSON = RESULTS / "leaderboard.json"
 #: 4 envs x 64 steps per rollout, a checkpoint every rollout: 512 steps train in a few seconds
 TINY = ["--n-envs", "4", "--hp", "n_steps=64", "--hp", "batch_size=64", "--hp", "n_epochs=2", "--eval-episodes", "1",
         "--checkpoint-freq", "256", "--eval-freq", "1024", "--no-progress-bar"]
@@ -54,7 +61,7 @@ def lock_holder():
     procs = []
 
     def hold(directory: Path) -> subprocess.Popen:
-        code = ("import sys, time; from baselines.locks import DirectoryLock; "
+        code = ("import sys, time; from softpvtol_gym.baselines.util.locks import DirectoryLock; "
                 f"DirectoryLock({str(directory)!r}, 'directory').acquire(); print('held', flush=True); "
                 "sys.stdin.read()")
         proc = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,

@@ -151,9 +151,9 @@ def leaderboard_json(content):
     def setup(tmp: Path) -> dict:
         path = tmp / "lb.json"
         if callable(content):
-            from softpvtol_gym.baselines.commands.leaderboard import RESULTS_JSON
+            from conftest import LEADERBOARD_JSON
 
-            data = json.loads(RESULTS_JSON.read_text())
+            data = json.loads(LEADERBOARD_JSON.read_text())
             content(data)
             path.write_text(json.dumps(data))
         else:
@@ -481,17 +481,17 @@ def test_the_matrix_has_enough_cases():
 @pytest.mark.parametrize("script, argv, message, setup", CASES, ids=list(_ids()))
 def test_bad_script_input_exits_2_with_one_line_and_writes_nothing(script, argv, message, setup, tmp_path, capsys,
                                                                    monkeypatch):
-    import baselines.evaluate
-    import baselines.evaluation
-    import baselines.training
+    import softpvtol_gym.baselines.commands.evaluate as evaluate_command
+    import softpvtol_gym.baselines.commands.train as train_command
+    import softpvtol_gym.baselines.evaluation as evaluation
 
     def refuse(*args, **kwargs):
         raise AssertionError("reached the evaluation / training: the bad input was not caught before it")
 
-    monkeypatch.setattr(baselines.evaluate, "evaluate", refuse)
-    monkeypatch.setattr(baselines.evaluation, "evaluate", refuse)
+    monkeypatch.setattr(evaluate_command, "evaluate", refuse)
+    monkeypatch.setattr(evaluation, "evaluate", refuse)
     if script == T and "already holds" not in message and "--resume:" not in message and "in use" not in message:
-        monkeypatch.setattr(baselines.training, "train", refuse)
+        monkeypatch.setattr(train_command, "train", refuse)
     case = tmp_path / "case"
     case.mkdir()
     names = {"tmp": str(case), **(setup(case) or {})}

@@ -17,15 +17,14 @@ import numpy as np
 import pytest
 from conftest import ROOT, TINY, copy_run, rewrite_manifest
 
-from softpvtol_gym.baselines.util.atomic import atomic_path, atomic_write_text, clean_stale_temps
 from softpvtol_gym.baselines.checkpoints.manifest import LEGACY_FILES, MANIFEST_FILE
-from softpvtol_gym.baselines.errors import CheckpointError
 from softpvtol_gym.baselines.checkpoints.resume import env_state, restore_env_state
 from softpvtol_gym.baselines.checkpoints.store import find_checkpoint, latest_checkpoint
-from softpvtol_gym.baselines.errors import ConfigError, LockedError
 from softpvtol_gym.baselines.commands.evaluate import main as evaluate_main
-from softpvtol_gym.baselines.util.locks import DirectoryLock
 from softpvtol_gym.baselines.commands.train import main as train_main
+from softpvtol_gym.baselines.errors import CheckpointError, ConfigError, LockedError
+from softpvtol_gym.baselines.util.atomic import atomic_path, atomic_write_text, clean_stale_temps
+from softpvtol_gym.baselines.util.locks import DirectoryLock
 
 
 # ----------------------------------------------------------------------------------- poisoned files
@@ -312,8 +311,8 @@ def test_bad_hp_does_not_block_the_corrected_command(tmp_path, capsys):
 
 
 def test_progress_bar_ends_at_its_total(tmp_path, capsys):
-    from softpvtol_gym.baselines.config.run_config import RunConfig
     from softpvtol_gym.baselines.config.hyperparams import load_hyperparams
+    from softpvtol_gym.baselines.config.run_config import RunConfig
     from softpvtol_gym.baselines.training.loop import _ProgressBar, prepare
 
     hp = {**load_hyperparams("ppo", "residual"), "n_steps": 64, "batch_size": 64, "n_envs": 4}
@@ -348,7 +347,8 @@ def test_every_result_writer_uses_the_atomic_helper():
     """No result is written with a plain write_text / open(..., 'w') / savefig to its final path."""
     import re
 
-    files = [*sorted((ROOT / "baselines").glob("*.py")), ROOT / "benchmarks" / "run.py", ROOT / "train.py"]
+    files = [*sorted((ROOT / "softpvtol_gym" / "baselines").rglob("*.py")), *sorted((ROOT / "baselines").glob("*.py")),
+             ROOT / "benchmarks" / "run.py", ROOT / "train.py"]
     pattern = re.compile(r"\.write_text\(|\.write_bytes\(|open\([^)]*['\"]w|savefig\((?!tmp)|json\.dump\(")
     offenders = [f"{f.name}:{i}" for f in files for i, line in enumerate(f.read_text().splitlines(), 1)
                  if pattern.search(line) and "atomic" not in f.name and "tmp" not in line]
@@ -434,7 +434,9 @@ def test_no_pickle_is_committed():
 
 
 def test_committed_checkpoints_are_in_the_safe_format():
-    from softpvtol_gym.baselines.leaderboard.jobs import RUNS_DIR, load_jobs
+    from conftest import RUNS_DIR
+
+    from softpvtol_gym.baselines.leaderboard.jobs import load_jobs
 
     models = sorted(RUNS_DIR.glob("*/seed_*/model.safetensors"))
     assert len(models) == sum(job.learned for job in load_jobs()) == 50  # one per learned job of the spec (v2)

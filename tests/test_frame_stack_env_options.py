@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 import yaml
 
+from softpvtol_gym.baselines.commands.train import main as train_main
 from softpvtol_gym.baselines.config.hyperparams import ENV_OPTION_KEYS, frame_stack, parse_env_options
-from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.config.validation import validate_hyperparams
+from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes, summarize
-from softpvtol_gym.baselines.commands.train import main as train_main
-from softpvtol_gym.baselines.training.policy import LearnedPolicy
 from softpvtol_gym.baselines.training.loop import train
+from softpvtol_gym.baselines.training.policy import LearnedPolicy
 from tests.conftest import TINY
 
 

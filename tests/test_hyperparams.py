@@ -16,10 +16,16 @@ import pytest
 import yaml
 
 import softpvtol_gym  # noqa: F401  (registers the ids)
-from softpvtol_gym.baselines.config.hyperparams import HYPERPARAMS_DIR, algo_kwargs, hyperparams_key, load_hyperparams, normalize_kwargs
-from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.config.hyperparams import (
+    HYPERPARAMS_DIR,
+    algo_kwargs,
+    hyperparams_key,
+    load_hyperparams,
+    normalize_kwargs,
+)
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.config.validation import validate_hyperparams
+from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.envs import ACTION_MODES, ENV_ID, MODE_ENV_IDS
 
 ROOT = Path(__file__).resolve().parents[1]

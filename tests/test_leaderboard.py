@@ -1,4 +1,4 @@
-"""The committed leaderboard: LEADERBOARD.md re-renders identically from its JSON, the JSON's statistics
+"""The committed leaderboard: docs/leaderboard.md re-renders identically from its JSON, the JSON's statistics
 match its per-episode data, and every committed checkpoint loads and reproduces, on its training tier, the episodes the
 leaderboard was computed from (so re-evaluating it lands on the leaderboard's numbers, inside its CIs)."""
 
@@ -9,15 +9,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import LAYOUT, LEADERBOARD_JSON
 from scipy import stats
 
 from softpvtol_gym.baselines.evaluation import run_episodes
 from softpvtol_gym.baselines.leaderboard.jobs import load_jobs
-from softpvtol_gym.baselines.commands.leaderboard import CHART_PNG, LEADERBOARD_MD, RESULTS_JSON
 from softpvtol_gym.baselines.leaderboard.render import render_chart, render_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = json.loads(RESULTS_JSON.read_text())
+DATA = json.loads(LEADERBOARD_JSON.read_text())
+LEADERBOARD_MD = LAYOUT.doc("leaderboard.md")
+CHART_PNG = LAYOUT.results / "leaderboard.png"
 # (checkpoint, training tier, evaluated task): every committed model on its training tier, on its own task
 # and on each task it is also evaluated on (issue 16: a track_random cell scored on track_paper)
 LEARNED = sorted({(c["checkpoint"], c["train_tier"], c["task"]) for c in DATA["cells"] if c["checkpoint"]})

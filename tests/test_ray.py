@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from softpvtol_gym.baselines.commands.run_jobs import main as run_jobs_main
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.leaderboard.jobs import EVAL_FILE, ROOT_TOKEN_FILE, check_shared_root, load_jobs, run_jobs
-from softpvtol_gym.baselines.commands.run_jobs import main as run_jobs_main
 
 # one analytic job and one learned job (a single PPO rollout), two evaluation tiers of 2 episodes
 SPEC = ("evaluation: {episodes: 2, seed: 1000000, tiers: [nominal, wind]}\n"
@@ -169,9 +169,9 @@ def test_a_tiny_search_writes_a_valid_best_configuration(tmp_path, capsys):
 
     import yaml
 
-    from softpvtol_gym.baselines.config.run_config import RunConfig
-    from softpvtol_gym.baselines.config.hyperparams import apply_overrides, load_hyperparams
     from softpvtol_gym.baselines.commands.tune import FORMAT, main
+    from softpvtol_gym.baselines.config.hyperparams import apply_overrides, load_hyperparams
+    from softpvtol_gym.baselines.config.run_config import RunConfig
 
     space, out = tmp_path / "space.yml", tmp_path / "best" / "best.yml"
     space.write_text(TINY_SPACE)
@@ -255,8 +255,8 @@ def test_tune_does_not_overwrite_its_output(tmp_path, capsys):
 
 
 def test_the_default_search_space_is_valid_for_every_algorithm_and_mode():
-    from softpvtol_gym.baselines.config.hyperparams import load_hyperparams
     from softpvtol_gym.baselines.commands.tune import SPACE_FILE, load_space, stage_steps, tune_domains
+    from softpvtol_gym.baselines.config.hyperparams import load_hyperparams
 
     for algo in ("ppo", "sac"):
         for mode in ("residual", "virtual", "actuators"):
@@ -270,7 +270,7 @@ def test_without_the_distributed_extra_the_ray_paths_name_it(argv, tmp_path, cap
     """run_jobs.py --executor ray and tune.py without Ray: exit 2 naming the extra, before anything runs."""
     import importlib
 
-    import baselines._extras
+    import softpvtol_gym.baselines.util.extras as extras
     from softpvtol_gym.baselines.commands.tune import main as tune_main
 
     real = importlib.import_module
@@ -280,7 +280,7 @@ def test_without_the_distributed_extra_the_ray_paths_name_it(argv, tmp_path, cap
             raise ImportError(f"No module named {name!r}")
         return real(name, *args, **kwargs)
 
-    monkeypatch.setattr(baselines._extras.importlib, "import_module", no_ray)
+    monkeypatch.setattr(extras.importlib, "import_module", no_ray)
     with pytest.raises(SystemExit) as exc:
         if argv is None:
             tune_main(["--out", str(tmp_path / "best.yml")])

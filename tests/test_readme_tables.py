@@ -1,5 +1,6 @@
-"""README tables are the ones the scripts generate from their committed results, and those results
-say what the README claims (passivity metrics, the paper reproduction and its steady-state study)."""
+"""Generated tables (README.md and docs/ pages) are the ones the commands generate from their committed
+results, and those results say what the pages claim (passivity metrics, the paper reproduction and its
+steady-state study, the leaderboard's headline and the README's summary of it)."""
 
 from __future__ import annotations
 
@@ -7,24 +8,35 @@ import json
 from pathlib import Path
 
 import pytest
+from conftest import LAYOUT, LEADERBOARD_JSON
 
-from baselines import leaderboard, passivity_metrics, readme, reproduce_paper
+from softpvtol_gym.baselines.commands import passivity_metrics, reproduce_paper
+from softpvtol_gym.baselines.leaderboard import render as leaderboard
+from softpvtol_gym.baselines.util import blocks as readme
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = json.loads((ROOT / reproduce_paper.README_SOURCE).read_text())
 METRICS = json.loads((ROOT / passivity_metrics.README_SOURCE).read_text())
-BOARD = json.loads(leaderboard.RESULTS_JSON.read_text())
+BOARD = json.loads(LEADERBOARD_JSON.read_text())
+CONTROL, BOARD_PAGE = LAYOUT.doc("control.md"), LAYOUT.doc("leaderboard.md")
 
 
-@pytest.mark.parametrize("name, source, table", [
-    ("passivity_metrics.py", passivity_metrics.README_SOURCE, lambda: passivity_metrics.metrics_table(METRICS)),
-    ("reproduce_paper.py loops", reproduce_paper.README_SOURCE, lambda: reproduce_paper.loops_table(PAPER)),
-    ("reproduce_paper.py steady state", reproduce_paper.README_SOURCE,
+@pytest.mark.parametrize("name, source, page, table", [
+    ("passivity_metrics.py", passivity_metrics.README_SOURCE, CONTROL,
+     lambda: passivity_metrics.metrics_table(METRICS)),
+    ("reproduce_paper.py loops", reproduce_paper.README_SOURCE, CONTROL, lambda: reproduce_paper.loops_table(PAPER)),
+    ("reproduce_paper.py steady state", reproduce_paper.README_SOURCE, CONTROL,
      lambda: reproduce_paper.steady_state_table(PAPER["steady_state"])),
-    (*leaderboard.README_BLOCK, lambda: "\n".join(leaderboard.headline_markdown(BOARD, heading=False))),
+    (*leaderboard.HEADLINE_BLOCK, BOARD_PAGE, lambda: "\n".join(leaderboard.headline_markdown(BOARD, heading=False))),
+    (*leaderboard.SUMMARY_BLOCK, LAYOUT.readme, lambda: leaderboard.summary_markdown(BOARD)),
 ])
-def test_readme_table_is_the_generated_one(name, source, table):
-    assert readme.read_block(name, source) == table().strip()
+def test_generated_table_is_the_committed_one(name, source, page, table):
+    assert readme.read_block(name, source, page) == table().strip()
+
+
+def test_the_readme_summary_is_short():
+    summary = leaderboard.summary_markdown(BOARD)
+    assert len(summary.splitlines()) <= 8 and "docs/leaderboard.md" in summary
 
 
 def test_write_block_replaces_only_the_block(tmp_path):

@@ -10,7 +10,7 @@ os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 import pytest  # noqa: E402
 from PIL import Image  # noqa: E402
 
-from softpvtol_gym.baselines.figures.gif import main
+from softpvtol_gym.baselines.commands.render_gif import main
 
 
 def test_gif_of_the_passivity_policy(tmp_path, capsys):

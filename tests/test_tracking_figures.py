@@ -13,14 +13,20 @@ os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 
 import pytest  # noqa: E402
+from conftest import LAYOUT, RUNS_DIR
 from PIL import Image  # noqa: E402
 
+from softpvtol_gym.baselines.commands.figures import main
 from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.baselines.figures.tracking import CURVES_PNG, GIF, TRACKING_PNG, main, select_learned
+from softpvtol_gym.baselines.figures.tracking import select_learned
 
 ROOT = Path(__file__).resolve().parent.parent
 CELL = "baselines/results/leaderboard_runs/ppo_residual_track_random_nominal"
 CHECKPOINT = ROOT / CELL / "seed_0"
+#: the committed pictures (python baselines/tracking_figures.py)
+TRACKING_PNG = LAYOUT.results / "tracking" / "track_paper.png"
+CURVES_PNG = LAYOUT.results / "tracking" / "learning_curves.png"
+GIF = LAYOUT.doc("best_policy_track_paper.gif")
 
 
 def _cell(entry, seed, rms, task="track_paper", tier="nominal", checkpoint=None, **extra):
@@ -55,7 +61,7 @@ def synthetic_leaderboard(seed_rms=(3.0, 1.0, 5.0, 2.0, 4.0), checkpoint=f"{CELL
     ((7.0,), 0),
 ])
 def test_selection_takes_the_best_learned_entry_and_its_median_seed(seed_rms, median_seed):
-    chosen = select_learned(synthetic_leaderboard(seed_rms))
+    chosen = select_learned(synthetic_leaderboard(seed_rms), base=ROOT)
     assert chosen.entry == "B" and chosen.entry_iqm == 2.5
     assert chosen.seed == median_seed and chosen.seeds == len(seed_rms)
     assert chosen.seed_rms == pytest.approx(seed_rms[median_seed])
@@ -70,7 +76,7 @@ def test_selection_takes_cross_task_rows_and_matches_train_task():
         data["cells"].append(_cell("C", seed, rms, checkpoint=f"c/seed_{seed}", train_task="track_random"))
         data["cells"].append(_cell("C", seed, 9.0, checkpoint=f"c2/seed_{seed}", train_task="track_paper"))
     data["aggregates"].append(_row("C", 0.8, train_task="track_random"))
-    chosen = select_learned(data)
+    chosen = select_learned(data, base=ROOT)
     assert (chosen.entry, chosen.seed, chosen.seeds) == ("C", 2, 3)
     assert chosen.checkpoint == ROOT / "c" / "seed_2"
 
@@ -171,7 +177,7 @@ def test_bad_input_exits_2_and_writes_nothing(tmp_path, capsys, argv, match):
     (tmp_path / "runs").mkdir()
     outs = {"--tracking-out": str(tmp_path / "o" / "t.png"), "--curves-out": str(tmp_path / "o" / "c.png"),
             "--gif-out": str(tmp_path / "o" / "g.gif")}
-    base = {**outs, "--runs": str(ROOT / "baselines/results/leaderboard_runs")}
+    base = {**outs, "--runs": str(RUNS_DIR)}
     for k, v in zip(argv[::2], argv[1::2]):
         base[k] = v.replace("{tmp}", str(tmp_path))
     with pytest.raises(SystemExit) as exc:
@@ -209,12 +215,13 @@ class FullDown:
 def test_a_crash_ends_the_trajectory_and_is_drawn(tmp_path):
     from softpvtol_gym.baselines.config.run_config import RunConfig
     from softpvtol_gym.baselines.figures.tracking import reference_env_kwargs, run_trajectory, tracking_figure
+    from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE
 
     run = run_trajectory(FullDown(), "actuators", "track_paper", "nominal", 1_000_000, 2.0, {})
     assert run["crashed"] and run["reason"] and run["t"][-1] < 1.0 and len(run["t"]) == len(run["err"])
     learned = (FullDown(), RunConfig(action_mode="actuators", task="track_paper"), "full down", "a test policy")
     out = tmp_path / "crash.png"
-    passivity = reference_env_kwargs(ROOT / "baselines" / "leaderboard.yml")
+    passivity = reference_env_kwargs(SPEC_FILE)
     result = tracking_figure(["nominal"], 1_000_000, 1.0, learned, passivity, out)
     assert result["nominal"]["full down"]["crashed"] and result["nominal"]["full down"]["seconds"] < 1.0
     assert not result["nominal"]["passivity-bounded"]["crashed"]
@@ -240,7 +247,7 @@ def test_episode_summary():
 def test_without_matplotlib_it_names_the_extra(tmp_path, capsys, monkeypatch):
     import importlib
 
-    import baselines._extras
+    import softpvtol_gym.baselines.util.extras as extras
 
     real = importlib.import_module
 
@@ -249,7 +256,7 @@ def test_without_matplotlib_it_names_the_extra(tmp_path, capsys, monkeypatch):
             raise ImportError(f"No module named {name!r}")
         return real(name, *args, **kwargs)
 
-    monkeypatch.setattr(baselines._extras.importlib, "import_module", no_matplotlib)
+    monkeypatch.setattr(extras.importlib, "import_module", no_matplotlib)
     with pytest.raises(SystemExit) as exc:
         main(["--only", "curves", "--curves-out", str(tmp_path / "c.png")])
     err = capsys.readouterr().err

@@ -51,8 +51,8 @@ def test_every_cell_summarises_its_episodes(probes):
 
 def test_the_passivity_reference_evaluates_to_the_committed_figures(probes):
     """One cell of the reference, run again with the current code (the env is deterministic given the seed)."""
-    from softpvtol_gym.baselines.evaluation import run_episodes
     from softpvtol_gym import PassivityPolicy
+    from softpvtol_gym.baselines.evaluation import run_episodes
     from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
     module, data = probes

@@ -11,11 +11,11 @@ from pathlib import Path
 
 import pytest
 
-from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.baselines.config.run_config import RunConfig
-from softpvtol_gym.baselines.config.hyperparams import parse_dict_call, algo_kwargs, apply_overrides, load_hyperparams
 from softpvtol_gym.baselines.commands.evaluate import main as evaluate_main
 from softpvtol_gym.baselines.commands.train import main as train_main
+from softpvtol_gym.baselines.config.hyperparams import algo_kwargs, apply_overrides, load_hyperparams, parse_dict_call
+from softpvtol_gym.baselines.config.run_config import RunConfig
+from softpvtol_gym.baselines.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 # a short configuration: 4 envs x 64 steps per rollout, checkpoints every rollout
@@ -239,8 +239,8 @@ def test_run_config_records_the_base_loop_and_reads_legacy_configs_as_exact(tmp_
     import yaml
 
     from softpvtol_gym.baselines.config.hyperparams import LEGACY_CONTROLLER_LOOP
-    from softpvtol_gym.baselines.errors import ConfigError
     from softpvtol_gym.baselines.config.run_config import RunConfig
+    from softpvtol_gym.baselines.errors import ConfigError
 
     c = RunConfig(timesteps=1000)
     assert c.controller_loop == "bounded" and c.env_kwargs()["controller_loop"] == "bounded"

@@ -1,4 +1,5 @@
-"""What an exact resume needs besides the model: the vector env's arrays, generator and RNG states, the replay buffer."""
+"""What an exact resume needs besides the model: the vector env's arrays, generator and RNG states, the
+replay buffer."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""SB3's pickle-based files (model.zip, vecnormalize.pkl): the only place that unpickles, reached only with an explicit trust_pickle / --trust-pickle."""
+"""SB3's pickle-based files (model.zip, vecnormalize.pkl): the only place that unpickles, reached only with
+an explicit trust_pickle / --trust-pickle."""
 
 from __future__ import annotations
 

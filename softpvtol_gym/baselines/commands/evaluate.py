@@ -49,8 +49,10 @@ def build_parser(prog: str = "evaluate.py") -> Parser:
     ap.add_argument("--policy", required=True, help="'passivity' or a checkpoint path")
     ap.add_argument("--action-mode", choices=ACTION_MODES, default=None,
                     help="default: the checkpoint's; 'actuators' for passivity")
-    ap.add_argument("--task", choices=registered_tasks(), default=None, help="default: the checkpoint's; 'hover' for passivity")
-    ap.add_argument("--tier", choices=registered_tiers(), default=None, help="default: the checkpoint's; 'nominal' for passivity")
+    ap.add_argument("--task", choices=registered_tasks(), default=None,
+                    help="default: the checkpoint's; 'hover' for passivity")
+    ap.add_argument("--tier", choices=registered_tiers(), default=None,
+                    help="default: the checkpoint's; 'nominal' for passivity")
     ap.add_argument("--allocation", choices=("exact", "paper"), default=None,
                     help="allocation of the passivity controller (and of the env in virtual/residual mode); "
                          "default: that of --controller-loop, or exact")

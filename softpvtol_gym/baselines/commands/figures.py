@@ -93,10 +93,13 @@ def build_parser(layout: Layout | None = None, prog: str = "tracking_figures.py"
                     help="write only this picture (repeatable; default: all three)")
     ap.add_argument("--checkpoint", type=Path, default=None,
                     help="the learned policy (run or checkpoint folder); default: chosen from --leaderboard")
-    ap.add_argument("--leaderboard", type=Path, default=layout.results / "leaderboard.json", help="default: %(default)s")
+    ap.add_argument("--leaderboard", type=Path, default=layout.results / "leaderboard.json",
+                    help="default: %(default)s")
     ap.add_argument("--spec", type=Path, default=SPEC_FILE, help="the leaderboard spec (tiers, passivity-bounded)")
-    ap.add_argument("--runs", type=Path, default=layout.runs, help="learned runs for the learning curves (default: %(default)s)")
-    ap.add_argument("--tiers", nargs="+", choices=registered_tiers(), default=None, help="default: the spec's evaluation tiers")
+    ap.add_argument("--runs", type=Path, default=layout.runs,
+                    help="learned runs for the learning curves (default: %(default)s)")
+    ap.add_argument("--tiers", nargs="+", choices=registered_tiers(), default=None,
+                    help="default: the spec's evaluation tiers")
     ap.add_argument("--seed", type=int_arg(0, 2**62), default=EVAL_SEED_OFFSET, help="the evaluation episode's seed")
     ap.add_argument("--seconds", type=float_arg(0.01, 600.0), default=None,
                     help="cut the tracking episodes after this long [s] (default: the whole episode)")

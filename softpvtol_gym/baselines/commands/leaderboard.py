@@ -21,7 +21,7 @@ entry over the best passivity controller is rliable's (Mann-Whitney over runs, a
 episodes), on the RMS position error; its CI resamples runs only (rliable's independent-samples
 bootstrap for pairs does not support resampling episodes), so for the passivity-vs-passivity row it
 is a point. The bootstrap is seeded: the JSON, and
-therefore LEADERBOARD.md, are reproducible.
+therefore docs/leaderboard.md, are reproducible.
 
 Every output (JSON, Markdown, PNG) is written atomically; the output paths are checked, and the spec or
 the JSON validated, before any work. Exit codes: 0 done, 2 bad input (one line, nothing written).
@@ -63,7 +63,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
     ap.add_argument("--markdown", type=Path, default=page, help="the leaderboard page (default: %(default)s)")
     ap.add_argument("--chart", type=Path, default=layout.results / "leaderboard.png", help="default: %(default)s")
     ap.add_argument("--root", type=Path, default=layout.runs, help="the jobs' run directories (default: %(default)s)")
-    ap.add_argument("--spec", type=Path, default=SPEC_FILE, help="the job list (default: the package's leaderboard.yml)")
+    ap.add_argument("--spec", type=Path, default=SPEC_FILE,
+                    help="the job list (default: the package's leaderboard.yml)")
     args = ap.parse_args(argv)
     for path, option in ((args.markdown, "--markdown"), (args.chart, "--chart")) + (
             () if args.from_json else ((args.json, "--json"),)):
@@ -79,8 +80,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
     atomic_write_text(args.markdown, render_markdown(data, chart=chart_link))
     render_chart(data, args.chart)
     if layout.readme is not None and args.markdown.resolve() == page.resolve():  # the committed page: the README too
-        write_block(*SUMMARY_BLOCK, summary_markdown(data, os.path.relpath(page.resolve(), layout.readme.resolve().parent)),
-                    layout.readme)
+        link = os.path.relpath(page.resolve(), layout.readme.resolve().parent)
+        write_block(*SUMMARY_BLOCK, summary_markdown(data, link), layout.readme)
     print(f"wrote {args.markdown} and {args.chart}" + ("" if args.from_json else f" from {args.json}"))
     return 0
 

@@ -74,7 +74,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
                 cells[f"{task}/{tier}"] = m = run_cell(task, tier, args.episodes, args.seed)
                 print(f"{task:13s} {tier:9s} rms {m['rms_position_error_m']:.3f} m  crash {m['crash_rate']:.2f}",
                       flush=True)
-        command = "python baselines/passivity_metrics.py" + (f" --episodes {args.episodes}" if args.episodes != 10 else "")
+        command = "python baselines/passivity_metrics.py" + (
+            f" --episodes {args.episodes}" if args.episodes != 10 else "")
         loop = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators")).loop
         report = {"command": command, "seed": args.seed, "action_mode": "actuators", "loop": loop, "cells": cells,
                   "wall_time_s": round(time.perf_counter() - t0, 1)}

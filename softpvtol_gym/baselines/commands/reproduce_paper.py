@@ -341,7 +341,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
     parser.add_argument("--no-plots", action="store_true", help="write metrics.json only")
     parser.add_argument("--no-steady", action="store_true", help="skip the 80 s steady-state study (minutes)")
     parser.add_argument("--render-only", action="store_true",
-                        help="simulate nothing: print the tables of --out/metrics.json and refresh the generated blocks")
+                        help="simulate nothing: print the tables of --out/metrics.json and refresh the generated "
+                             "blocks")
     parser.add_argument("--page", type=Path, default=layout.doc("control.md"),
                         help="Markdown file whose generated table blocks are refreshed (default: %(default)s)")
     args = parser.parse_args(argv)

@@ -48,7 +48,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
                          "machine) or HOST:PORT; default: a local Ray instance with --workers CPUs")
     ap.add_argument("--workers", type=int_arg(), default=None,
                     help=f"parallel jobs, 1 to {MAX_WORKERS} (default: the number of CPUs; not with --address)")
-    ap.add_argument("--spec", type=Path, default=SPEC_FILE, help="the job list (default: the package's leaderboard.yml)")
+    ap.add_argument("--spec", type=Path, default=SPEC_FILE,
+                    help="the job list (default: the package's leaderboard.yml)")
     ap.add_argument("--root", type=Path, default=layout.runs, help="the jobs' run directories (default: %(default)s)")
     ap.add_argument("--only", default=None, help="run only jobs whose name contains this string")
     ap.add_argument("--list", action="store_true", help="print the pending jobs and exit")
@@ -101,7 +102,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
 
 
 def main(argv=None, *, layout: Layout | None = None, prog: str = "run_jobs.py") -> int:
-    """``softpvtol run-jobs``: the leaderboard jobs, run directories under ``layout.runs`` (default ``./results/leaderboard_runs``)."""
+    """``softpvtol run-jobs``: the leaderboard jobs, run directories under ``layout.runs`` (default
+    ``./results/leaderboard_runs``)."""
     require("run_jobs.py", prog=prog)
     return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
 

@@ -8,7 +8,7 @@
     python train.py --hp frame_stack=4       # the policy sees the last 4 observations (SB3's VecFrameStack)
     python train.py --env residual_scale=0.4 # an env option, for training and evaluation (docs/baselines.md)
 
-Hyperparameters come from ``baselines/hyperparams/<algo>.yml`` (the entry of the mode's env id:
+Hyperparameters come from ``softpvtol_gym/baselines/data/hyperparams/<algo>.yml`` (the entry of the mode's env id:
 ``SoftPVTOLResidual-v0``, ``SoftPVTOLVirtual-v0``, ``SoftPVTOLActuators-v0``; rl-baselines3-zoo's format);
 CLI overrides are recorded in the run's ``config.yaml``. Training runs on the native vector env through
 the SB3 adapter with ``torch.set_num_threads(1)``; TensorBoard logs go to ``<out>/tb``; checkpoints

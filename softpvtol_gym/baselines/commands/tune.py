@@ -6,7 +6,7 @@
     python baselines/tune.py --hp n_envs=64 --space my_space.yml --out runs/best.yml
 
 The search space (the package's ``tune_space.yml``, or ``--space FILE``; format in that file) spans keys of the
-hyperparameter entries of ``baselines/hyperparams/<algo>.yml``; the other keys keep the entry's value
+hyperparameter entries of ``softpvtol_gym/baselines/data/hyperparams/<algo>.yml``; the other keys keep the entry's value
 (read as ``train.py`` reads it, with ``--hp KEY=VALUE`` overrides). Each trial trains with
 :func:`baselines.training.train` (the code of ``train.py``, seed ``--seed``) for ``--timesteps`` env steps
 in ``--reports`` equal stages; after each stage the deterministic policy is evaluated with

@@ -1,14 +1,14 @@
 """Run configuration: hyperparameters from YAML per env id (one per action mode), CLI overrides, validation,
 saving.
 
-``softpvtol_gym/baselines/data/hyperparams/<algo>.yml`` holds one entry per env id, in rl-baselines3-zoo's format (the same
-file works with ``python -m rl_zoo3.train --conf-file``): the action modes are the ids
+``softpvtol_gym/baselines/data/hyperparams/<algo>.yml`` holds one entry per env id, in rl-baselines3-zoo's
+format (the same file works with ``python -m rl_zoo3.train --conf-file``): the action modes are the ids
 ``SoftPVTOLResidual-v0``, ``SoftPVTOLVirtual-v0`` and ``SoftPVTOLActuators-v0`` (``SoftPVTOL-v0``, whose
 default action mode is ``actuators``, is an alias of the last). :func:`load_hyperparams` reads the entry,
 :func:`apply_overrides` applies ``key=value`` strings from the command line (values parsed as YAML),
 :func:`validate_hyperparams` checks every key against the algorithm's constructor and stable-baselines3's
-constraints (before anything is written), and :class:`RunConfig` is what a run saves next to its
-checkpoints (``config.yaml``), so that a run can be resumed, evaluated or audited later.
+constraints (before anything is written), and :class:`RunConfig` is what a run saves next to its checkpoints
+(``config.yaml``), so that a run can be resumed, evaluated or audited later.
 """
 
 from __future__ import annotations

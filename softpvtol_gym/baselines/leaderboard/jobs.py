@@ -226,7 +226,7 @@ def load_spec(spec_path: Path = SPEC_FILE) -> dict:
 
 
 def load_jobs(spec_path: Path = SPEC_FILE) -> list[Job]:
-    """The job list of a leaderboard spec (``baselines/leaderboard.yml``)."""
+    """The job list of a leaderboard spec (``softpvtol_gym/baselines/data/leaderboard.yml``)."""
     spec = load_spec(spec_path)
     ev = spec["evaluation"]
     common = dict(eval_tiers=tuple(ev["tiers"]), eval_episodes=int(ev["episodes"]), eval_seed=int(ev["seed"]))

@@ -1,4 +1,5 @@
-"""Leaderboard statistics (rliable): the job results collected into cells, IQMs with stratified-bootstrap CIs, the headline, and the JSON that holds them (built and validated)."""
+"""Leaderboard statistics (rliable): the job results collected into cells, IQMs with stratified-bootstrap CIs,
+the headline, and the JSON that holds them (built and validated)."""
 
 from __future__ import annotations
 
