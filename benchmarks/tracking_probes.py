@@ -4,7 +4,8 @@
         --out benchmarks/tracking_probes.json --table benchmarks/TRACKING_PROBES.md --docs docs/baselines.md
 
 Every run directory under ``--runs-dir`` (a finished ``train.py`` run) is loaded with
-:meth:`softpvtol_gym.baselines.training.policy.LearnedPolicy.load` and evaluated with :func:`softpvtol_gym.baselines.evaluation.run_episodes`
+:meth:`softpvtol_gym.baselines.training.policy.LearnedPolicy.load` and evaluated with
+:func:`softpvtol_gym.baselines.evaluation.run_episodes`
 on ``track_paper`` and ``track_random``, tiers ``nominal``, ``mismatch`` and ``hard``: 20 episodes each,
 evaluation seed 1,000,000 (the same episodes for every run), with the env arguments the run trained with
 (``config.eval_env_kwargs()``: its base loop and env options; its frame stack comes from its config). The
