@@ -6,8 +6,7 @@
 
 Each configuration is the YAML entry of the mode (``baselines/hyperparams/ppo.yml``) with the given
 overrides, trained by the same code as ``train.py`` (:func:`softpvtol_gym.baselines.training.loop.train`: the
-native vector
-env through the SB3 adapter, VecNormalize, ``torch.set_num_threads(1)``, the periodic held-out evaluation
+native vector env through the SB3 adapter, VecNormalize, ``torch.set_num_threads(1)``, the periodic held-out evaluation
 of 10 episodes every ``--eval-freq`` steps). Per configuration it records
 
 * the learning curve: per periodic evaluation the env steps, the seconds since training started, the
