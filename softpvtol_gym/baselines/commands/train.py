@@ -80,6 +80,9 @@ def build_parser(prog: str = "train.py") -> Parser:
                     help="run directory (default runs/<algo>_<mode>_<task>_<tier>_s<seed>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out from its newest checkpoint")
     ap.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE", help="override a YAML hyperparameter")
+    ap.add_argument("--hyperparams", type=Path, default=None, metavar="DIR",
+                    help="folder holding <algo>.yml (default: the package's data/hyperparams; a resumed run keeps "
+                         "its own)")
     ap.add_argument("--env", action="append", default=[], metavar="KEY=VALUE", dest="env_options",
                     help=f"an env argument of the run's training and evaluation envs, one of {list(ENV_OPTION_KEYS)} "
                          f"(residual mode; recorded in config.yaml as env_options)")
@@ -143,7 +146,7 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
         n_envs = args.n_envs if args.n_envs is not None else saved.n_envs
         env_options = {**saved.env_options, **env_options}  # a different value is refused below, naming both
     else:
-        hp = apply_overrides(load_hyperparams(pick["algo"], pick["action_mode"]), args.hp)
+        hp = apply_overrides(load_hyperparams(pick["algo"], pick["action_mode"], args.hyperparams), args.hp)
         overrides = list(args.hp)
         if args.n_envs is not None:
             overrides.append(f"n_envs={args.n_envs}")

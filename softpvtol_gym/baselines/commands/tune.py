@@ -284,6 +284,8 @@ def build_parser(prog: str = "tune.py") -> Parser:
                     help="objective: mean_return (maximised, default) or mean_rms_position_error (minimised)")
     ap.add_argument("--space", type=Path, default=SPACE_FILE,
                     help="search space YAML (default: the package's tune_space.yml)")
+    ap.add_argument("--hyperparams", type=Path, default=None, metavar="DIR",
+                    help="folder holding <algo>.yml (default: the package's data/hyperparams)")
     ap.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE",
                     help="override a YAML hyperparameter for every trial (as train.py --hp)")
     ap.add_argument("--workers", type=int_arg(1, 4096), default=None,
@@ -320,7 +322,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
     _check_out(ap, out, args.force)
     if args.storage is not None and args.storage.exists() and not args.storage.is_dir():
         ap.error(f"--storage {args.storage} is a file; expected a directory")
-    base = apply_overrides(load_hyperparams(args.algo, args.action_mode), args.hp)
+    base = apply_overrides(load_hyperparams(args.algo, args.action_mode, args.hyperparams), args.hp)
     validate_hyperparams(args.algo, base)
     space = load_space(args.space, args.algo, base)
     mode = METRICS[args.metric]
