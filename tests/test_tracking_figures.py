@@ -181,7 +181,7 @@ def test_bad_input_exits_2_and_writes_nothing(tmp_path, capsys, argv, match):
     for k, v in zip(argv[::2], argv[1::2]):
         base[k] = v.replace("{tmp}", str(tmp_path))
     with pytest.raises(SystemExit) as exc:
-        main([x for kv in base.items() for x in kv])
+        main([x for kv in base.items() for x in kv], layout=LAYOUT)  # as python baselines/tracking_figures.py
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith("tracking_figures.py: error:") and match in err and err.count("\n") == 1
