@@ -75,7 +75,7 @@ def load_folder(folder: Path, *, training: bool = False, n_envs: int | None = No
         if not training:
             vecnorm.norm_reward = False
     # the model's observation space is that of the frame stack (hyperparameter frame_stack, saved in config.yaml;
-    # a config without it: 1, no stack), over VecNormalize in training as in baselines.training.prepare
+    # a config without it: 1, no stack), over VecNormalize in training as in training.loop.prepare
     model_env = stack_frames(config, vecnorm if (training and vecnorm is not None) else env)
     model = build_model(config, model_env, tensorboard_log=tensorboard_log, verbose=verbose, device=device)
     load_model_state(model, tensors, meta, str(folder))

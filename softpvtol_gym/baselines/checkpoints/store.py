@@ -10,7 +10,8 @@ A checkpoint is a folder. A finished run directory is one (its final model), and
   ``_n_updates``, ...), the optimizers' parameter groups, the episode-info buffer, the RNG states of the
   action and observation spaces;
 * ``vecnormalize.json``   the VecNormalize settings and running statistics (absent without normalisation);
-* ``config.yaml``         the run's :class:`~baselines.config.RunConfig` (the network is rebuilt from it);
+* ``config.yaml``         the run's :class:`~softpvtol_gym.baselines.config.run_config.RunConfig` (the network
+  is rebuilt from it);
 * ``resume_state.json`` + ``resume_state.npz``  (training checkpoints) what an exact resume needs
   besides: every array of the vector env (each sub-env mid-episode, the residual controller's memory),
   the sub-envs' generator states, VecNormalize's running returns, the numpy / torch / python RNG states;
@@ -22,7 +23,7 @@ A checkpoint is a folder. A finished run directory is one (its final model), and
 Loading never unpickles: safetensors and JSON hold data only, ``np.load`` runs with
 ``allow_pickle=False``, and the model is rebuilt from ``config.yaml`` before its weights are filled in.
 Files with other names (a ``model.zip`` or ``*.pkl`` planted next to them) are ignored; pickle-based
-files are read only through :mod:`baselines.export` with an explicit ``trust_pickle``.
+files are read only through :mod:`softpvtol_gym.baselines.checkpoints.sb3_compat` with an explicit ``trust_pickle``.
 
 Training checkpoints are written into a temporary folder that is fsync'ed and renamed into place;
 ``checkpoints/latest`` (the step folder's name) is then replaced atomically, and the newest ``keep`` are

@@ -8,9 +8,9 @@
 The search space (the package's ``tune_space.yml``, or ``--space FILE``; format in that file) spans keys of the
 hyperparameter entries of ``softpvtol_gym/baselines/data/hyperparams/<algo>.yml``; the other keys keep the entry's value
 (read as ``train.py`` reads it, with ``--hp KEY=VALUE`` overrides). Each trial trains with
-:func:`baselines.training.train` (the code of ``train.py``, seed ``--seed``) for ``--timesteps`` env steps
-in ``--reports`` equal stages; after each stage the deterministic policy is evaluated with
-:func:`baselines.evaluation.run_episodes` (the held-out evaluation of ``train.py`` and of the training's
+:func:`softpvtol_gym.baselines.training.loop.train` (the code of ``train.py``, seed ``--seed``) for ``--timesteps``
+env steps in ``--reports`` equal stages; after each stage the deterministic policy is evaluated with
+:func:`softpvtol_gym.baselines.evaluation.run_episodes` (the held-out evaluation of ``train.py`` and of the training's
 periodic evaluation) on ``--eval-episodes`` seeded episodes, and the metric (``--metric``: mean return,
 maximised, or mean RMS position error, minimised) is reported to Tune. ASHA compares trials at those
 stages and stops the weaker ones (reduction factor 2, first decision after one stage).
@@ -86,7 +86,7 @@ def _number(v) -> bool:
 def load_space(path: Path, algo: str, base: dict) -> dict:
     """The search space of ``algo`` in ``path``: ``{key: {distribution: args}}``, checked (ConfigError naming
     the key): keys must be hyperparameters of ``algo``, every bound and choice must pass
-    :func:`~baselines.config.validate_hyperparams` with the rest of ``base``."""
+    :func:`~softpvtol_gym.baselines.config.validation.validate_hyperparams` with the rest of ``base``."""
     table = read_yaml(path, "search space")
     if not isinstance(table, dict) or algo not in table:
         raise ConfigError(f"search space {path} must map algorithms to spaces and have an entry {algo!r}, got "
@@ -384,7 +384,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
             "timesteps": best["timesteps"],
             "trial_id": best["trial_id"],
         },
-        "objective": {"metric": args.metric, "mode": mode, "evaluation": "baselines.evaluation.run_episodes "
+        "objective": {"metric": args.metric, "mode": mode,
+                      "evaluation": "softpvtol_gym.baselines.evaluation.run_episodes "
                       "(deterministic policy, the evaluation of train.py), mean over episodes",
                       "episodes": args.eval_episodes, "eval_seed": args.eval_seed},
         "budget": {"trials": args.trials, "timesteps_per_trial": args.timesteps, "reports_per_trial": args.reports,

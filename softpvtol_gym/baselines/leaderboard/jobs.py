@@ -1,15 +1,15 @@
 """The leaderboard as a list of independent jobs, and a local runner for it.
 
 A :class:`Job` is one (policy, action mode, task, training tier, seed): a learned policy is trained
-(:func:`baselines.training.train`) and then evaluated on every evaluation tier; an analytic policy is
+(:func:`softpvtol_gym.baselines.training.loop.train`) and then evaluated on every evaluation tier; an analytic policy is
 only evaluated. :func:`run_job` is a pure function of the job and the output root (no shared state),
 so any executor can run the list: :func:`run_jobs` takes anything with ``concurrent.futures``'
 ``submit`` / ``Future.result`` interface: ``ProcessPoolExecutor`` locally, or
-:class:`baselines.ray_backend.RayExecutor` (Ray tasks on a local instance or a cluster, writing into a
-file system that every node shares; ``check_root=True`` makes each task check that it does).
+:class:`softpvtol_gym.baselines.leaderboard.ray_executor.RayExecutor` (Ray tasks on a local instance or a cluster,
+writing into a file system that every node shares; ``check_root=True`` makes each task check that it does).
 
 Job outputs (``<root>/<job.name>/``): ``eval.json`` (per evaluation tier, the episode list of
-:func:`baselines.evaluation.run_episodes` on the job's own task under ``eval``; a learned cell listed
+:func:`softpvtol_gym.baselines.evaluation.run_episodes` on the job's own task under ``eval``; a learned cell listed
 with ``also_evaluated_on`` is evaluated on those tasks too, under ``eval_other_tasks``: task -> tier ->
 episodes, so that a policy trained on ``track_random`` is scored on ``track_paper``, which it never
 saw), and for learned policies the run directory contents that the leaderboard needs (the final model
@@ -400,9 +400,9 @@ def check_shared_root(root: Path, token: str) -> None:
 def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevaluate: bool = False,
              check_root: bool = False, progress: bool = True, base: Path | None = None) -> list[str]:
     """Submit every job to ``executor`` (anything with ``submit`` returning futures: a process pool, a
-    :class:`baselines.ray_backend.RayExecutor`); returns the names of the jobs that finished, in
-    completion order, printing one line per job (and a progress bar on a terminal, ``progress``). A job
-    that fails on a :class:`~baselines.errors.ConfigError` (an unusable checkpoint, a busy folder) is
+    :class:`softpvtol_gym.baselines.leaderboard.ray_executor.RayExecutor`); returns the names of the jobs that
+    finished, in completion order, printing one line per job (and a progress bar on a terminal, ``progress``). A job
+    that fails on a :class:`~softpvtol_gym.baselines.errors.ConfigError` (an unusable checkpoint, a busy folder) is
     reported in one line and the others go on; a ConfigError listing the failed jobs is raised at the end.
     ``check_root``: every job first checks that it sees the same ``root`` as this process (for executors
     on other machines). ``base``: the checkpoint paths in ``eval.json`` are recorded relative to it (default:

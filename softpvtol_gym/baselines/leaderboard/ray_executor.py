@@ -1,18 +1,18 @@
 """Ray as the scale-out engine: a ``concurrent.futures``-style executor over Ray tasks, and Ray's start-up.
 
-:class:`RayExecutor` has the ``submit`` / ``Future`` interface that :func:`baselines.jobs.run_jobs` takes,
-so the leaderboard's job list runs on Ray through the same code as on the local process pool: the same
-job body (:func:`baselines.jobs.run_job`), the same skipping of finished jobs, the same result files.
-Each task asks Ray for one CPU (``num_cpus=1``) and runs with one numba thread (``NUMBA_NUM_THREADS=1``
-in the job's runtime environment) and one torch thread, so that N CPUs run N jobs without
-oversubscription.
+:class:`RayExecutor` has the ``submit`` / ``Future`` interface that
+:func:`softpvtol_gym.baselines.leaderboard.jobs.run_jobs` takes, so the leaderboard's job list runs on Ray through
+the same code as on the local process pool: the same job body
+(:func:`softpvtol_gym.baselines.leaderboard.jobs.run_job`), the same skipping of finished jobs, the same result
+files. Each task asks Ray for one CPU (``num_cpus=1``) and runs with one numba thread (``NUMBA_NUM_THREADS=1`` in the
+job's runtime environment) and one torch thread, so that N CPUs run N jobs without oversubscription.
 
 :func:`start_ray` starts a local Ray instance (no dashboard, in a fresh short temporary directory: Ray's
 Unix socket paths must stay under about 107 characters) or connects to an existing cluster
 (``address="auto"`` or ``"HOST:PORT"``). On a cluster the job root must be on a file system that every
-node mounts at the same path: :func:`baselines.jobs.run_jobs` with ``check_root=True`` makes a task that
-cannot see the driver's root fail with a message saying so, instead of writing its results where nobody
-looks.
+node mounts at the same path: :func:`softpvtol_gym.baselines.leaderboard.jobs.run_jobs` with ``check_root=True``
+makes a task that cannot see the driver's root fail with a message saying so, instead of writing its results where
+nobody looks.
 
 Needs the ``distributed`` extra (``pip install 'softpvtol-gym[distributed]'``).
 """
@@ -110,7 +110,8 @@ class RayExecutor:
         import ray
 
         if not ray.is_initialized():
-            raise ConfigError("RayExecutor needs a running Ray (baselines.ray_backend.start_ray)")
+            raise ConfigError("RayExecutor needs a running Ray (softpvtol_gym.baselines.leaderboard.ray_executor."
+                              "start_ray)")
         self._ray = ray
         self._options = {"num_cpus": num_cpus, "num_gpus": num_gpus, "max_retries": 0}
         self._remote = {}

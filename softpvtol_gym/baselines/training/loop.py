@@ -3,7 +3,7 @@
 :func:`train` is what ``train.py`` and the leaderboard jobs call. A run directory holds
 
     config.yaml            the RunConfig (hyperparameters after CLI overrides, and the overrides)
-    checkpoints/           atomic checkpoints (see :mod:`baselines.checkpoints`), the newest two kept
+    checkpoints/           atomic checkpoints (see :mod:`softpvtol_gym.baselines.checkpoints`), the newest two kept
     tb/                    TensorBoard logs (``tensorboard --logdir <run>/tb``)
     evaluations.json       periodic evaluations on held-out seeded episodes
     model.safetensors, model.json, vecnormalize.json, checkpoint.json   the final model (a checkpoint

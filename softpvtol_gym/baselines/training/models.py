@@ -1,7 +1,7 @@
-"""Building the SB3 pieces of a run from its :class:`~baselines.config.RunConfig`: the vector env, the
-VecNormalize wrapper, the VecFrameStack wrapper and the algorithm. Checkpoint loading builds the same objects
-and then fills in the saved weights and state (:mod:`baselines.checkpoints`), so nothing of a model is ever
-unpickled."""
+"""Building the SB3 pieces of a run from its :class:`~softpvtol_gym.baselines.config.run_config.RunConfig`: the
+vector env, the VecNormalize wrapper, the VecFrameStack wrapper and the algorithm. Checkpoint loading builds the same
+objects and then fills in the saved weights and state (:mod:`softpvtol_gym.baselines.checkpoints`), so nothing of a
+model is ever unpickled."""
 
 from __future__ import annotations
 

@@ -29,8 +29,8 @@ class LearnedPolicy:
     oldest first, as SB3's VecFrameStack feeds it in training. The policy keeps one stack per sub-env
     between calls: ``episode_start[i]`` true empties sub-env i's stack (zeros) before observation i goes in,
     as VecFrameStack does on a reset or a done. Pass ``episode_start`` (true on the first call and after each
-    reset, as :func:`baselines.evaluation.run_episodes` does); without it the first call starts every stack
-    and later calls continue them.
+    reset, as :func:`softpvtol_gym.baselines.evaluation.run_episodes` does); without it the first call starts every
+    stack and later calls continue them.
     """
 
     def __init__(self, model, vecnorm=None, frame_stack: int | None = None):

@@ -2,7 +2,7 @@
 input a user can fix.
 
 :class:`Parser` is an ``argparse.ArgumentParser`` whose errors are one line (``prog: error: ...``) and
-exit 2; :func:`run_main` runs a script's ``main`` and turns a :class:`~baselines.errors.ConfigError`
+exit 2; :func:`run_main` runs a script's ``main`` and turns a :class:`~softpvtol_gym.baselines.errors.ConfigError`
 (bad input, an unusable checkpoint, a busy run directory) into the same one-line exit 2, and Ctrl-C into
 exit 130.
 """

@@ -3,9 +3,9 @@
 ``with DirectoryLock(run_dir, "run directory"):`` holds ``<run_dir>/.softpvtol.lock`` (an OS file lock
 through the ``filelock`` library: released by the OS if the process dies, so a killed run never leaves a
 stale lock) and writes ``.softpvtol.lock.json`` (pid, host, start time, command). A second process gets
-:class:`~baselines.errors.LockedError` at once, naming the holder; scripts turn it into exit code 2.
+:class:`~softpvtol_gym.baselines.errors.LockedError` at once, naming the holder; scripts turn it into exit code 2.
 Within one process and thread the lock is re-entrant (``train.py`` holds its run directory while
-:func:`baselines.training.train` takes it again).
+:func:`softpvtol_gym.baselines.training.loop.train` takes it again).
 """
 
 from __future__ import annotations
