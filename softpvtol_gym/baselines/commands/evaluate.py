@@ -29,9 +29,8 @@ from pathlib import Path
 from softpvtol_gym import PassivityPolicy
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, evaluate
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
-from softpvtol_gym.baselines.util.args import Parser, check_output_file, int_arg, run_main
+from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main, int_arg
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
-from softpvtol_gym.baselines.util.extras import require
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.control import LOOPS
 from softpvtol_gym.envs.actions import ACTION_MODES
@@ -121,8 +120,6 @@ def _main(argv, layout: Layout, prog: str) -> int:
     return 0
 
 
-def main(argv=None, *, layout: Layout | None = None, prog: str = "evaluate.py") -> int:
-    """``softpvtol evaluate``: one policy on one task and tier; the JSON report where --json says."""
-    require("evaluate.py", prog=prog)
-    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
+main = command_main("evaluate.py", _main,
+                    "``softpvtol evaluate``: one policy on one task and tier; the JSON report where --json says.")
 

@@ -24,8 +24,7 @@ import argparse
 from pathlib import Path
 
 from softpvtol_gym.baselines.checkpoints.sb3_compat import from_sb3, to_sb3
-from softpvtol_gym.baselines.util.args import Parser, check_output_file, run_main
-from softpvtol_gym.baselines.util.extras import require
+from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main
 from softpvtol_gym.baselines.util.paths import Layout
 
 
@@ -56,8 +55,6 @@ def _main(argv, layout: Layout, prog: str) -> int:
     return 0
 
 
-def main(argv=None, *, layout: Layout | None = None, prog: str = "export.py") -> int:
-    """``softpvtol export``: conversions between the safe checkpoint format and SB3's files."""
-    require("export.py", prog=prog)
-    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
+main = command_main("export.py", _main,
+                    "``softpvtol export``: conversions between the safe checkpoint format and SB3's files.")
 

@@ -62,8 +62,7 @@ from softpvtol_gym.baselines.figures.tracking import (
     tracking_figure,
 )
 from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_spec
-from softpvtol_gym.baselines.util.args import Parser, float_arg, int_arg, run_main
-from softpvtol_gym.baselines.util.extras import require
+from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, int_arg
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.envs.tiers import registered_tiers
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
@@ -183,7 +182,6 @@ def _main(argv, layout: Layout, prog: str) -> int:
     return 0
 
 
-def main(argv=None, *, layout: Layout | None = None, prog: str = "tracking_figures.py") -> int:
-    """``softpvtol figures``: the pictures under ``layout`` (default: the current directory's ``results/``)."""
-    require("tracking_figures.py", prog=prog)
-    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
+main = command_main("tracking_figures.py", _main,
+                    "``softpvtol figures``: the pictures under ``layout`` (default: the current directory's "
+                    "``results/``).")

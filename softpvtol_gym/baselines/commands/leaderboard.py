@@ -38,10 +38,9 @@ from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE
 from softpvtol_gym.baselines.leaderboard.render import SUMMARY_BLOCK, render_chart, render_markdown, summary_markdown
 from softpvtol_gym.baselines.leaderboard.stats import build, read_data
-from softpvtol_gym.baselines.util.args import Parser, run_main
+from softpvtol_gym.baselines.util.args import Parser, command_main
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.blocks import write_block
-from softpvtol_gym.baselines.util.extras import require
 from softpvtol_gym.baselines.util.paths import Layout
 
 
@@ -86,7 +85,6 @@ def _main(argv, layout: Layout, prog: str) -> int:
     return 0
 
 
-def main(argv=None, *, layout: Layout | None = None, prog: str = "leaderboard.py") -> int:
-    """``softpvtol leaderboard``: outputs under ``layout`` (default: the current directory's ``results/``)."""
-    require("leaderboard.py", prog=prog)
-    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
+main = command_main("leaderboard.py", _main,
+                    "``softpvtol leaderboard``: outputs under ``layout`` (default: the current directory's "
+                    "``results/``).")

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from softpvtol_gym.baselines.figures.model import compare
-from softpvtol_gym.baselines.util.args import Parser, float_arg, int_arg, run_main
+from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, int_arg
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout
 
@@ -56,6 +56,5 @@ def _main(argv, layout: Layout, prog: str) -> int:
     return 0
 
 
-def main(argv=None, *, layout: Layout | None = None, prog: str = "model_figures.py") -> int:
-    """``softpvtol model-figures``: the report under ``layout`` (default: ``./results/``)."""
-    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
+main = command_main("model_figures.py", _main,
+                    "``softpvtol model-figures``: the report under ``layout`` (default: ``./results/``).")

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from softpvtol_gym import PassivityPolicy
 from softpvtol_gym.baselines.evaluation import evaluate
-from softpvtol_gym.baselines.util.args import Parser, int_arg, read_json_report, run_main
+from softpvtol_gym.baselines.util.args import Parser, command_main, int_arg, read_json_report
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.blocks import write_block
 from softpvtol_gym.baselines.util.paths import Layout
@@ -91,6 +91,5 @@ def _main(argv, layout: Layout, prog: str) -> int:
     return 0
 
 
-def main(argv=None, *, layout: Layout | None = None, prog: str = "passivity_metrics.py") -> int:
-    """``softpvtol passivity-metrics``: the report under ``layout`` (default: ``./results/``)."""
-    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
+main = command_main("passivity_metrics.py", _main,
+                    "``softpvtol passivity-metrics``: the report under ``layout`` (default: ``./results/``).")

@@ -16,8 +16,7 @@ from pathlib import Path
 
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.figures.gif import make_policy_env, render_frames, save_gif
-from softpvtol_gym.baselines.util.args import Parser, float_arg, int_arg, run_main
-from softpvtol_gym.baselines.util.extras import require
+from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, int_arg
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.envs.tiers import registered_tiers
 from softpvtol_gym.tasks import registered_tasks
@@ -53,8 +52,6 @@ def _main(argv, layout: Layout, prog: str) -> int:
     return 0
 
 
-def main(argv=None, *, layout: Layout | None = None, prog: str = "render_gif.py") -> int:
-    """``softpvtol render-gif``: one episode of a policy as an animated GIF (--out)."""
-    require("render_gif.py", prog=prog)
-    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
+main = command_main("render_gif.py", _main,
+                    "``softpvtol render-gif``: one episode of a policy as an animated GIF (--out).")
 

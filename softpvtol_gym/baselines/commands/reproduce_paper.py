@@ -33,7 +33,7 @@ import numpy as np
 
 from softpvtol_gym import SoftPVTOLParams
 from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.baselines.util.args import Parser, float_arg, read_json_report, run_main
+from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, read_json_report
 from softpvtol_gym.baselines.util.atomic import atomic_path, atomic_write_text
 from softpvtol_gym.baselines.util.blocks import write_block
 from softpvtol_gym.baselines.util.paths import Layout
@@ -332,6 +332,7 @@ def _write_blocks(report: dict, page: Path) -> bool:
 
 
 def _main(argv, layout: Layout, prog: str) -> int:
+    os.environ.setdefault("MPLBACKEND", "Agg")
     default_out = layout.results / "paper_reproduction"
     parser = Parser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, default=default_out,
@@ -373,7 +374,5 @@ def _main(argv, layout: Layout, prog: str) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None, *, layout: Layout | None = None, prog: str = "reproduce_paper.py") -> int:
-    """``softpvtol reproduce-paper``: figures and metrics under ``layout`` (default: ``./results/``)."""
-    os.environ.setdefault("MPLBACKEND", "Agg")
-    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
+main = command_main("reproduce_paper.py", _main,
+                    "``softpvtol reproduce-paper``: figures and metrics under ``layout`` (default: ``./results/``).")

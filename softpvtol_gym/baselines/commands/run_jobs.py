@@ -30,7 +30,7 @@ from pathlib import Path
 
 from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_jobs, pending, run_jobs
 from softpvtol_gym.baselines.leaderboard.ray_executor import RayExecutor, start_ray
-from softpvtol_gym.baselines.util.args import Parser, int_arg, run_main
+from softpvtol_gym.baselines.util.args import Parser, command_main, int_arg
 from softpvtol_gym.baselines.util.extras import DISTRIBUTED, require
 from softpvtol_gym.baselines.util.locks import DirectoryLock
 from softpvtol_gym.baselines.util.paths import Layout
@@ -101,9 +101,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
     return 0
 
 
-def main(argv=None, *, layout: Layout | None = None, prog: str = "run_jobs.py") -> int:
-    """``softpvtol run-jobs``: the leaderboard jobs, run directories under ``layout.runs`` (default
-    ``./results/leaderboard_runs``)."""
-    require("run_jobs.py", prog=prog)
-    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
+main = command_main("run_jobs.py", _main,
+                    "``softpvtol run-jobs``: the leaderboard jobs, run directories under ``layout.runs`` (default "
+                    "``./results/leaderboard_runs``).")
 

@@ -49,9 +49,8 @@ from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, evaluate
 from softpvtol_gym.baselines.training.loop import prepare, train
 from softpvtol_gym.baselines.training.models import DEVICES
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
-from softpvtol_gym.baselines.util.args import Parser, int_arg, run_main
+from softpvtol_gym.baselines.util.args import Parser, command_main, int_arg
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
-from softpvtol_gym.baselines.util.extras import require
 from softpvtol_gym.baselines.util.locks import DirectoryLock
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.envs.actions import ACTION_MODES
@@ -207,8 +206,6 @@ def _main(argv, layout: Layout, prog: str) -> int:
     return 0
 
 
-def main(argv=None, *, layout: Layout | None = None, prog: str = "train.py") -> int:
-    """``softpvtol train``: one training run (default run directory under ``./runs/``)."""
-    require("train.py", prog=prog)
-    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
+main = command_main("train.py", _main,
+                    "``softpvtol train``: one training run (default run directory under ``./runs/``).")
 

@@ -57,9 +57,8 @@ from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes, s
 from softpvtol_gym.baselines.leaderboard.ray_executor import start_ray
 from softpvtol_gym.baselines.training.loop import train
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
-from softpvtol_gym.baselines.util.args import Parser, int_arg, run_main
+from softpvtol_gym.baselines.util.args import Parser, command_main, int_arg
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
-from softpvtol_gym.baselines.util.extras import require
 from softpvtol_gym.baselines.util.paths import Layout, data_file
 from softpvtol_gym.envs.actions import ACTION_MODES
 from softpvtol_gym.envs.registration import ENV_ID
@@ -412,8 +411,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
     return 0
 
 
-def main(argv=None, *, layout: Layout | None = None, prog: str = "tune.py") -> int:
-    """``softpvtol tune``: a hyperparameter search (the best configuration under ``./runs/`` by default)."""
-    require("tune.py", prog=prog)
-    return run_main(lambda a: _main(a, layout or Layout(), prog), argv, prog=prog)
+main = command_main("tune.py", _main,
+                    "``softpvtol tune``: a hyperparameter search (the best configuration under ``./runs/`` by "
+                    "default).")
 

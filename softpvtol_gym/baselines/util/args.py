@@ -17,6 +17,8 @@ import sys
 from pathlib import Path
 
 from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.util.extras import require
+from softpvtol_gym.baselines.util.paths import Layout
 
 
 def one_line(message: str) -> str:
@@ -113,3 +115,18 @@ def read_json_report(path: Path, what: str) -> dict:
     if not isinstance(data, dict):
         raise ConfigError(f"{what} {path} is not a JSON object")
     return data
+
+
+def command_main(script: str, body, summary: str):
+    """The ``main(argv=None, *, layout=None, prog=script) -> int`` of a subcommand, written once for all of them:
+    the packages the command needs are checked first (:func:`~softpvtol_gym.baselines.util.extras.require`),
+    then ``body(argv, layout, prog)`` runs with one-line errors (:func:`run_main`). ``layout``: where outputs
+    go (default: the current directory's, :class:`~softpvtol_gym.baselines.util.paths.Layout`); ``prog``: the
+    name in messages (``softpvtol SUB`` from the console command, the script's name from a checkout)."""
+
+    def main(argv=None, *, layout: Layout | None = None, prog: str = script) -> int:
+        require(script, prog=prog)
+        return run_main(lambda args: body(args, layout or Layout(), prog), argv, prog=prog)
+
+    main.__doc__ = summary
+    return main
