@@ -1,7 +1,9 @@
 """Evaluate any policy with an SB3 ``predict`` on fixed, seeded SoftPVTOL-v0 episodes; write JSON.
 
-    python baselines/evaluate.py --policy passivity --task hover --tier wind --episodes 20 --json out.json
-    python baselines/evaluate.py --policy runs/ppo_residual_hover_nominal_s0 --tier mismatch --json out.json
+    softpvtol evaluate --policy passivity --task hover --tier wind --episodes 20 --json out.json
+    softpvtol evaluate --policy runs/ppo_residual_hover_nominal_s0 --tier mismatch --json out.json
+
+(From a source checkout, ``python baselines/evaluate.py`` takes the same options.)
 
 ``--policy``: ``passivity`` (the analytic controller: its loop is the env's default, ``bounded``;
 ``--controller-loop paper|exact|improved|bounded`` picks another, ``--allocation paper`` the paper's

@@ -1,7 +1,9 @@
 """Interoperability with stable-baselines3's own (pickle-based) files, both ways.
 
-    python baselines/export.py to-sb3 --policy RUN_OR_CHECKPOINT --out model.zip [--vecnormalize vecnormalize.pkl]
-    python baselines/export.py from-sb3 --trust-pickle PATH [--out DIR]
+    softpvtol export to-sb3 --policy RUN_OR_CHECKPOINT --out model.zip [--vecnormalize vecnormalize.pkl]
+    softpvtol export from-sb3 --trust-pickle PATH [--out DIR]
+
+(From a source checkout, ``python baselines/export.py`` takes the same options.)
 
 ``to-sb3`` writes an SB3 ``model.zip`` (``PPO.load`` / ``SAC.load`` read it) and, for a run with
 normalisation, the ``VecNormalize.save`` pickle, for users of SB3's tools. It reads the checkpoint in

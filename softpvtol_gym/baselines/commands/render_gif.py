@@ -1,7 +1,9 @@
 """Render an episode of a policy to an animated GIF (the README's picture of the best policy).
 
-    python baselines/render_gif.py --policy passivity --task track_paper --out docs/track_paper.gif
-    python baselines/render_gif.py --policy baselines/results/leaderboard_runs/<run> --task track_paper --out x.gif
+    softpvtol render-gif --policy passivity --task track_paper --out docs/track_paper.gif
+    softpvtol render-gif --policy results/leaderboard_runs/<run> --task track_paper --out x.gif
+
+(From a source checkout, ``python baselines/render_gif.py`` takes the same options.)
 
 ``--policy``: ``passivity`` (PassivityPolicy with the env's default loop) or a checkpoint (run
 directory, checkpoint directory or model.safetensors; the safe format only, nothing is unpickled).

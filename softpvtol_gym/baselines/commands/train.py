@@ -1,4 +1,5 @@
-"""Train an agent on SoftPVTOL-v0 and compare it with the passivity controller (CLI of ``train.py``).
+"""Train an agent on SoftPVTOL-v0 and compare it with the passivity controller (``softpvtol train``; from a
+source checkout ``python train.py``, with the same options).
 
     python train.py                      # PPO, residual mode, hover, nominal tier (the default agent)
     python train.py --action-mode actuators --task track_paper --tier wind --timesteps 500000 --seed 3

@@ -1,9 +1,11 @@
 """Hyperparameter search on Ray Tune: Optuna's TPE sampler proposes, ASHA stops the weak trials early.
 
-    python baselines/tune.py                                  # PPO, residual, hover, nominal: 20 trials
-    python baselines/tune.py --trials 50 --timesteps 400000 --reports 4 --workers 8
-    python baselines/tune.py --address auto                   # on the cluster of `ray start`
-    python baselines/tune.py --hp n_envs=64 --space my_space.yml --out runs/best.yml
+    softpvtol tune                                  # PPO, residual, hover, nominal: 20 trials
+    softpvtol tune --trials 50 --timesteps 400000 --reports 4 --workers 8
+    softpvtol tune --address auto                   # on the cluster of `ray start`
+    softpvtol tune --hp n_envs=64 --space my_space.yml --out runs/best.yml
+
+(From a source checkout, ``python baselines/tune.py`` takes the same options.)
 
 The search space (the package's ``tune_space.yml``, or ``--space FILE``; format in that file) spans keys of the
 hyperparameter entries of ``softpvtol_gym/baselines/data/hyperparams/<algo>.yml``; the other keys keep the entry's value
