@@ -1,7 +1,8 @@
 """The errors the baselines raise for things a user must fix (bad input, unusable files, a busy run).
 
-Scripts turn every one of them into exit code 2 and a one-line message (:mod:`softpvtol_gym.baselines.cli`). This module
-imports nothing beyond the standard library, so that a missing optional dependency can still be reported.
+The commands turn every one of them into exit code 2 and a one-line message
+(:func:`softpvtol_gym.baselines.util.args.run_main`). This module imports nothing beyond the standard library,
+so that a missing optional dependency can still be reported.
 """
 
 from __future__ import annotations

@@ -1,10 +1,11 @@
-"""Command-line plumbing shared by the scripts: one-line errors with exit code 2, never a traceback for
+"""Command-line plumbing shared by the subcommands: one-line errors with exit code 2, never a traceback for
 input a user can fix.
 
-:class:`Parser` is an ``argparse.ArgumentParser`` whose errors are one line (``prog: error: ...``) and
-exit 2; :func:`run_main` runs a script's ``main`` and turns a :class:`~softpvtol_gym.baselines.errors.ConfigError`
-(bad input, an unusable checkpoint, a busy run directory) into the same one-line exit 2, and Ctrl-C into
-exit 130.
+:class:`Parser` is an ``argparse.ArgumentParser`` whose errors are one line (``prog: error: ...``) and exit 2;
+:func:`run_main` runs a command's body and turns a :class:`~softpvtol_gym.baselines.errors.ConfigError` (bad
+input, an unusable checkpoint, a busy run directory) into the same one-line exit 2, and Ctrl-C into exit 130;
+:func:`command_main` makes a subcommand's ``main`` of its body (once, for all of them). Also the argparse value
+types, the output-file check made before any work, and reading a command's JSON report.
 """
 
 from __future__ import annotations
