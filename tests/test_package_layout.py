@@ -230,3 +230,24 @@ def test_a_policy_given_by_hand_never_overwrites_the_leaderboard_pictures(tmp_pa
     explicit = build_parser(LAYOUT).parse_args(["--checkpoint", str(tmp_path), "--gif-out", str(tmp_path / "a.gif")])
     _default_outputs(explicit)
     assert explicit.gif_out == tmp_path / "a.gif"
+
+
+@pytest.mark.parametrize("script, argv, output", [
+    ("passivity_metrics.py", ["--episodes", "2"], "passivity_metrics.json"),
+    ("model_figures.py", ["--t-final", "1"], "model_figures.json"),
+    ("reproduce_paper.py", ["--t-final", "5", "--no-plots"], "paper_reproduction/metrics.json"),
+    ("tracking_figures.py", ["--only", "curves", "--curve-reference", "leaderboard"], "tracking/learning_curves.png"),
+])
+def test_a_run_with_other_settings_never_overwrites_a_committed_result(script, argv, output, capsys):
+    """The default outputs of a checkout's script are committed results: a run with other settings than the
+    defaults refuses to overwrite them (exit 2, one line, nothing written) unless --force or another path."""
+    from conftest import LAYOUT
+
+    name = next(c for c, (_, s, _) in cli.COMMANDS.items() if s == script)
+    committed = LAYOUT.results / output
+    before = committed.read_bytes()
+    with pytest.raises(SystemExit) as exc:
+        cli.run_command(name, argv, layout=LAYOUT, prog=script)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.startswith(f"{script}: error: ") and "--force" in err, err
+    assert err.count("\n") == 1 and committed.read_bytes() == before

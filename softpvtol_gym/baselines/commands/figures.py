@@ -62,13 +62,16 @@ from softpvtol_gym.baselines.figures.tracking import (
     tracking_figure,
 )
 from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_spec
-from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, int_arg
+from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, int_arg, refuse_overwrite
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.envs.tiers import registered_tiers
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
 #: the file-name prefix of the pictures of a policy given by --checkpoint
 CHECKPOINT_PREFIX = "checkpoint_"
+#: the options that change what the pictures show (another value never overwrites the default pictures)
+CONTENT_OPTIONS = ("leaderboard", "spec", "runs", "tiers", "seed", "seconds", "curve_reference", "gif_seconds",
+                   "gif_fps", "gif_scale")
 
 
 def _check_output(path: Path, option: str, suffix: str) -> None:
@@ -115,6 +118,8 @@ def build_parser(layout: Layout | None = None, prog: str = "tracking_figures.py"
     ap.add_argument("--curves-out", type=Path, default=tracking / CURVES_PNG_NAME, help="default: %(default)s")
     ap.add_argument("--gif-out", type=Path, default=None,
                     help=f"default: {gif}; with --checkpoint {tracking / CHECKPOINT_PREFIX}{GIF_NAME}")
+    ap.add_argument("--force", action="store_true",
+                    help="let a run with other settings than the defaults overwrite the default pictures")
     ap.set_defaults(_tracking=tracking, _gif=gif)
     return ap
 
@@ -132,6 +137,9 @@ def _default_outputs(args) -> None:
 def _main(argv, layout: Layout, prog: str) -> int:
     args = build_parser(layout, prog).parse_args(argv)
     _default_outputs(args)
+    refuse_overwrite(build_parser(layout, prog), args, CONTENT_OPTIONS, [
+        (args.tracking_out, args._tracking / TRACKING_PNG_NAME, "--tracking-out"),
+        (args.curves_out, args._tracking / CURVES_PNG_NAME, "--curves-out"), (args.gif_out, args._gif, "--gif-out")])
     only = tuple(dict.fromkeys(args.only or FIGURES))
     outputs = {"tracking": (args.tracking_out, "--tracking-out", ".png"),
                "curves": (args.curves_out, "--curves-out", ".png"), "gif": (args.gif_out, "--gif-out", ".gif")}

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from softpvtol_gym.baselines.figures.model import compare
-from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, int_arg
+from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, int_arg, refuse_overwrite
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout
 
@@ -39,7 +39,9 @@ def _main(argv, layout: Layout, prog: str) -> int:
     ap.add_argument("--t-final", type=float_arg(0.0, lo_open=True), default=10.0)
     ap.add_argument("--passes", type=int_arg(1), default=50, help="fixed-point passes of the algebraic loop")
     ap.add_argument("--json", type=Path, default=layout.results / "model_figures.json", help="default: %(default)s")
+    ap.add_argument("--force", action="store_true", help="let a run with other settings overwrite the default report")
     args = ap.parse_args(argv)
+    refuse_overwrite(ap, args, ("t_final", "passes"), [(args.json, ap.get_default("json"), "--json")])
     t0 = time.perf_counter()
     result = compare(args.t_final, args.passes)
     for name, r in result.items():

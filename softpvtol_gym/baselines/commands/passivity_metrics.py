@@ -19,7 +19,7 @@ from pathlib import Path
 
 from softpvtol_gym import PassivityPolicy
 from softpvtol_gym.baselines.evaluation import evaluate
-from softpvtol_gym.baselines.util.args import Parser, command_main, int_arg, read_json_report
+from softpvtol_gym.baselines.util.args import Parser, command_main, int_arg, read_json_report, refuse_overwrite
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.blocks import write_block
 from softpvtol_gym.baselines.util.paths import Layout
@@ -64,7 +64,11 @@ def _main(argv, layout: Layout, prog: str) -> int:
                     help="run nothing: print the table of the report in --json and refresh the generated block")
     ap.add_argument("--page", type=Path, default=layout.doc("control.md"),
                     help="Markdown file whose generated table block is refreshed (default: %(default)s)")
+    ap.add_argument("--force", action="store_true",
+                    help="let a run with other settings overwrite the default report")
     args = ap.parse_args(argv)
+    if not args.render_only:
+        refuse_overwrite(ap, args, ("episodes", "seed"), [(args.json, default_json, "--json")])
     if args.render_only:
         report = read_json_report(args.json, "passivity metrics report")
     else:

@@ -33,7 +33,7 @@ import numpy as np
 
 from softpvtol_gym import SoftPVTOLParams
 from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, read_json_report
+from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, read_json_report, refuse_overwrite
 from softpvtol_gym.baselines.util.atomic import atomic_path, atomic_write_text
 from softpvtol_gym.baselines.util.blocks import write_block
 from softpvtol_gym.baselines.util.paths import Layout
@@ -346,7 +346,12 @@ def _main(argv, layout: Layout, prog: str) -> int:
                              "blocks")
     parser.add_argument("--page", type=Path, default=layout.doc("control.md"),
                         help="Markdown file whose generated table blocks are refreshed (default: %(default)s)")
+    parser.add_argument("--force", action="store_true",
+                        help="let a run with other settings overwrite the default output folder's metrics.json")
     args = parser.parse_args(argv)
+    if not args.render_only:
+        refuse_overwrite(parser, args, ("t_final", "no_steady"),
+                         [(args.out / "metrics.json", default_out / "metrics.json", "--out")])
     if args.render_only:
         report = read_json_report(args.out / "metrics.json", "paper reproduction metrics")
         if "loops" not in report or "steady_state" not in report:

@@ -131,3 +131,25 @@ def command_main(script: str, body, summary: str):
 
     main.__doc__ = summary
     return main
+
+
+def refuse_overwrite(parser: argparse.ArgumentParser, args, content: tuple[str, ...], outputs) -> None:
+    """ConfigError if a run with other settings than the defaults would overwrite an existing default output
+    (in a checkout: a committed result) without ``--force``.
+
+    ``content``: the destinations of the options that change what is computed; ``outputs``: (path, default
+    path, option) of each file the run writes."""
+    if getattr(args, "force", False):
+        return
+    def same(a, b) -> bool:
+        return Path(a).resolve() == Path(b).resolve() if isinstance(a, Path) and isinstance(b, Path) else a == b
+
+    changed = [f"--{name.replace('_', '-')}" for name in content
+               if not same(getattr(args, name), parser.get_default(name))]
+    if not changed:
+        return
+    for path, default, option in outputs:
+        if path is not None and Path(path).exists() and Path(path).resolve() == Path(default).resolve():
+            raise ConfigError(f"{', '.join(changed)} would overwrite {path}, the default run's output, with a "
+                              f"different run; pass {option} for another file, or --force to overwrite it (nothing "
+                              f"was written)")
