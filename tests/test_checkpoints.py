@@ -183,6 +183,11 @@ def test_evaluate_with_trust_pickle_loads_an_sb3_zip_with_a_warning(tmp_path, ti
 
     x, y = load_file(tiny_run / "model.safetensors"), load_file(tmp_path / "safe" / "model.safetensors")
     assert sorted(x) == sorted(y) and all((x[k] == y[k]).all() for k in x)
+    # a safe checkpoint already there is not replaced without --force
+    with pytest.raises(SystemExit):
+        export_main(["from-sb3", "--trust-pickle", str(zip_path), "--out", str(tmp_path / "safe")])
+    assert "already holds a safe checkpoint" in capsys.readouterr().err
+    assert export_main(["from-sb3", "--trust-pickle", "--force", str(zip_path), "--out", str(tmp_path / "safe")]) == 0
 
 
 # ---------------------------------------------------------------------------------- env state

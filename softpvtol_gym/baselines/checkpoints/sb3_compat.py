@@ -19,7 +19,7 @@ PICKLE_WARNING = ("unpickling {files}: this runs any code they contain; only do 
                   "source you trust (--trust-pickle)")
 
 
-def _legacy_paths(path: Path) -> tuple[Path, Path | None, Path]:
+def legacy_paths(path: Path) -> tuple[Path, Path | None, Path]:
     """(model.zip, vecnormalize.pkl or None, config.yaml) of a pickle-based run folder or zip."""
 
     path = Path(path)
@@ -44,7 +44,7 @@ def _legacy_paths(path: Path) -> tuple[Path, Path | None, Path]:
 def _read_pickled(path: Path):
     """(model, VecNormalize or None, RunConfig) of pickle-based files, as saved, with a warning."""
 
-    zip_path, pkl, cfg = _legacy_paths(path)
+    zip_path, pkl, cfg = legacy_paths(path)
     config = RunConfig.load(cfg)
     if normalize_kwargs(config.hyperparams) is not None and pkl is None:
         raise CheckpointError(f"{cfg} asks for normalisation but there is no vecnormalize.pkl next to {zip_path}")

@@ -25,7 +25,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from softpvtol_gym.baselines.checkpoints.sb3_compat import from_sb3, to_sb3
+from softpvtol_gym.baselines.checkpoints.manifest import MANIFEST_FILE
+from softpvtol_gym.baselines.checkpoints.sb3_compat import from_sb3, legacy_paths, to_sb3
+from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main
 from softpvtol_gym.baselines.util.paths import Layout
 
@@ -42,6 +44,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
     fr.add_argument("path", type=Path, help="an SB3 model.zip, or the folder holding it")
     fr.add_argument("--out", type=Path, default=None, help="output folder (default: the zip's folder)")
     fr.add_argument("--trust-pickle", action="store_true", help="required: reading the files runs code they contain")
+    fr.add_argument("--force", action="store_true", help="replace a safe checkpoint already in the output folder")
     args = ap.parse_args(argv)
     if args.command == "to-sb3":
         check_output_file(args.out, args.force, "--out")
@@ -53,6 +56,10 @@ def _main(argv, layout: Layout, prog: str) -> int:
     if not args.trust_pickle:
         ap.error(f"from-sb3 unpickles {args.path}, which runs any code in it: pass --trust-pickle if you created it "
                  f"or trust its source (nothing was read)")
+    out = args.out if args.out is not None else legacy_paths(args.path)[0].parent
+    if (out / MANIFEST_FILE).exists() and not args.force:
+        raise ConfigError(f"{out} already holds a safe checkpoint ({MANIFEST_FILE}); pass --out for another folder, or "
+                          f"--force to replace it (nothing was read or written)")
     print(f"wrote the safe checkpoint {from_sb3(args.path, args.out)}")
     return 0
 
