@@ -38,7 +38,7 @@ from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE
 from softpvtol_gym.baselines.leaderboard.render import SUMMARY_BLOCK, render_chart, render_markdown, summary_markdown
 from softpvtol_gym.baselines.leaderboard.stats import build, read_data
-from softpvtol_gym.baselines.util.args import Parser, command_main
+from softpvtol_gym.baselines.util.args import Parser, command_main, refuse_overwrite
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.blocks import write_block
 from softpvtol_gym.baselines.util.paths import Layout
@@ -64,7 +64,12 @@ def _main(argv, layout: Layout, prog: str) -> int:
     ap.add_argument("--root", type=Path, default=layout.runs, help="the jobs' run directories (default: %(default)s)")
     ap.add_argument("--spec", type=Path, default=SPEC_FILE,
                     help="the job list (default: the package's leaderboard.yml)")
+    ap.add_argument("--force", action="store_true",
+                    help="let other inputs (--root, --spec, or --json with --from-json) overwrite the default outputs")
     args = ap.parse_args(argv)
+    refuse_overwrite(ap, args, ("root", "spec") + (("json",) if args.from_json else ()),
+                     [(args.markdown, page, "--markdown"), (args.chart, ap.get_default("chart"), "--chart")]
+                     + ([] if args.from_json else [(args.json, ap.get_default("json"), "--json")]))
     for path, option in ((args.markdown, "--markdown"), (args.chart, "--chart")) + (
             () if args.from_json else ((args.json, "--json"),)):
         _check_output(path, option)
