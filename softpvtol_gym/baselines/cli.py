@@ -63,9 +63,12 @@ def run_command(name: str, argv: list[str], layout: Layout | None = None, prog: 
 def main(argv: list[str] | None = None) -> int:
     """The console command: ``softpvtol SUBCOMMAND [options]``; returns the exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] in ("-h", "--help"):
+    if not argv:
+        sys.stderr.write(usage())
+        return 2
+    if argv[0] in ("-h", "--help"):
         sys.stdout.write(usage())
-        return 0 if argv else 2
+        return 0
     name = argv[0]
     if name not in COMMANDS:
         close = [c for c in COMMANDS if c.startswith(name[:3])]
