@@ -52,3 +52,27 @@ def test_one_license_everywhere():
     assert (ROOT / "LICENSE").read_text().startswith("MIT License\n")
     project = _pyproject()["project"]
     assert project["license"] == "MIT" and project["license-files"] == ["LICENSE"]
+
+
+def _names(requirements: list[str]) -> set[str]:
+    """Distribution names (and self-references with their extras) of requirement strings."""
+    import re
+
+    return {re.split(r"[<>=!~;\s]", r, maxsplit=1)[0] for r in requirements}
+
+
+def test_plain_install_is_the_env_and_extras_add_the_rest():
+    """`pip install softpvtol-gym`: gymnasium, numpy, numba (tests/test_extras.py runs it without the rest);
+    torch and stable-baselines3 come with 'train', pygame with 'render', and 'test' installs every extra."""
+    project = _pyproject()["project"]
+    assert _names(project["dependencies"]) == {"gymnasium", "numpy", "numba"}
+    extras = project["optional-dependencies"]
+    assert _names(extras["train"]) == {"torch", "stable-baselines3"}
+    assert _names(extras["render"]) == {"pygame"}
+    assert "softpvtol-gym[train,render]" in extras["baselines"]
+    everything = {e for e in extras if e not in ("test", "dev")}
+    self_ref = next(r for r in extras["test"] if r.startswith("softpvtol-gym["))
+    covered = set(self_ref[len("softpvtol-gym["):-1].split(","))
+    covered |= {"train", "render"}  # through baselines
+    assert covered == everything, everything - covered
+    assert any(r.startswith("ruff==") for r in extras["test"]), "CI's linter is pinned to one version"
