@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ._cache import configure_numba_cache
+from ._version import __version__
 
 #: the numba cache of this source version (see softpvtol_gym._cache); set before any kernel is defined
 NUMBA_CACHE_DIR = configure_numba_cache()
@@ -13,8 +14,6 @@ from .params import PARAM_FIELDS, SoftPVTOLParams  # noqa: E402
 from .policies import PassivityPolicy  # noqa: E402
 
 register_envs()
-
-__version__ = "0.1.0"
 
 __all__ = [
     "SoftPVTOLParams", "PARAM_FIELDS", "dynamics", "integrators", "__version__",

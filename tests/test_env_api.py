@@ -1,5 +1,6 @@
 """SoftPVTOL-v0 API: registration, checkers, argument validation, spaces, truncation, seeding."""
 
+import contextlib
 import os
 import warnings
 
@@ -167,7 +168,10 @@ def test_out_of_range_action_is_clipped_and_reported(env):
 def test_bad_arguments_raise(kwargs, match):
     with pytest.raises(ValueError, match=match):
         SoftPVTOLEnv(**kwargs)
-    with pytest.raises(ValueError, match=match):
+    registry_warning = contextlib.nullcontext()
+    if "render_mode" in kwargs:  # gym.make itself warns about a mode outside metadata["render_modes"] first
+        registry_warning = pytest.warns(UserWarning, match="not in the possible render_modes")
+    with pytest.raises(ValueError, match=match), registry_warning:
         gym.make("SoftPVTOL-v0", **kwargs)
 
 

@@ -4,6 +4,8 @@ The reference here is a plain RK4 written with the public model functions (forwa
 generalized_forces evaluated at each stage's configuration), not with the env's kernels.
 """
 
+import contextlib
+
 import numpy as np
 import pytest
 
@@ -46,10 +48,18 @@ CASES = [
 ]
 
 
+def make_env(frame_skip: int, **kw) -> SoftPVTOLEnv:
+    """The env of a case; the residual mode with frame_skip=2 (0.02 s held) warns (on purpose: its base controller's arm
+    loop diverges when held that long, test_control_loops.py) and the warning is checked here."""
+    expect = kw.get("action_mode") == "residual" and frame_skip > 1
+    with pytest.warns(UserWarning, match="arm loop diverges") if expect else contextlib.nullcontext():
+        return SoftPVTOLEnv(task="track_random", frame_skip=frame_skip, **kw)
+
+
 @pytest.mark.parametrize("frame_skip", [1, 2])
 @pytest.mark.parametrize("kw", CASES, ids=lambda kw: "-".join(f"{v}" for v in kw.values()))
 def test_env_step_is_rk4_with_the_command_held(kw, frame_skip):
-    env = SoftPVTOLEnv(task="track_random", frame_skip=frame_skip, **kw)
+    env = make_env(frame_skip, **kw)
     env.reset(seed=7)
     sim = env.sim
     imap = env.config.input_map

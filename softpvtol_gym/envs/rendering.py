@@ -33,8 +33,9 @@ class Renderer:
     def __init__(self, cfg: EnvConfig, mode: str, fps: int):
         try:
             import pygame
-        except ImportError as e:  # pragma: no cover
-            raise ImportError('pygame is needed for rendering: pip install "pygame>=2.1"') from e
+        except ImportError as e:
+            raise ImportError(f"render_mode={mode!r} needs pygame, which the 'render' extra installs: "
+                              f'pip install "softpvtol-gym[render]"') from e
         self.pg = pygame
         self.cfg = cfg
         self.mode = mode

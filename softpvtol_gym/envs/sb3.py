@@ -6,7 +6,12 @@ from typing import Any
 
 import numpy as np
 from gymnasium.vector import AutoresetMode
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+try:
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+except ImportError as e:
+    raise ImportError("softpvtol_gym.envs.sb3 needs stable-baselines3 (and torch), which the 'train' extra "
+                      'installs: pip install "softpvtol-gym[train]"') from e
 
 from ._validation import real_array, short_repr
 from .vector import SoftPVTOLVectorEnv

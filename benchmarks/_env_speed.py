@@ -1,0 +1,230 @@
+"""Items 1-3: the env's speed against gymnasium's own envs, and the passivity controller against one env
+step (benchmarks/run.py)."""
+
+from __future__ import annotations
+
+import time
+
+import gymnasium as gym
+import numpy as np
+
+from benchmarks._common import fmt_rate, fmt_time, interleaved, median, ratios, table, verdict
+
+
+# ----------------------------------------------------------------------------- 1. single env
+def _step_timer(env, n_steps: int, seed: int):
+    """A callable timing n_steps random-action steps of env (resets excluded); returns s/step."""
+    env.action_space.seed(seed)
+    actions = [env.action_space.sample() for _ in range(256)]
+    env.reset(seed=seed)
+
+    def run() -> float:
+        t_reset = 0.0
+        t0 = time.perf_counter()
+        for k in range(n_steps):
+            _, _, term, trunc, _ = env.step(actions[k & 255])
+            if term or trunc:
+                r0 = time.perf_counter()
+                env.reset()
+                t_reset += time.perf_counter() - r0
+        return (time.perf_counter() - t0 - t_reset) / n_steps
+
+    return run
+
+
+def bench_single(quick: bool) -> dict:
+    n_steps, reps = (300, 5) if quick else (3000, 15)
+    envs = {
+        "SoftPVTOL-v0": gym.make("SoftPVTOL-v0"),
+        "Pendulum-v1": gym.make("Pendulum-v1"),
+        "Acrobot-v1": gym.make("Acrobot-v1"),
+    }
+    cases = {name: _step_timer(env, n_steps, seed=i) for i, (name, env) in enumerate(envs.items())}
+    for fn in cases.values():  # warm-up
+        fn()
+    t = interleaved(cases, reps)
+    r_pend = ratios(t["SoftPVTOL-v0"], t["Pendulum-v1"])
+    r_acro = ratios(t["SoftPVTOL-v0"], t["Acrobot-v1"])
+    rows = [[name, fmt_time(median(v))] for name, v in t.items()]
+    text = table(["env (gym.make, default settings, random actions)", "median step"], rows)
+    text += "\n\n" + table(
+        ["ratio", "value", "target", "verdict"],
+        [["SoftPVTOL-v0 / Pendulum-v1", f"{r_pend:.2f}x", "<= 2.0x (aim <= 1.0x)", verdict(r_pend <= 2.0)],
+         ["SoftPVTOL-v0 / Acrobot-v1 (RK4 too)", f"{r_acro:.2f}x", "-", "n/a"]])
+    for env in envs.values():
+        env.close()
+    return {
+        "title": "1. Single-env step latency",
+        "text": text,
+        "seconds_per_step": {k: median(v) for k, v in t.items()},
+        "ratio_vs_pendulum": r_pend,
+        "ratio_vs_acrobot": r_acro,
+        "targets": {"ratio_vs_pendulum": {"value": r_pend, "target": "<= 2.0", "pass": r_pend <= 2.0,
+                                          "aim": "<= 1.0", "aim_met": r_pend <= 1.0}},
+    }
+
+
+# ----------------------------------------------------------------------------- 2. vector env
+def _vector_timer(env, n: int, n_steps: int, seed: int, discrete: bool):
+    """A callable timing n_steps batched random-action steps; returns env-steps per second."""
+    rng = np.random.default_rng(seed)
+    if discrete:
+        actions = [rng.integers(0, 2, n) for _ in range(4)]
+    else:
+        shape = env.action_space.shape
+        actions = [rng.uniform(-1.0, 1.0, shape).astype(np.float32) for _ in range(4)]
+    env.reset(seed=seed)
+    env.step(actions[0])
+
+    def run() -> float:
+        t0 = time.perf_counter()
+        for k in range(n_steps):
+            env.step(actions[k & 3])
+        return n * n_steps / (time.perf_counter() - t0)
+
+    return run
+
+
+def bench_vector(quick: bool) -> dict:
+    from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
+
+    sizes = (1, 16, 256, 4096, 65536)
+    sync_max = 256
+    reps = 3 if quick else 7
+    budget = 2e4 if quick else 4e5  # env-steps per timed repetition (at least 5 batched steps)
+    results = {}
+    rows = []
+    for n in sizes:
+        n_steps = max(5, int(budget // n)) if n > 1 else (200 if quick else 3000)
+        cases = {
+            "softpvtol": _vector_timer(
+                gym.make_vec("SoftPVTOL-v0", num_envs=n, vectorization_mode="vector_entry_point"),
+                n, n_steps, 0, False),
+            "cartpole": _vector_timer(CartPoleVectorEnv(num_envs=n), n, n_steps, 1, True),
+        }
+        if n <= sync_max:
+            sync = gym.make_vec("SoftPVTOL-v0", num_envs=n, vectorization_mode="sync")
+            cases["sync"] = _vector_timer(sync, n, max(3, n_steps // (50 if n > 1 else 1)), 2, False)
+        for fn in cases.values():
+            fn()
+        t = interleaved(cases, reps)
+        entry = {k: median(v) for k, v in t.items()}
+        entry["ratio_vs_cartpole"] = ratios(t["softpvtol"], t["cartpole"])
+        if "sync" in t:
+            entry["ratio_vs_sync"] = ratios(t["softpvtol"], t["sync"])
+        results[n] = entry
+        rows.append([n, fmt_rate(entry["softpvtol"]), fmt_rate(entry["cartpole"]), f"{entry['ratio_vs_cartpole']:.2f}x",
+                     fmt_rate(entry["sync"]) if "sync" in entry else "-",
+                     f"{entry['ratio_vs_sync']:.0f}x" if "ratio_vs_sync" in entry else "-"])
+    text = table(["N", "SoftPVTOL vector env", "CartPoleVectorEnv", "ratio", "SoftPVTOL sync (make_vec)",
+                  "ratio vs sync"], rows)
+    r4096 = results[4096]
+    r256 = results[256]
+    checks = [
+        ["N = 4096 throughput", fmt_rate(r4096["softpvtol"]), ">= 3 M/s on 2 cores",
+         verdict(r4096["softpvtol"] >= 3e6)],
+        ["N = 4096 / CartPoleVectorEnv", f"{r4096['ratio_vs_cartpole']:.2f}x", ">= 0.2x",
+         verdict(r4096["ratio_vs_cartpole"] >= 0.2)],
+        ["N = 256 / sync vector env", f"{r256['ratio_vs_sync']:.0f}x", ">= 50x", verdict(r256["ratio_vs_sync"] >= 50)],
+    ]
+    text += "\n\n" + table(["target", "value", "target", "verdict"], checks)
+    return {
+        "title": "2. Vector-env throughput (env-steps/s, random actions, default settings)",
+        "text": text,
+        "by_num_envs": {str(k): v for k, v in results.items()},
+        "targets": {
+            "steps_per_second_4096": {"value": r4096["softpvtol"], "target": ">= 3e6",
+                                      "pass": r4096["softpvtol"] >= 3e6},
+            "ratio_vs_cartpole_4096": {"value": r4096["ratio_vs_cartpole"], "target": ">= 0.2",
+                                       "pass": r4096["ratio_vs_cartpole"] >= 0.2},
+            "ratio_vs_sync_256": {"value": r256["ratio_vs_sync"], "target": ">= 50",
+                                  "pass": r256["ratio_vs_sync"] >= 50},
+        },
+    }
+
+
+# -------------------------------------------------------------------- 3. controller + allocation
+def _calls_timer(fn, n_calls: int):
+    def run() -> float:
+        t0 = time.perf_counter()
+        for _ in range(n_calls):
+            fn()
+        return (time.perf_counter() - t0) / n_calls
+
+    return run
+
+
+def bench_controller(quick: bool) -> dict:
+    from softpvtol_gym import PassivityPolicy, SoftPVTOLVectorEnv
+    from softpvtol_gym.control import PassivityController
+
+    reps = 5 if quick else 11
+    results = {}
+    rows = []
+    for label, n, calls in (("single", 1, 300 if quick else 3000), ("batched", 4096, 3 if quick else 20)):
+        kw = dict(task="hover", tier="nominal")
+        act = SoftPVTOLVectorEnv(num_envs=n, **kw)  # the reference: one step of the default (actuators) env
+        res = SoftPVTOLVectorEnv(num_envs=n, action_mode="residual", **kw)
+        for e in (act, res):
+            e.reset(seed=0)
+        rng = np.random.default_rng(0)
+        # actions near hover in both modes (thrusts at the hover thrust T_max / 3, small corrections), so
+        # that both envs reset about as rarely and the difference of their steps is the controller
+        a_act = (np.array([-1 / 3, -1 / 3, 0.0, 0.0]) + rng.uniform(-0.05, 0.05, (n, 4))).astype(np.float32)
+        a_res = rng.uniform(-0.05, 0.05, (n, 5)).astype(np.float32)
+        obs = res.reset(seed=0)[0]
+        pol = PassivityPolicy.from_env(act)  # actuators: the controller's allocated actuators
+        pol.predict(obs)
+        ctrl = PassivityController.from_loop("exact")  # the residual mode's base controller
+        sim = res.sim
+        args = [x.copy() for x in (sim.qm, sim.qdm, sim.qr, sim.qdr, sim.qddr)]
+        if n == 1:
+            args = [x[0] for x in args]  # single state (5,) arrays
+            obs_p = obs[0]
+        else:
+            obs_p = obs
+        ctrl(*args)
+        if n == 1:  # the single env through gym.make, as item 1
+            single = {m: gym.make("SoftPVTOL-v0", action_mode=m) for m in ("actuators", "residual")}
+            for e in single.values():
+                e.reset(seed=0)
+            # loop variables bound as defaults (ruff B023); the timed calls are unchanged
+            step_act = _calls_timer(lambda s=single, a=a_act: s["actuators"].step(a[0]), calls)
+            step_res = _calls_timer(lambda s=single, a=a_res: s["residual"].step(a[0]), calls)
+        else:
+            step_act = _calls_timer(lambda e=act, a=a_act: e.step(a), calls)
+            step_res = _calls_timer(lambda e=res, a=a_res: e.step(a), calls)
+        cases = {
+            "env step (actuators)": step_act,
+            "env step (residual)": step_res,
+            "PassivityPolicy.predict": _calls_timer(lambda p=pol, o=obs_p: p.predict(o), calls),
+            "PassivityController()": _calls_timer(lambda c=ctrl, a=args: c(*a), calls),
+        }
+        for fn in cases.values():
+            fn()
+        t = interleaved(cases, reps)
+        base = t["env step (actuators)"]
+        extra = [r - a for r, a in zip(t["env step (residual)"], base)]
+        entry = {k: median(v) for k, v in t.items()}
+        entry["residual_extra"] = median(extra)
+        entry["ratio_residual_extra"] = median([e / b for e, b in zip(extra, base)])
+        entry["ratio_policy"] = ratios(t["PassivityPolicy.predict"], base)
+        entry["ratio_controller"] = ratios(t["PassivityController()"], base)
+        results[label] = entry
+        per = n
+        for name, key in (("residual mode: extra cost of its base controller per step", "ratio_residual_extra"),
+                          ("PassivityPolicy.predict", "ratio_policy"),
+                          ("PassivityController call", "ratio_controller")):
+            value = entry["residual_extra"] if key == "ratio_residual_extra" else entry[
+                "PassivityPolicy.predict" if key == "ratio_policy" else "PassivityController()"]
+            rows.append([f"{label} (N = {n})", name, fmt_time(value / per) + (" per env" if n > 1 else ""),
+                         f"{entry[key]:.2f}x", "<= 1.0x", verdict(entry[key] <= 1.0)])
+        rows.append([f"{label} (N = {n})", "one env step (actuators mode), the unit",
+                     fmt_time(entry["env step (actuators)"] / per) + (" per env" if n > 1 else ""), "1.00x", "-", "-"])
+    text = table(["case", "controller + allocation", "time", "ratio to one env step", "target", "verdict"], rows)
+    targets = {}
+    for label, entry in results.items():
+        for key in ("ratio_residual_extra", "ratio_policy", "ratio_controller"):
+            targets[f"{label}_{key}"] = {"value": entry[key], "target": "<= 1.0", "pass": entry[key] <= 1.0}
+    return {"title": "3. Passivity controller + allocation per step vs one env step", "text": text,
+            "results": results, "targets": targets}
