@@ -1,12 +1,12 @@
-"""What a run writes besides results.json: RESULTS.md and the Performance table of docs/performance.md (benchmarks/run.py)."""
+"""What a run writes besides results.json: RESULTS.md and the Performance table of docs/performance.md."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from benchmarks._common import ROOT, table, verdict
 from benchmarks._training import TIME_TO_BEAT_GOAL, TRAIN_TOTAL_GOAL
+from softpvtol_gym.baselines.util.atomic import atomic_write_text
 
 # ------------------------------------------------------------------------------- README table
 README = ROOT / "docs" / "performance.md"  # the page with the generated Performance table

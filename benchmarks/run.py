@@ -24,7 +24,8 @@ not stable. Items:
 RESULTS.md is generated: do not edit it by hand, rerun the command.
 
 This file is the driver; each item lives in a module of this folder: _env_speed.py (1-3), _training.py
-(4, 6), _cold_start.py (5), _common.py (medians, tables, machine facts), _report.py (RESULTS.md, the table of docs/performance.md).
+(4, 6), _cold_start.py (5), _common.py (medians, tables, machine facts), _report.py (RESULTS.md,
+the table of docs/performance.md).
 """
 
 from __future__ import annotations
@@ -44,7 +45,6 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:  # `python benchmarks/run.py`: the item modules are the package benchmarks/
     sys.path.insert(0, str(ROOT))
 
-from softpvtol_gym.baselines.util.atomic import atomic_write_text  # noqa: E402
 from benchmarks._cold_start import bench_cold_start  # noqa: E402
 from benchmarks._common import machine_facts  # noqa: E402
 from benchmarks._env_speed import bench_controller, bench_single, bench_vector  # noqa: E402
@@ -63,6 +63,7 @@ from benchmarks._training import (  # noqa: E402,F401  (time_to_beat: read by te
     bench_time_to_beat,
     time_to_beat,
 )
+from softpvtol_gym.baselines.util.atomic import atomic_write_text  # noqa: E402
 
 ITEMS = ("single", "vector", "controller", "ppo", "cold_start", "time_to_beat")
 BENCHES = {"single": bench_single, "vector": bench_vector, "controller": bench_controller, "ppo": bench_ppo,
