@@ -517,14 +517,14 @@ def test_benchmark_script_runs_end_to_end_quick(tmp_path):
 
 
 def test_readme_performance_table_is_the_generated_one():
-    """README's Performance table = benchmarks/run.py's table from the committed results.json."""
+    """docs/performance.md's table = benchmarks/run.py's table from the committed results.json."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("softpvtol_benchmarks_run", ROOT / "benchmarks" / "run.py")
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     payload = json.loads((ROOT / "benchmarks" / "results.json").read_text())
-    text = (ROOT / "README.md").read_text()
+    text = (ROOT / "docs" / "performance.md").read_text()
     block = text[text.index(bench.README_START) + len(bench.README_START):text.index(bench.README_END)]
     assert block.strip() == bench.readme_table(payload).strip()
     assert not payload["quick"]
