@@ -4,7 +4,7 @@
         --config "default16=n_envs=16;n_steps=256;batch_size=256;n_epochs=10" \
         --config "n256=n_envs=256;n_steps=64;batch_size=4096;n_epochs=5" --out benchmarks/ppo_speed_residual.json
 
-Each configuration is the YAML entry of the mode (``baselines/hyperparams/ppo.yml``) with the given
+Each configuration is the YAML entry of the mode (``softpvtol_gym/baselines/data/hyperparams/ppo.yml``) with the given
 overrides, trained by the same code as ``train.py`` (:func:`softpvtol_gym.baselines.training.loop.train`: the
 native vector env through the SB3 adapter, VecNormalize, ``torch.set_num_threads(1)``, the periodic held-out evaluation
 of 10 episodes every ``--eval-freq`` steps). Per configuration it records
