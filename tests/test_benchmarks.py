@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from softpvtol_gym import PassivityPolicy, SoftPVTOLEnv, SoftPVTOLParams, SoftPVTOLVectorEnv, dynamics, integrators
-from softpvtol_gym import _kernels as MK
+from softpvtol_gym import model as MK
 from softpvtol_gym._parallel import row_ranges
 from softpvtol_gym.control import PassivityController, allocate, passivity_control, storage_function
 from softpvtol_gym.control import _kernels as CK

@@ -6,7 +6,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from .. import _kernels as MK
+from .. import model as MK
 from .._parallel import row_ranges, run_split
 from ..control import _kernels as CK
 from ..control.closed_loop import MAX_HELD_CONTROL_PERIOD, PassivityController

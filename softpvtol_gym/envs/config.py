@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from .. import _kernels as MK
+from .. import model as MK
 from ..control import _kernels as CK
 from ..control.closed_loop import LOOPS
 from ..control.passivity import PassivityGains

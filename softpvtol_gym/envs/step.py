@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .. import _kernels as MK
+from .. import model as MK
 from ..control import _kernels as CK
 from .actions import MODE_ACT, MODE_IDEAL, MODE_RES_ACT
 from .layout import LANES, SC, SI, SK, SL, S
@@ -70,7 +70,7 @@ def _lane5(lanes, row, j):
 
 
 # ---------------------------------------------------------------------------------- diagnostics
-@MK._inline
+@MK.inline
 def _energy_storage(q, qd, qr, qdr, P, Pnom, lam, kg):
     """(total energy of the plant, controller storage w.r.t. the body reference with arm references 0)."""
     energy = MK.kinetic_energy(q, qd, P) + MK.potential_energy(q, P)
@@ -85,9 +85,9 @@ def energy_storage(q, qd, qr, qdr, P, Pnom, lam, kg):
     return _energy_storage(q, qd, qr, qdr, P, Pnom, lam, kg)
 
 
-@MK._inline
+@MK.inline
 def _diag_lane_in(lanes, j):
-    q, qd, _u, _ext, p = MK._lane_load(lanes, j)
+    q, qd, _u, _ext, p = MK.lane_load(lanes, j)
     L = MK.LANES
     qr = (lanes[SL.qr * L + j], lanes[(SL.qr + 1) * L + j], lanes[(SL.qr + 2) * L + j])
     qdr = (lanes[SL.qdr * L + j], lanes[(SL.qdr + 1) * L + j], lanes[(SL.qdr + 2) * L + j])
@@ -331,7 +331,7 @@ def _consistent_energy_lanes(lanes, m):
     model's in the energy row; the storage row is the controller's and stays)."""
     L = MK.LANES
     for j in range(m):
-        q, qd, _u, _ext, p = MK._lane_load(lanes, j)
+        q, qd, _u, _ext, p = MK.lane_load(lanes, j)
         kin, pot = MK.consistent_energies(q, qd, p)
         lanes[SL.energy * L + j] = kin + pot
 
