@@ -10,9 +10,9 @@ import numpy as np
 from numba import njit
 
 from ..params import PARAM_FIELDS
+from ..references import N_REF_PARAMS
 from ..tasks import HOVER_SETPOINT, PAPER_Q0, SAMPLE_CUSTOM, SAMPLE_HOVER, SAMPLE_PAPER, SAMPLE_SETPOINT
 from ._validation import real_array, short_repr
-from .references import N_REF_PARAMS
 from .termination import BOX_X, BOX_Z, GROUND_Z, Q_LIMITS
 
 #: fixed number of uniforms each env draws from its RNG at every reset

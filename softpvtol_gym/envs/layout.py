@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from .. import model as MK
 from .._layout import Layout
-from .references import N_REF_PARAMS
+from ..references import N_REF_PARAMS
 from .reward import REWARD_TERMS
 
 STATE = Layout("env_state", [

@@ -18,11 +18,11 @@ from numba import njit
 
 from .. import model as MK
 from ..control import _kernels as CK
+from ..references import REF_CONSTANT, REF_CUSTOM, reference_row
 from .actions import MODE_ACT, MODE_IDEAL, MODE_RES_ACT
 from .layout import LANES, SC, SI, SK, SL, S
 from .noise import STREAM_WIND, counter_normal
 from .observation import observe_range, wrap
-from .references import REF_CONSTANT, REF_CUSTOM, reference_row
 from .reward import REWARD_TERMS, reward_terms
 from .termination import R_NONE, R_NONFINITE, termination_reason
 
