@@ -5,7 +5,9 @@ with EnvConfig's defaults."""
 import dataclasses
 import inspect
 
-from softpvtol_gym import SoftPVTOLEnv
+import pytest
+
+from softpvtol_gym import SoftPVTOLEnv, SoftPVTOLVectorEnv
 from softpvtol_gym.envs.config import EnvConfig, argument_rows, argument_table_markdown
 
 
@@ -35,11 +37,14 @@ def test_table_has_one_row_per_argument_with_type_default_and_description():
     assert "T_max [N]" in limits and "tau_max [N m]" in limits and "102.9 N" in limits
 
 
-def test_init_signature_lists_every_argument_with_envconfig_defaults():
-    params = inspect.signature(SoftPVTOLEnv.__init__).parameters
-    named = [n for n, p in params.items() if n != "self" and p.kind is not p.VAR_KEYWORD]
+@pytest.mark.parametrize("cls, own", [(SoftPVTOLEnv, []), (SoftPVTOLVectorEnv, ["num_envs"])])
+def test_init_signature_lists_every_argument_with_envconfig_defaults(cls, own):
+    """The single and the vector env: ``render_mode`` and EnvConfig's fields, with its defaults (the vector
+    env also ``num_envs`` and ``autoreset_mode``)."""
+    params = inspect.signature(cls.__init__).parameters
+    named = [n for n, p in params.items() if n not in ("self", "autoreset_mode") and p.kind is not p.VAR_KEYWORD]
     rows = argument_rows()
-    assert named == [r[0] for r in rows]
+    assert named == own + [r[0] for r in rows]
     assert params["render_mode"].default is None
     for f in dataclasses.fields(EnvConfig):
         p = params[f.name]
