@@ -2,7 +2,7 @@
 
 numba's ``cache=True`` checks only the source file of the cached function itself, but our kernels
 inline functions from other modules (the step kernel inlines the model's RK4, the layouts' column
-constants are frozen in): after an edit of ``_kernels.py`` a cached step kernel would silently keep
+constants are frozen in): after an edit of ``model/paper.py`` a cached step kernel would silently keep
 the old physics. So the cache lives in a directory named after a hash of every ``.py`` file of the
 package: any edit starts a fresh cache. The directory is outside the package (a read-only
 site-packages works, nothing is written into the source tree):

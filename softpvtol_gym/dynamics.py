@@ -6,7 +6,7 @@ and angles/curvatures in rad; actuators a = (T_l, T_r, tau_l, tau_r) in (N, N, N
 
 Every function takes ``model``: "paper" (default; the paper's Lagrangian as printed) or "consistent"
 (the same energy terms with the rotor masses on the tips rotated by theta). All of them call the
-compiled kernels in :mod:`softpvtol_gym._kernels`, the only place the physics is written. See
+compiled kernels in :mod:`softpvtol_gym.model`, the only place the physics is written. See
 ``docs/model.md`` for the equations and every difference from the paper.
 """
 
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _kernels as K
+from . import model as K
 from ._batching import broadcast_batch, check_curvature, param_matrix
 from ._parallel import run_rows
 from .params import SoftPVTOLParams

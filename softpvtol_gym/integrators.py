@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from . import _kernels as K
+from . import model as K
 from ._batching import broadcast_batch, check_curvature, param_matrix
 from ._parallel import run_rows
 from .dynamics import input_map_code, model_code, resolve_input_map

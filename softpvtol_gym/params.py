@@ -10,6 +10,24 @@ import numpy as np
 
 #: Order of the fields in :attr:`SoftPVTOLParams.array`, the flat float64 vector the kernels take.
 PARAM_FIELDS: tuple[str, ...] = ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r", "g", "epsilon")
+#: length of :attr:`SoftPVTOLParams.array`
+N_PARAMS = len(PARAM_FIELDS)
+
+# The index of each field in :attr:`SoftPVTOLParams.array`: the kernels index the parameter vector p by
+# these names only (module-level ints, which numba compiles as constants). The left and the right arm's
+# fields are adjacent (left first), so arm i (0 left, 1 right) reads ``p[P_ML + i]`` and ``p[P_LL + i]``.
+P_M = PARAM_FIELDS.index("m")
+P_ML = PARAM_FIELDS.index("m_l")
+P_MR = PARAM_FIELDS.index("m_r")
+P_I = PARAM_FIELDS.index("I")
+P_IL = PARAM_FIELDS.index("I_l")
+P_IR = PARAM_FIELDS.index("I_r")
+P_LL = PARAM_FIELDS.index("l_l")
+P_LR = PARAM_FIELDS.index("l_r")
+P_G = PARAM_FIELDS.index("g")
+P_EPS = PARAM_FIELDS.index("epsilon")
+if not (P_MR == P_ML + 1 and P_IR == P_IL + 1 and P_LR == P_LL + 1):  # pragma: no cover
+    raise RuntimeError("PARAM_FIELDS must keep each arm pair (left, right) adjacent: the kernels index p[P_ML + i]")
 
 _POSITIVE = ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r")
 _NON_NEGATIVE = ("g", "epsilon")

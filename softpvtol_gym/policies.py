@@ -139,8 +139,10 @@ class PassivityPolicy:
 
     Args:
         config: the env's :class:`EnvConfig` (use :meth:`from_env`).
-        loop: PassivityController loop ("exact", "improved", "paper", "ideal"); default from the env's
-            allocation ("exact" -> "exact", "paper" -> "paper", "ideal" -> "ideal").
+        loop: PassivityController loop (:data:`~softpvtol_gym.control.LOOPS`: "bounded", "improved",
+            "exact", "paper", "ideal"); default: the env's ``controller_loop``, or from its allocation
+            ("exact" -> "bounded", "paper" -> "paper", "ideal" -> "ideal"), the loop of the residual
+            mode's base controller.
         gains: :class:`PassivityGains`.
     """
 

@@ -18,12 +18,16 @@ import numpy as np
 import pytest
 
 from softpvtol_gym import PassivityPolicy, SoftPVTOLEnv, SoftPVTOLParams, SoftPVTOLVectorEnv, dynamics, integrators
-from softpvtol_gym import _kernels as MK
+from softpvtol_gym import model as MK
 from softpvtol_gym._parallel import row_ranges
 from softpvtol_gym.control import PassivityController, allocate, passivity_control, storage_function
 from softpvtol_gym.control import _kernels as CK
 from softpvtol_gym.control.closed_loop import LOOPS
-from softpvtol_gym.envs import core
+from softpvtol_gym.envs.config import EnvConfig
+from softpvtol_gym.envs.episodes import N_UNIFORMS, sample_episodes
+from softpvtol_gym.params import PARAM_FIELDS
+from softpvtol_gym.references import N_REF_PARAMS
+from softpvtol_gym.tasks import BUILTIN_TASKS, HOVER_SETPOINT, PAPER_Q0
 
 ROOT = Path(__file__).resolve().parent.parent
 P = SoftPVTOLParams()
@@ -432,7 +436,7 @@ def _numpy_sample_episodes(cfg, u):
     """The episode sampling written with numpy array operations (the pre-compilation version)."""
     n = u.shape[0]
     c = 2.0 * u - 1.0  # in [-1, 1)
-    refp = np.zeros((n, core.N_REF_PARAMS))
+    refp = np.zeros((n, N_REF_PARAMS))
     q0 = np.zeros((n, 5))
     qd0 = np.zeros((n, 5))
     # perturbation used by hover / setpoint / track_random: (c0, c1, 0.3 c2, 0.3 c3, 0.3 c4) and
@@ -441,8 +445,8 @@ def _numpy_sample_episodes(cfg, u):
     dqd = c[:, 5:10] * np.array([0.5, 0.5, 0.2, 0.2, 0.2])
     task = cfg.task
     if task == "hover":
-        refp[:, :3] = core.HOVER_SETPOINT
-        q0[:, :3] = core.HOVER_SETPOINT
+        refp[:, :3] = HOVER_SETPOINT
+        q0[:, :3] = HOVER_SETPOINT
         q0 += dq
         qd0 = dqd
     elif task == "setpoint":
@@ -454,7 +458,7 @@ def _numpy_sample_episodes(cfg, u):
         q0[:, 2:] = dq[:, 2:]
         qd0 = dqd
     elif task == "track_paper":
-        q0[:] = core.PAPER_Q0
+        q0[:] = PAPER_Q0
     else:
         refp[:, 1] = 3.0  # z0
         for axis, amax in ((0, 1.0), (1, 0.5)):
@@ -473,20 +477,20 @@ def _numpy_sample_episodes(cfg, u):
     P = np.repeat(cfg.params.array[None, :], n, axis=0)
     s = cfg.mismatch_scale
     if s > 0:
-        idx = [core.PARAM_FIELDS.index(f) for f in ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r")]
+        idx = [PARAM_FIELDS.index(f) for f in ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r")]
         P[:, idx] *= 1.0 + s * c[:, 31:39]
     key = (u[:, 46] * 2.0**53).astype(np.uint64) ^ ((u[:, 47] * 2.0**53).astype(np.uint64) << np.uint64(11))
     return dict(q0=q0, qd0=qd0, refp=refp, P=np.ascontiguousarray(P), key=key)
 
 
-@pytest.mark.parametrize("task", core.TASKS)
+@pytest.mark.parametrize("task", BUILTIN_TASKS)
 @pytest.mark.parametrize("tier", ["nominal", "mismatch", "hard"])
 def test_compiled_episode_sampling_equals_numpy_version(task, tier):
-    cfg = core.EnvConfig(task=task, tier=tier)
-    u = np.random.default_rng(5).random((200, core.N_UNIFORMS))
+    cfg = EnvConfig(task=task, tier=tier)
+    u = np.random.default_rng(5).random((200, N_UNIFORMS))
     u[:3] = 0.0
     u[3:6] = np.nextafter(1.0, 0.0)
-    ref, fast = _numpy_sample_episodes(cfg, u), core.sample_episodes(cfg, u)
+    ref, fast = _numpy_sample_episodes(cfg, u), sample_episodes(cfg, u)
     assert ref.keys() == fast.keys()
     for k in ref:
         assert ref[k].dtype == fast[k].dtype and ref[k].shape == fast[k].shape

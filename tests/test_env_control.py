@@ -7,8 +7,8 @@ import pytest
 import softpvtol_gym  # noqa: F401
 from softpvtol_gym import PassivityPolicy, SoftPVTOLEnv, SoftPVTOLVectorEnv
 from softpvtol_gym.control import PassivityController, paper_reference
-from softpvtol_gym.envs.core import PAPER_Q0
 from softpvtol_gym.integrators import rk4_step_actuated
+from softpvtol_gym.tasks import PAPER_Q0
 
 # The paper's controller asks for arm torques of up to ~600 N m in transients; with the default
 # tau_max (9.8 N m) it saturates and falls. Its reproduction and error bounds use these limits.

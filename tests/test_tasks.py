@@ -10,7 +10,7 @@ import softpvtol_gym  # noqa: F401
 from softpvtol_gym import PassivityPolicy, SoftPVTOLEnv, SoftPVTOLVectorEnv
 from softpvtol_gym.envs import TierSpec, register_tier
 from softpvtol_gym.envs.tiers import registered_tiers
-from softpvtol_gym.tasks import TASKS, TaskSpec, get_task, register_task, registered_tasks
+from softpvtol_gym.tasks import BUILTIN_TASKS, TaskSpec, get_task, register_task, registered_tasks
 
 
 def circle(t):
@@ -28,8 +28,8 @@ def circle_task():
 
 
 def test_builtin_tasks_are_registered_specs():
-    assert TASKS == ("hover", "setpoint", "track_paper", "track_random")
-    assert set(TASKS) <= set(registered_tasks())
+    assert BUILTIN_TASKS == ("hover", "setpoint", "track_paper", "track_random")
+    assert registered_tasks()[:4] == BUILTIN_TASKS
     spec = get_task("track_paper")
     pos, vel, acc = spec.evaluate(np.array([0.0, 1.0]))
     np.testing.assert_allclose(pos[1], [4 * np.sin(0.5), 3 * np.cos(0.1) + 4, 0], rtol=0, atol=1e-14)
@@ -157,3 +157,53 @@ def test_registered_tier_runs():
         TierSpec("test_bad", ("rain",))
     with pytest.raises(ValueError, match="tier must be one of"):
         SoftPVTOLEnv(tier="no_such_tier")
+
+
+def test_run_time_registrations_are_visible_through_every_lookup():
+    """TASKS/TIERS are live lookups (not import-time snapshots): a task and a tier registered after
+    every module was imported are in registered_tasks()/registered_tiers(), in every TASKS/TIERS
+    attribute, and accepted by the env, the vector env and EnvConfig; a name nobody registered is
+    still refused."""
+    import softpvtol_gym.envs as envs_pkg
+    import softpvtol_gym.envs.tiers as tiers_mod
+    import softpvtol_gym.registry as registry
+    import softpvtol_gym.tasks as tasks_mod
+    from softpvtol_gym.envs import EnvConfig
+
+    before_tasks, before_tiers = tasks_mod.TASKS, tiers_mod.TIERS
+    assert "test_live_task" not in before_tasks and "test_live_tier" not in before_tiers
+    register_task(TaskSpec("test_live_task", circle, episode_seconds=3.0), overwrite=True)
+    register_tier(TierSpec("test_live_tier", ("lag",)), overwrite=True)
+    for names in (registered_tasks(), registry.registered_tasks(), tasks_mod.TASKS, envs_pkg.TASKS):
+        assert "test_live_task" in names and names[:4] == BUILTIN_TASKS
+    for names in (registered_tiers(), registry.registered_tiers(), tiers_mod.TIERS, envs_pkg.TIERS):
+        assert "test_live_tier" in names and names[:len(tiers_mod.BUILTIN_TIERS)] == tiers_mod.BUILTIN_TIERS
+    assert "test_live_task" in registry.TASK_REGISTRY and "test_live_tier" in registry.TIER_REGISTRY
+    assert "TASKS" in dir(tasks_mod) and "TIERS" in dir(envs_pkg)
+    with pytest.raises(AttributeError):
+        tasks_mod.NO_SUCH_NAME  # noqa: B018
+    # the env, the vector env and the config accept them
+    cfg = EnvConfig(task="test_live_task", tier="test_live_tier")
+    assert cfg.max_steps == 300 and cfg.tier_values["actuator_time_constant"] == 0.05
+    env = SoftPVTOLEnv(task="test_live_task", tier="test_live_tier")
+    obs, _ = env.reset(seed=0)
+    assert np.isfinite(obs).all()
+    venv = SoftPVTOLVectorEnv(2, task="test_live_task", tier="test_live_tier")
+    obs, _ = venv.reset(seed=0)
+    assert obs.shape[0] == 2 and np.isfinite(obs).all()
+    venv.close()
+    # the built-ins' snapshot names are unchanged; a name nobody registered is still refused
+    assert before_tasks == tuple(n for n in tasks_mod.TASKS if n != "test_live_task")
+    with pytest.raises(ValueError, match="registered tiers"):
+        EnvConfig(tier="test_never_registered")
+
+
+def test_task_and_tier_registries_share_one_implementation():
+    """One generic Registry class behind both (no second copy of the register/get/list code)."""
+    from softpvtol_gym import registry
+
+    assert type(registry.TASK_REGISTRY) is type(registry.TIER_REGISTRY) is registry.Registry
+    with pytest.raises(TypeError, match="register_tier takes a TierSpec"):
+        register_tier(TaskSpec("test_wrong_kind", circle, 5.0))
+    with pytest.raises(ValueError, match="already registered"):
+        register_tier(TierSpec("nominal"))

@@ -8,8 +8,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .. import _kernels as MK
+from .. import model as MK
 from .._layout import Layout
+from ..params import P_EPS, P_LL, P_LR
 
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 
@@ -26,19 +27,19 @@ CTRL_LANES = 16
 
 
 # ------------------------------------------------------------------------------ exact allocation
-@MK._inline
+@MK.inline
 def _lever_poly(v, h, q, T, length, eps, input_map):
     """(G, dG/dv) of :func:`_lever` given q = atan2(h, v) and T = hypot(h, v): the polynomial part
     (vectorizes over a lane block)."""
     s0 = MK.sinc(q)
     # d sinc / dq = -q A(q); dq/dv = -h / T^2
-    dsinc = -q * MK.horner(MK._A, q * q)
+    dsinc = -q * MK.horner(MK.A_COEFFS, q * q)
     if input_map == MK.INPUT_MAP_PAPER:
         G = length * v * s0
         dG = length * s0 + (length * v * dsinc * (-h / (T * T)) if T > 0.0 else 0.0)
     else:
         G = eps * v + length * T * s0
-        dG = eps + (length * (v * s0 + q * h * MK.horner(MK._A, q * q)) / T if T > 0.0 else length)
+        dG = eps + (length * (v * s0 + q * h * MK.horner(MK.A_COEFFS, q * q)) / T if T > 0.0 else length)
     return G, dG
 
 
@@ -101,11 +102,11 @@ def _bracket_point(x, lo, hi, lo_raw, hi_raw, uz, h, tt, ll, lr, eps, input_map)
     return x, lo, hi, lo_raw, hi_raw
 
 
-@MK._inline
+@MK.inline
 def _exact_setup(t0, t1, t2, theta, p, input_map, w0, w2, use_warm):
     """Start of :func:`allocate_exact`: the body force in body axes, the bracket and the first point.
     Returns ((x, lo, hi, lo_raw, hi_raw), (uz, h, tt, scale, st, ct))."""
-    ll, lr, eps = p[6], p[7], p[9]
+    ll, lr, eps = p[P_LL], p[P_LR], p[P_EPS]
     ct, st = math.cos(theta), math.sin(theta)
     ux = ct * t0 + st * t1
     uz = -st * t0 + ct * t1
@@ -124,7 +125,7 @@ def _exact_setup(t0, t1, t2, theta, p, input_map, w0, w2, use_warm):
     return (x, lo, hi, lo_raw, hi_raw), (uz, h, tt, scale, st, ct)
 
 
-@MK._inline
+@MK.inline
 def _exact_newton(x, lo, hi, lo_raw, hi_raw, Gl, dGl, Gr, dGr, uz, h, tt, scale, p, input_map):
     """One safeguarded Newton iteration of :func:`allocate_exact` from the levers at x.
     Returns (status, x, lo, hi, lo_raw, hi_raw); status 0: go on from the new x, 1: converged at x
@@ -141,13 +142,14 @@ def _exact_newton(x, lo, hi, lo_raw, hi_raw, Gl, dGl, Gr, dGr, uz, h, tt, scale,
     dF = -dGr - dGl
     # a Newton step, or (dF >= 0: no usable step) NaN, which lies inside no bracket: bisection
     xn = x - F / dF if dF < 0.0 else math.nan
-    xn, lo, hi, lo_raw, hi_raw = _bracket_point(xn, lo, hi, lo_raw, hi_raw, uz, h, tt, p[6], p[7], p[9], input_map)
+    xn, lo, hi, lo_raw, hi_raw = _bracket_point(xn, lo, hi, lo_raw, hi_raw, uz, h, tt, p[P_LL], p[P_LR], p[P_EPS],
+                                                input_map)
     if abs(xn - x) <= 1e-16 * (1.0 + abs(x)):
         return 2, xn, lo, hi, lo_raw, hi_raw
     return 0, xn, lo, hi, lo_raw, hi_raw
 
 
-@MK._inline
+@MK.inline
 def _exact_result(x, evaluated, ql, Tl, qr, Tr, uz, h, st, ct, t0, t1, t2, p, input_map, qmax, it):
     """End of :func:`allocate_exact` at the solution x (the split v_l = x): curvatures, thrusts, the
     curvature clip and the residual. (ql, Tl, qr, Tr): those of the levers at x if ``evaluated``."""
@@ -190,7 +192,7 @@ def allocate_exact(t0, t1, t2, theta, p, input_map, w0, w2, use_warm, qmax):
     :func:`allocate_exact_lanes` runs the same steps (``_exact_setup``, ``_lever``, ``_exact_newton``,
     ``_exact_result``) for a block of problems at once.
     """
-    ll, lr, eps = p[6], p[7], p[9]
+    ll, lr, eps = p[P_LL], p[P_LR], p[P_EPS]
     (x, lo, hi, lo_raw, hi_raw), (uz, h, tt, scale, st, ct) = _exact_setup(t0, t1, t2, theta, p, input_map, w0,
                                                                            w2, use_warm)
     ql = qr = Tl = Tr = 0.0
@@ -229,7 +231,7 @@ def allocate_exact_lanes(m, X, r_tau, r_theta, r_warm, r_active, r_out, r_info, 
     polynomials of all lanes run as one SIMD loop.
     """
     L = CTRL_LANES
-    ll, lr, eps = p[6], p[7], p[9]
+    ll, lr, eps = p[P_LL], p[P_LR], p[P_EPS]
     tau0, tau1, tau2, th_, act_ = r_tau * L, (r_tau + 1) * L, (r_tau + 2) * L, r_theta * L, r_active * L
     x_, lo_, hi_, lor_, hir_, uz_, h_, tt_ = AW_X * L, AW_LO * L, AW_HI * L, AW_LO_RAW * L, AW_HI_RAW * L, AW_UZ * L, \
         AW_H * L, AW_TT * L
@@ -319,7 +321,7 @@ def allocate_paper(t0, t1, t2, theta, p, w2, w3, use_warm):
     fixed point in (q_l^d, q_r^d) solved by Newton from the paper's initial guess (20, 10, 0.4, -0.2)
     or from the warm start (w2, w3) = (q_l^d, q_r^d). Returns ((T_l, T_r, q_l^d, q_r^d), (residual,
     iterations, feasible)), residual = max |f(x)| of the paper's own eq. (solve_num)."""
-    ll, lr = p[6], p[7]
+    ll, lr = p[P_LL], p[P_LR]
     ct, st = math.cos(theta), math.sin(theta)
     ux = ct * t0 + st * t1
     uz = -st * t0 + ct * t1

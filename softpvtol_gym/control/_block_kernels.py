@@ -9,7 +9,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .. import _kernels as MK
+from .. import model as MK
 from .._layout import Layout
 from ._allocation_kernels import ALLOC_PAPER, CTRL_LANES, N_AW, N_INFO, allocate_exact_lanes, allocate_paper
 from ._passivity_kernels import model_entries, passivity_rows
@@ -64,7 +64,7 @@ def _arm_derivatives(h0, h1, h2, h3, dt, vmax, amax):
 
 
 
-@MK._inline
+@MK.inline
 def lane_index(row, lane):
     """Index of (row, lane) in a flat lane block."""
     return row * CTRL_LANES + lane
@@ -92,51 +92,51 @@ def controller_work():
     return np.zeros(CB_LEN * CTRL_LANES), np.zeros(N_AW * CTRL_LANES)
 
 
-@MK._inline
+@MK.inline
 def lane3(B, c, j):
     """Rows c .. c + 2 of lane j as a tuple (lane4 ... lane8 likewise)."""
     return B[lane_index(c, j)], B[lane_index(c + 1, j)], B[lane_index(c + 2, j)]
 
 
-@MK._inline
+@MK.inline
 def lane4(B, c, j):
     return lane3(B, c, j) + (B[lane_index(c + 3, j)],)
 
 
-@MK._inline
+@MK.inline
 def lane5(B, c, j):
     return lane4(B, c, j) + (B[lane_index(c + 4, j)],)
 
 
-@MK._inline
+@MK.inline
 def lane6(B, c, j):
     return lane3(B, c, j) + lane3(B, c + 3, j)
 
 
-@MK._inline
+@MK.inline
 def lane8(B, c, j):
     return lane4(B, c, j) + lane4(B, c + 4, j)
 
 
-@MK._inline
+@MK.inline
 def put_lane3(B, c, j, t):
     """Rows c .. c + 2 of lane j from a tuple (put_lane4, put_lane5 likewise)."""
     B[lane_index(c, j)], B[lane_index(c + 1, j)], B[lane_index(c + 2, j)] = t[0], t[1], t[2]
 
 
-@MK._inline
+@MK.inline
 def put_lane4(B, c, j, t):
     put_lane3(B, c, j, t)
     B[lane_index(c + 3, j)] = t[3]
 
 
-@MK._inline
+@MK.inline
 def put_lane5(B, c, j, t):
     put_lane4(B, c, j, t)
     B[lane_index(c + 4, j)] = t[4]
 
 
-@MK._inline
+@MK.inline
 def put_lane_inputs(B, j, q, qd, qr, qdr, qddr, res, S, n):
     """Inputs of lane j (5-tuples) and its memory S[n] into the block."""
     put_lane5(B, CB_Q, j, q)
@@ -151,7 +151,7 @@ def put_lane_inputs(B, j, q, qd, qr, qdr, qddr, res, S, n):
     put_lane4(B, CB_ST + 9, j, (S[n, 9], S[n, 10], S[n, 11], S[n, 12]))
 
 
-@MK._inline
+@MK.inline
 def put_lane_memory(B, j, S_new, n):
     """The memory of lane j after the step into S_new[n]."""
     S_new[n, 0], S_new[n, 1], S_new[n, 2], S_new[n, 3], S_new[n, 4] = lane5(B, CB_STN, j)
@@ -159,7 +159,7 @@ def put_lane_memory(B, j, S_new, n):
     S_new[n, 9], S_new[n, 10], S_new[n, 11], S_new[n, 12] = lane4(B, CB_STN + 9, j)
 
 
-@MK._inline
+@MK.inline
 def _lane_inputs(B, j):
     """(D, C, g entries, q, qdot, body reference rows (3 each of qr, qdr, qddr), arm references with
     their derivatives (6), residual) of lane j. (Helpers that take the block array stay branch-free:
@@ -169,7 +169,7 @@ def _lane_inputs(B, j):
     return ents, lane5(B, CB_Q, j), lane5(B, CB_QD, j), body_ref, lane6(B, CB_REF, j), lane5(B, CB_RES, j)
 
 
-@MK._inline
+@MK.inline
 def _lane_tau(ents, q, qd, br, refs, res, lam, kg, has_res):
     """tau of the passivity law (plus the residual) for the inputs of :func:`_lane_inputs`."""
     arm_l, arm_r, vl, vr, al, ar = refs
@@ -333,7 +333,7 @@ def config_tuples(cc):
     return cfg, p, lam, kg
 
 
-@MK._inline
+@MK.inline
 def row5(A, n, c):
     """(A[n, c], ..., A[n, c + 4])."""
     return (A[n, c], A[n, c + 1], A[n, c + 2], A[n, c + 3], A[n, c + 4])

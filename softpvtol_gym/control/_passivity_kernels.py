@@ -8,12 +8,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .. import _kernels as MK
+from .. import model as MK
 
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 
 
-@MK._inline
+@MK.inline
 def model_entries(q, qd, p):
     """The nonzero entries of D(q), C(q, qdot), g(q) (model kernels: mass_entries, coriolis_entries,
     gravity_entries)."""
@@ -22,7 +22,7 @@ def model_entries(q, qd, p):
             MK.gravity_entries_basis(bl, br, p))
 
 
-@MK._inline
+@MK.inline
 def _row(acc, d0, d1, d2, d3, d4, c0, c1, c2, c3, c4, a, v):
     """acc + sum_j (D_ij a_j + C_ij v_j), term by term in j order (the dense loop's rounding; zero
     entries are multiplied, so inf/NaN propagate as in the dense product)."""
@@ -34,7 +34,7 @@ def _row(acc, d0, d1, d2, d3, d4, c0, c1, c2, c3, c4, a, v):
     return acc
 
 
-@MK._inline
+@MK.inline
 def passivity_rows(ents, q, qd, qr, qdr, qddr, lam, kg):
     """tau = D(q) a + C(q, qd) v + g(q) - K r as a 5-tuple, D, C, g given by their entries
     (:func:`model_entries`); v = qdot_ref - Lambda q~, a = qddot_ref - Lambda (qdot - qdot_ref)."""
@@ -61,7 +61,7 @@ def passivity_into(q, qd, qr, qdr, qddr, p, lam, kg, out):
     out[0], out[1], out[2], out[3], out[4] = t
 
 
-@MK._inline
+@MK.inline
 def storage(q, qd, qr, qdr, p, lam, kg):
     """V = 1/2 r^T D r + q~^T Lambda K q~ (paper eq. (lyap)), r = q~dot + Lambda q~; arrays or tuples,
     no allocation. D enters through its nonzero entries (MK.mass_entries)."""

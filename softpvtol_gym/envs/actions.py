@@ -1,6 +1,6 @@
 """Action modes, declared once: each names its kernel branch and its action dimension.
 
-The kernel branches (``MODE_*``) live in :func:`softpvtol_gym.envs.step._command`; a new mode is one
+The kernel branches (``MODE_*``) live in :func:`softpvtol_gym.envs.command.command`; a new mode is one
 :class:`ActionModeSpec` here plus its branch there.
 """
 

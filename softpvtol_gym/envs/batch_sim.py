@@ -6,7 +6,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from .. import _kernels as MK
+from .. import model as MK
 from .._parallel import row_ranges, run_split
 from ..control import _kernels as CK
 from ..control.closed_loop import MAX_HELD_CONTROL_PERIOD, PassivityController
@@ -15,10 +15,10 @@ from .config import EnvConfig
 from .episodes import apply_options, sample_episodes
 from .layout import CONST, ISTATE, STATE, S
 from .observation import OBS_DIM
+from .reset import reset_rows
 from .step import (
     STEP_BAD_ACTION,
     STEP_OK,
-    reset_rows,
     serial_step_kernel,
     step_check_actions,
     step_controller_rows,

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from .. import _kernels as MK
+from .. import model as MK
 from ..control import _kernels as CK
 from ..control.closed_loop import LOOPS
 from ..control.passivity import PassivityGains
@@ -31,24 +31,90 @@ RESIDUAL_SPACES = ("virtual", "actuators")
 RENDER_MODES = (None, "rgb_array", "human")
 
 
+def _argument(default, type_: str, description: str, *, factory=None, default_text: str | None = None):
+    """A field of :class:`EnvConfig` with its documentation (``metadata``: type, description, default text):
+    the one source of the env's Arguments table (:func:`argument_table_markdown`)."""
+    if default_text is None:
+        default_text = f'"{default}"' if isinstance(default, str) else repr(default)
+    meta = {"type": type_, "description": description, "default": default_text}
+    if factory is not None:
+        return dataclasses.field(default_factory=factory, metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
 @dataclasses.dataclass(frozen=True)
 class EnvConfig:
-    """Validated configuration (see :class:`~softpvtol_gym.envs.soft_pvtol.SoftPVTOLEnv` for every argument)."""
+    """Validated configuration: the arguments of :class:`~softpvtol_gym.envs.soft_pvtol.SoftPVTOLEnv` and
+    :class:`~softpvtol_gym.envs.vector.SoftPVTOLVectorEnv` (their table: :func:`argument_table_markdown`)."""
 
-    action_mode: str = "actuators"
-    task: str = "hover"
-    tier: str = "nominal"
-    params: SoftPVTOLParams | None = dataclasses.field(default_factory=SoftPVTOLParams)
-    input_map: str = "paper"
-    allocation: str | None = None
-    residual_space: str = "virtual"
-    frame_skip: int = 1
-    max_episode_seconds: float | None = None
-    tier_options: dict | None = None
-    residual_scale: float = 0.2
-    actuator_limits: tuple | None = None
-    controller_loop: str | None = None
-    model: str | None = None
+    action_mode: str = _argument(
+        "actuators", "str",
+        '"actuators" | "virtual" | "residual": what the action commands (see Action Space).')
+    task: str = _argument(
+        "hover", "str",
+        'a registered task: "hover" | "setpoint" | "track_paper" | "track_random" built in, or one registered '
+        "with `softpvtol_gym.tasks.register_task` (a `TaskSpec`); sets the reference, the starting state and "
+        "the episode length.")
+    tier: str = _argument(
+        "nominal", "str",
+        'a registered robustness tier (`softpvtol_gym.envs.register_tier`); built in: "nominal" (no disturbance) '
+        '| "mismatch" (plant m, m_l, m_r, I, I_l, I_r, l_l, l_r each x U(0.8, 1.2) per episode; the controllers '
+        'keep the nominal params) | "wind" (Ornstein-Uhlenbeck force on x and z, std 3 N, correlation time 1 s) '
+        '| "noisy" (Gaussian measurement noise, std (0.02 m, 0.02 m, 0.01 rad, 0.02 rad, 0.02 rad) on q and '
+        '(0.05 m/s, 0.05 m/s, 0.02 rad/s, 0.05 rad/s, 0.05 rad/s) on qdot, and a 0.05 s first-order lag of the '
+        'applied command) | "hard" (mismatch, wind and noisy together) | "model_gap" (the plant is the '
+        "consistent model; the controllers keep the paper's).")
+    params: SoftPVTOLParams | None = _argument(
+        None, "SoftPVTOLParams | None",
+        "the nominal physical parameters (SI units): the plant's in the nominal tier and the model of the "
+        "controllers; None: the paper's values, `SoftPVTOLParams()`.", factory=SoftPVTOLParams, default_text="None")
+    input_map: str = _argument(
+        "paper", "str",
+        '"paper" | "exact": the input map tau = B(q) a of the paper\'s model (as printed, or the virtual work '
+        "of the thrusts at the tips): the plant's under `model=\"paper\"` and the one the controllers assume.")
+    allocation: str | None = _argument(
+        None, "str | None",
+        'virtual and residual modes: how body forces become thrusts, "exact" | "paper" | "ideal" (tau applied '
+        'directly, virtual mode only, no saturation); None: "exact", or the `controller_loop`\'s.')
+    residual_space: str = _argument(
+        "virtual", "str",
+        'residual mode: "virtual" (the correction is added to the base controller\'s tau, 5 entries) | '
+        '"actuators" (added to its actuators, 4 entries).')
+    frame_skip: int = _argument(
+        1, "int",
+        "RK4 steps of 0.01 s per env step, >= 1 (the control period is 0.01 s x frame_skip; the analytic "
+        "controllers need <= 0.012 s).")
+    max_episode_seconds: float | None = _argument(
+        None, "float | None",
+        "episode length [s] (truncation), at least one control step; None: the task's (hover, setpoint 10 s, "
+        "track_paper 40 s, track_random 20 s).")
+    tier_options: dict | None = _argument(
+        None, "dict | None",
+        "overrides of the tier's numbers: `mismatch_scale` (in [0, 1), default 0.2), `wind_std` [N] (3), "
+        "`wind_correlation_time` [s] (1), `obs_noise_scale` (x the noise stds, 1), `actuator_time_constant` "
+        "[s] (0.05); an option given by hand switches its effect on.")
+    residual_scale: float = _argument(
+        0.2, "float",
+        "residual mode: the correction at action +/-1 as a fraction of the virtual scales (or of "
+        "(T_max/2, T_max/2, tau_max, tau_max) with `residual_space=\"actuators\"`), > 0.")
+    actuator_limits: tuple | None = _argument(
+        None, "tuple | None",
+        "(T_max [N], tau_max [N m]), two numbers > 0: each rotor's thrust range [0, T_max] and each arm's "
+        "torque range [-tau_max, tau_max], which scale the actions and saturate the applied commands; None: "
+        "3 x the hover thrust per rotor and 4 x the larger arm gravity load g m_i l_i / 2 of `params` "
+        "(102.9 N, 9.8 N m with the defaults).")
+    controller_loop: str | None = _argument(
+        None, "str | None",
+        "residual mode's base controller and `PassivityPolicy`'s default: a loop of "
+        '`softpvtol_gym.control.LOOPS` ("paper" | "exact" | "improved" | "bounded" | "ideal"); None: '
+        'from the allocation, "bounded" for "exact" (the default), "paper" for "paper", "ideal" for "ideal". '
+        "A loop whose allocation differs from a given `allocation` is refused.")
+    model: str | None = _argument(
+        None, "str | None",
+        '"paper" | "consistent": the plant\'s Lagrangian (docs/model.md): the paper\'s (rotor masses at tips '
+        "that do not rotate with theta) or the consistent one (tips rotated by theta, virtual-work input map); "
+        'None: "consistent" in a tier with the consistent plant ("model_gap"), else "paper". The controllers '
+        "use the paper's model in every case.")
 
     def __post_init__(self) -> None:
         if self.actuator_limits is not None:
@@ -261,3 +327,32 @@ class EnvConfig:
         K[SK.ref] = self.task_spec.compiled_reference
         K[SK.action_dim] = self.action_dim
         return K
+
+
+# ------------------------------------------------------------------------------ documentation
+#: the env's own argument (the rest are :class:`EnvConfig`'s fields): (name, type, default, description)
+RENDER_MODE_ARGUMENT = ("render_mode", "str | None", "None",
+                        'None | "rgb_array" | "human": `render()` returns an RGB array (H, W, 3), or draws in a '
+                        'window (the vector env: None | "rgb_array", its first sub-env).')
+
+
+def argument_rows() -> list[tuple[str, str, str, str]]:
+    """(argument, type, default, description) of every env argument: ``render_mode``, then the fields of
+    :class:`EnvConfig` in their order (the documentation is the fields' ``metadata``)."""
+    rows = [RENDER_MODE_ARGUMENT]
+    for f in dataclasses.fields(EnvConfig):
+        rows.append((f.name, f.metadata["type"], f.metadata["default"], f.metadata["description"]))
+    return rows
+
+
+def argument_table_markdown() -> str:
+    """The env's Arguments table in Markdown (columns: argument, type, default, description), generated
+    from :class:`EnvConfig`'s field metadata: the table of the env docstring and of docs/env.md."""
+
+    def cell(text: str) -> str:
+        return text.replace("|", "\\|")
+
+    lines = ["| argument | type | default | description |", "|---|---|---|---|"]
+    for name, type_, default, description in argument_rows():
+        lines.append(f"| `{name}` | `{cell(type_)}` | `{cell(default)}` | {cell(description)} |")
+    return "\n".join(lines)

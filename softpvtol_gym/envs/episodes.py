@@ -9,25 +9,33 @@ import math
 import numpy as np
 from numba import njit
 
+from .._layout import Layout
 from ..params import PARAM_FIELDS
+from ..references import N_REF_PARAMS, RP, RP_Z0
 from ..tasks import HOVER_SETPOINT, PAPER_Q0, SAMPLE_CUSTOM, SAMPLE_HOVER, SAMPLE_PAPER, SAMPLE_SETPOINT
 from ._validation import real_array, short_repr
-from .references import N_REF_PARAMS
 from .termination import BOX_X, BOX_Z, GROUND_Z, Q_LIMITS
 
-#: fixed number of uniforms each env draws from its RNG at every reset
-N_UNIFORMS = 48
-#: uniforms of the initial-state perturbation (u[:, :10]; a custom task's initial_state gets them)
-N_STATE_UNIFORMS = 10
+#: the plant parameters the mismatch tiers scale (their columns in the parameter vector)
 _MISMATCH_COLUMNS = tuple(PARAM_FIELDS.index(f) for f in ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r"))
+_N_MISMATCH = len(_MISMATCH_COLUMNS)
+#: the uniforms each env draws from its RNG at every reset (a fixed number, whatever the task): the
+#: initial-state perturbation (a registered task's ``initial_state`` gets them), the setpoint task's
+#: set-point, track_random's sinusoids (x, then z), the plant mismatch (one per scaled parameter), spare
+#: columns (drawn, unused) and the episode's noise key
+UNIFORMS = Layout("reset_uniforms", [("state", 10), ("setpoint", 3), ("sinusoids", 18), ("mismatch", _N_MISMATCH),
+                                      ("spare", 7), ("key", 2)])
+U = UNIFORMS.at
+N_UNIFORMS = UNIFORMS.size
+N_STATE_UNIFORMS = UNIFORMS.widths["state"]
 
 
 def sample_episodes(cfg, u: np.ndarray) -> dict[str, np.ndarray]:
     """Initial state q0, qd0 (N, 5), reference parameters refp (N, 21), plant parameters P (N, 10)
     and noise keys (N,) of len(u) new episodes, from uniforms u (N, N_UNIFORMS) in [0, 1).
 
-    Layout of u: 0-9 initial state, 10-12 setpoint, 13-30 track_random reference, 31-38 plant
-    mismatch, 46-47 noise key. With c = 2 u - 1 in [-1, 1): the hover perturbation is
+    Columns of u: :data:`UNIFORMS` (0-9 initial state, 10-12 setpoint, 13-30 track_random reference,
+    31-38 plant mismatch, 46-47 noise key). With c = 2 u - 1 in [-1, 1): the hover perturbation is
     dq = (c0, c1, 0.3 c2, 0.3 c3, 0.3 c4), dqd = (0.5 c5, 0.5 c6, 0.2 c7, 0.2 c8, 0.2 c9); hover starts
     at the setpoint + dq, setpoint at x = 3 c0, z = 2 + 2 c1 (setpoint x = 3 c10, z = 2 + 2 c11,
     theta = 0.3 c12), track_paper at the paper's q0 at rest, track_random at its reference + dq/2 (the
@@ -75,10 +83,11 @@ def _sample_rows(u, sampler, params, scale, refp, q0, qd0, P, key):
     q0, qd0 get the halved perturbation, registered tasks the whole one; the caller adds the reference)."""
     two_pi = 2.0 * math.pi
     for i in range(u.shape[0]):
-        c0, c1, c2, c3, c4 = (2.0 * u[i, 0] - 1.0, 2.0 * u[i, 1] - 1.0, 2.0 * u[i, 2] - 1.0, 2.0 * u[i, 3] - 1.0,
-                              2.0 * u[i, 4] - 1.0)
-        c5, c6, c7, c8, c9 = (2.0 * u[i, 5] - 1.0, 2.0 * u[i, 6] - 1.0, 2.0 * u[i, 7] - 1.0, 2.0 * u[i, 8] - 1.0,
-                              2.0 * u[i, 9] - 1.0)
+        s = U.state
+        c0, c1, c2, c3, c4 = (2.0 * u[i, s] - 1.0, 2.0 * u[i, s + 1] - 1.0, 2.0 * u[i, s + 2] - 1.0,
+                              2.0 * u[i, s + 3] - 1.0, 2.0 * u[i, s + 4] - 1.0)
+        c5, c6, c7, c8, c9 = (2.0 * u[i, s + 5] - 1.0, 2.0 * u[i, s + 6] - 1.0, 2.0 * u[i, s + 7] - 1.0,
+                              2.0 * u[i, s + 8] - 1.0, 2.0 * u[i, s + 9] - 1.0)
         dq = (c0 * 1.0, c1 * 1.0, c2 * 0.3, c3 * 0.3, c4 * 0.3)
         dqd = (c5 * 0.5, c6 * 0.5, c7 * 0.2, c8 * 0.2, c9 * 0.2)
         for k in range(N_REF_PARAMS):
@@ -88,12 +97,12 @@ def _sample_rows(u, sampler, params, scale, refp, q0, qd0, P, key):
             qd0[i, k] = dqd[k]
         if sampler == SAMPLE_HOVER:
             for k in range(3):
-                refp[i, k] = HOVER_SETPOINT[k]
+                refp[i, RP.setpoint + k] = HOVER_SETPOINT[k]
                 q0[i, k] = HOVER_SETPOINT[k] + dq[k]
         elif sampler == SAMPLE_SETPOINT:
-            refp[i, 0] = 3.0 * (2.0 * u[i, 10] - 1.0)
-            refp[i, 1] = 2.0 + 2.0 * (2.0 * u[i, 11] - 1.0)
-            refp[i, 2] = 0.3 * (2.0 * u[i, 12] - 1.0)
+            refp[i, RP.setpoint] = 3.0 * (2.0 * u[i, U.setpoint] - 1.0)
+            refp[i, RP.setpoint + 1] = 2.0 + 2.0 * (2.0 * u[i, U.setpoint + 1] - 1.0)
+            refp[i, RP.setpoint + 2] = 0.3 * (2.0 * u[i, U.setpoint + 2] - 1.0)
             q0[i, 0] = 3.0 * c0
             q0[i, 1] = 2.0 + 2.0 * c1
         elif sampler == SAMPLE_PAPER:
@@ -101,11 +110,11 @@ def _sample_rows(u, sampler, params, scale, refp, q0, qd0, P, key):
                 q0[i, k] = PAPER_Q0[k]
                 qd0[i, k] = 0.0
         elif sampler != SAMPLE_CUSTOM:  # track_random
-            refp[i, 1] = 3.0  # z0
-            for axis in range(2):
+            refp[i, RP_Z0] = 3.0
+            for axis in range(2):  # x, then z: (a1, a2, a3, w1, w2, w3, phi1, phi2, phi3)
                 amax = 1.0 if axis == 0 else 0.5
-                b = 3 + 9 * axis
-                o = 13 + 9 * axis
+                b = RP.x_sinusoids if axis == 0 else RP.z_sinusoids
+                o = U.sinusoids + 9 * axis
                 for k in range(3):
                     refp[i, b + k] = amax * u[i, o + k]
                     refp[i, b + 3 + k] = 0.2 + 0.6 * u[i, o + 3 + k]
@@ -116,10 +125,10 @@ def _sample_rows(u, sampler, params, scale, refp, q0, qd0, P, key):
         for k in range(params.shape[0]):
             P[i, k] = params[k]
         if scale > 0:
-            for k in range(8):
+            for k in range(_N_MISMATCH):
                 col = _MISMATCH_COLUMNS[k]
-                P[i, col] = P[i, col] * (1.0 + scale * (2.0 * u[i, 31 + k] - 1.0))
-        key[i] = np.uint64(u[i, 46] * 2.0**53) ^ (np.uint64(u[i, 47] * 2.0**53) << np.uint64(11))
+                P[i, col] = P[i, col] * (1.0 + scale * (2.0 * u[i, U.mismatch + k] - 1.0))
+        key[i] = np.uint64(u[i, U.key] * 2.0**53) ^ (np.uint64(u[i, U.key + 1] * 2.0**53) << np.uint64(11))
 
 
 #: the keys of ``reset(options=...)``
@@ -184,7 +193,7 @@ def apply_options(cfg, ep: dict, options: dict) -> dict:
     """reset(options=...) (checked by :func:`check_reset_options`) written into the episodes ``ep``."""
     for k, v in check_reset_options(cfg, options).items():
         if k == "setpoint":
-            ep["refp"][:, :3] = v
+            ep["refp"][:, RP.setpoint:RP.setpoint + 3] = v
         else:
             ep["q0" if k == "q0" else "qd0"][:] = v
     return ep

@@ -10,9 +10,9 @@ would cost two atomic reference-count updates per view, which dominated the step
 
 from __future__ import annotations
 
-from .. import _kernels as MK
+from .. import model as MK
 from .._layout import Layout
-from .references import N_REF_PARAMS
+from ..references import N_REF_PARAMS
 from .reward import REWARD_TERMS
 
 STATE = Layout("env_state", [

@@ -7,7 +7,8 @@ from collections import deque
 
 import numpy as np
 
-from .. import _kernels as MK
+from .. import model as MK
+from ..params import P_EPS, P_LL, P_LR
 from .config import EnvConfig
 from .termination import GROUND_Z
 
@@ -86,9 +87,9 @@ class Renderer:
         pg.draw.line(surf, (220, 40, 40), (rx, rz - 9), (rx, rz + 9), 1)
         if ok:
             ct, st = math.cos(th), math.sin(th)
-            eps = float(p[9])
+            eps = float(p[P_EPS])
             tips = []
-            for side, qa, length in ((-1.0, ql, float(p[6])), (1.0, qr, float(p[7]))):
+            for side, qa, length in ((-1.0, ql, float(p[P_LL])), (1.0, qr, float(p[P_LR]))):
                 pts = []
                 for s in np.linspace(0.0, 1.0, _ARC_POINTS):
                     bx, bz = MK.arm_offset(s * qa, s * length, eps, side)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from .. import _kernels as MK
+from .. import model as MK
 
 REWARD_TERMS = ("alive", "position", "attitude", "velocity", "effort", "curvature", "crash")
 W_POS, POS_SCALE = 0.5, 2.0  # -0.5 min(|e_xz| / 2 m, 1)
@@ -16,7 +16,7 @@ W_CURV = 0.2  # -0.2 clip((max|q_arm| - pi/2) / (pi/2), 0, 1)^2
 CRASH_PENALTY = 10.0
 
 
-@MK._inline
+@MK.inline
 def reward_terms(e_pos, e_theta, e_vel, effort, max_curvature, crashed):
     """The terms of :data:`REWARD_TERMS` from |position error| [m], wrapped attitude error [rad],
     |velocity error|, effort mean(a_n^2), max(|q_l|, |q_r|) and the termination flag."""

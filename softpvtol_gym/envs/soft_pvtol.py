@@ -33,31 +33,35 @@ class SoftPVTOLEnv(gym.Env):
     q = (x, z, theta, q_l, q_r): body position [m], pitch [rad], arm curvatures (bending angles)
     [rad]. Physics: the package's compiled Euler-Lagrange model, integrated with classical RK4 at the
     paper's 0.01 s step; one env step = ``frame_skip`` (default 1) RK4 steps with the actuators held
-    (zero-order hold: B(q) re-evaluated at every RK4 stage; the wind force held too). The control period is therefore 0.01 s: the arm loop of the passivity
-    controller is only stable with zero-order hold at dt <= ~0.01 s.
+    (zero-order hold: B(q) re-evaluated at every RK4 stage; the wind force held too), so the control
+    period is 0.01 s x ``frame_skip``; the arm loop of the passivity controller is stable under the
+    zero-order hold only up to 0.012 s (:data:`softpvtol_gym.control.MAX_HELD_CONTROL_PERIOD`).
+    The model and the controller are those of the Soft-PVTOL paper (docs/model.md, docs/control.md).
 
     ## Action Space
 
-    ``Box(-1, 1, float32)``; the meaning depends on ``action_mode``:
+    ``Box(-1, 1, (dim,), float32)``; the meaning depends on ``action_mode``:
 
     | mode | dim | entries | physical value |
     |---|---|---|---|
-    | ``"actuators"`` (default) | 4 | T_l, T_r, tau_l, tau_r | T = T_max (u + 1) / 2 in [0, T_max]; tau_arm = tau_max u |
-    | ``"virtual"`` | 5 | tau_x, tau_z, tau_theta, tau_ql, tau_qr | tau = offset + scale * u, offset = (0, M g, 0, 0, 0), scale = (2 M g, 2 M g, 20 N m, tau_max, tau_max) |
+    | ``"actuators"`` (default) | 4 | T_l, T_r [N], tau_l, tau_r [N m] | T = T_max (u + 1) / 2 in [0, T_max]; tau_arm = tau_max u |
+    | ``"virtual"`` | 5 | tau_x, tau_z [N], tau_theta, tau_ql, tau_qr [N m] | tau = offset + scale * u, offset = (0, M g, 0, 0, 0), scale = (2 M g, 2 M g, 20 N m, tau_max, tau_max) |
     | ``"residual"`` | 5 (or 4) | correction to the passivity controller | ``residual_scale`` (0.2) x the virtual scales added to its tau (or, ``residual_space="actuators"``, 0.2 x (T_max/2, T_max/2, tau_max, tau_max) added to its actuators) |
 
-    T_max = 3 x the hover thrust per rotor (102.9 N with the default params), tau_max = 4 x the arm
-    gravity load g m_i l_i / 2 (9.8 N m), M g = total weight (68.6 N). In ``"virtual"`` mode the body
-    rows of tau go through the control allocation (``allocation``: "exact" default, or "paper") to
-    thrusts; the arm rows are the generalized arm forces (with ``input_map="exact"`` the thrusts' own
-    work on the curvatures is compensated); thrusts are saturated to [0, T_max] and arm torques to
-    ±tau_max (``info["thrust_saturated"]``, ``info["arm_torque_saturated"]``). ``allocation="ideal"``
-    applies tau directly as the generalized force (the paper's idealised loop, no saturation). In
-    ``"residual"`` mode the base controller is :class:`~softpvtol_gym.control.PassivityController`
-    with the nominal ``params`` ("exact" loop — exact allocation, no arm feedforward — for allocation "exact", "paper" loop for "paper"),
-    fed with the measured state; action 0 reproduces it exactly. Finite out-of-range actions are
-    clipped (``info["action_clipped"]``); NaN/inf, wrong shapes and values that are not real numbers
-    (str, bool, complex, None) raise ValueError (nothing is cast).
+    T_max [N] and tau_max [N m] are ``actuator_limits``: by default 3 x the hover thrust per rotor
+    (102.9 N with the default params) and 4 x the arm gravity load g m_i l_i / 2 (9.8 N m); M g = total
+    weight (68.6 N). In ``"virtual"`` mode the body rows of tau go through the control allocation
+    (``allocation``: "exact" default, or "paper") to thrusts; the arm rows are the generalized arm
+    forces (with ``input_map="exact"`` the thrusts' own work on the curvatures is compensated); thrusts
+    are saturated to [0, T_max] and arm torques to ±tau_max (``info["thrust_saturated"]``,
+    ``info["arm_torque_saturated"]``). ``allocation="ideal"`` applies tau directly as the generalized
+    force (the paper's idealised loop, no saturation). In ``"residual"`` mode the base controller is
+    :class:`~softpvtol_gym.control.PassivityController` with the nominal ``params`` and the loop
+    ``controller_loop``: by default "bounded" (exact allocation, arm references fed forward with bounded
+    rates, desired curvatures within 0.6 rad) for allocation "exact", "paper" for "paper"; it is fed the
+    measured state, and action 0 reproduces it exactly. Finite out-of-range actions are clipped
+    (``info["action_clipped"]``); NaN/inf, wrong shapes and values that are not real numbers (str, bool,
+    complex, None) raise ValueError (nothing is cast).
 
     ## Observation Space
 
@@ -126,38 +130,30 @@ class SoftPVTOLEnv(gym.Env):
 
     ## Arguments
 
-    * ``action_mode``: "actuators" | "virtual" | "residual".
-    * ``task``: "hover" | "setpoint" | "track_paper" | "track_random", or a task registered with
-      :func:`softpvtol_gym.tasks.register_task` (a :class:`~softpvtol_gym.tasks.TaskSpec`).
-    * ``tier``: a registered tier (:func:`softpvtol_gym.envs.register_tier`); built in: "nominal" | "mismatch" (plant m, m_l, m_r, I, I_l, I_r, l_l, l_r each x U(0.8, 1.2)
-      per episode; controller and policy keep the nominal params) | "wind" (Ornstein-Uhlenbeck force
-      on x and z, std 3 N, correlation time 1 s) | "noisy" (Gaussian measurement noise of std
-      (0.02 m, 0.02 m, 0.01 rad, 0.02 rad, 0.02 rad) on q and (0.05, 0.05, 0.02, 0.05, 0.05) on qdot,
-      plus a first-order lag of time constant 0.05 s on the applied command) | "hard" (all) |
-      "model_gap" (the plant is the consistent model, ``model="consistent"``; the residual mode's base
-      controller, the virtual mode's allocation and :class:`~softpvtol_gym.PassivityPolicy` keep the
-      paper's model: a model-gap scenario, no disturbance otherwise).
-    * ``tier_options``: dict overriding ``mismatch_scale``, ``wind_std`` [N],
-      ``wind_correlation_time`` [s], ``obs_noise_scale`` (x the stds above), ``actuator_time_constant``
-      [s]; a value given by hand switches its effect on.
-    * ``params``: :class:`SoftPVTOLParams`, the nominal model (plant in the nominal tier, controller).
-    * ``model``: None (default) | "paper" | "consistent": the plant's Lagrangian
-      (:mod:`softpvtol_gym.dynamics`, docs/model.md). "paper": the paper's model as printed (rotor
-      masses at tips that do not rotate with theta); "consistent": the same energy terms with the tips
-      rotated by theta, actuated through its own input map (virtual work of the thrusts at the rotated
-      tips, "exact"). None: "consistent" in a tier with the consistent plant ("model_gap"), else
-      "paper" (``model="paper"`` with such a tier raises ValueError). The controllers (residual base
-      controller, virtual allocation, PassivityPolicy) use the paper's model in every case.
-    * ``input_map``: "paper" | "exact": the input map of the paper's model, the plant's under
-      ``model="paper"`` and the one the controllers assume. ``allocation``: "exact" (default) |
-      "paper" | "ideal" (virtual mode only). ``residual_space``: "virtual" | "actuators".
-      ``residual_scale``: 0.2.
-    * ``controller_loop``: the analytic loop (:data:`softpvtol_gym.control.LOOPS`) of the residual
-      mode's base controller and the default of :class:`~softpvtol_gym.PassivityPolicy`; default
-      from the allocation: "bounded" (exact allocation), "paper", "ideal". A loop whose allocation
-      differs from a given ``allocation`` is refused.
-    * ``frame_skip``: RK4 steps of 0.01 s per env step (default 1). ``max_episode_seconds``: override.
-    * ``render_mode``: None | "rgb_array" | "human".
+    ``SoftPVTOLEnv(render_mode=None, *, action_mode="actuators", task="hover", ...)``, or
+    ``gym.make("SoftPVTOL-v0", **arguments)``; :class:`SoftPVTOLVectorEnv` takes the same arguments
+    (plus ``num_envs`` and ``autoreset_mode``). Generated from :class:`~softpvtol_gym.envs.config.EnvConfig`
+    by :func:`~softpvtol_gym.envs.config.argument_table_markdown` (a test keeps them equal):
+
+    | argument | type | default | description |
+    |---|---|---|---|
+    | `render_mode` | `str \| None` | `None` | None \| "rgb_array" \| "human": `render()` returns an RGB array (H, W, 3), or draws in a window (the vector env: None \| "rgb_array", its first sub-env). |
+    | `action_mode` | `str` | `"actuators"` | "actuators" \| "virtual" \| "residual": what the action commands (see Action Space). |
+    | `task` | `str` | `"hover"` | a registered task: "hover" \| "setpoint" \| "track_paper" \| "track_random" built in, or one registered with `softpvtol_gym.tasks.register_task` (a `TaskSpec`); sets the reference, the starting state and the episode length. |
+    | `tier` | `str` | `"nominal"` | a registered robustness tier (`softpvtol_gym.envs.register_tier`); built in: "nominal" (no disturbance) \| "mismatch" (plant m, m_l, m_r, I, I_l, I_r, l_l, l_r each x U(0.8, 1.2) per episode; the controllers keep the nominal params) \| "wind" (Ornstein-Uhlenbeck force on x and z, std 3 N, correlation time 1 s) \| "noisy" (Gaussian measurement noise, std (0.02 m, 0.02 m, 0.01 rad, 0.02 rad, 0.02 rad) on q and (0.05 m/s, 0.05 m/s, 0.02 rad/s, 0.05 rad/s, 0.05 rad/s) on qdot, and a 0.05 s first-order lag of the applied command) \| "hard" (mismatch, wind and noisy together) \| "model_gap" (the plant is the consistent model; the controllers keep the paper's). |
+    | `params` | `SoftPVTOLParams \| None` | `None` | the nominal physical parameters (SI units): the plant's in the nominal tier and the model of the controllers; None: the paper's values, `SoftPVTOLParams()`. |
+    | `input_map` | `str` | `"paper"` | "paper" \| "exact": the input map tau = B(q) a of the paper's model (as printed, or the virtual work of the thrusts at the tips): the plant's under `model="paper"` and the one the controllers assume. |
+    | `allocation` | `str \| None` | `None` | virtual and residual modes: how body forces become thrusts, "exact" \| "paper" \| "ideal" (tau applied directly, virtual mode only, no saturation); None: "exact", or the `controller_loop`'s. |
+    | `residual_space` | `str` | `"virtual"` | residual mode: "virtual" (the correction is added to the base controller's tau, 5 entries) \| "actuators" (added to its actuators, 4 entries). |
+    | `frame_skip` | `int` | `1` | RK4 steps of 0.01 s per env step, >= 1 (the control period is 0.01 s x frame_skip; the analytic controllers need <= 0.012 s). |
+    | `max_episode_seconds` | `float \| None` | `None` | episode length [s] (truncation), at least one control step; None: the task's (hover, setpoint 10 s, track_paper 40 s, track_random 20 s). |
+    | `tier_options` | `dict \| None` | `None` | overrides of the tier's numbers: `mismatch_scale` (in [0, 1), default 0.2), `wind_std` [N] (3), `wind_correlation_time` [s] (1), `obs_noise_scale` (x the noise stds, 1), `actuator_time_constant` [s] (0.05); an option given by hand switches its effect on. |
+    | `residual_scale` | `float` | `0.2` | residual mode: the correction at action +/-1 as a fraction of the virtual scales (or of (T_max/2, T_max/2, tau_max, tau_max) with `residual_space="actuators"`), > 0. |
+    | `actuator_limits` | `tuple \| None` | `None` | (T_max [N], tau_max [N m]), two numbers > 0: each rotor's thrust range [0, T_max] and each arm's torque range [-tau_max, tau_max], which scale the actions and saturate the applied commands; None: 3 x the hover thrust per rotor and 4 x the larger arm gravity load g m_i l_i / 2 of `params` (102.9 N, 9.8 N m with the defaults). |
+    | `controller_loop` | `str \| None` | `None` | residual mode's base controller and `PassivityPolicy`'s default: a loop of `softpvtol_gym.control.LOOPS` ("paper" \| "exact" \| "improved" \| "bounded" \| "ideal"); None: from the allocation, "bounded" for "exact" (the default), "paper" for "paper", "ideal" for "ideal". A loop whose allocation differs from a given `allocation` is refused. |
+    | `model` | `str \| None` | `None` | "paper" \| "consistent": the plant's Lagrangian (docs/model.md): the paper's (rotor masses at tips that do not rotate with theta) or the consistent one (tips rotated by theta, virtual-work input map); None: "consistent" in a tier with the consistent plant ("model_gap"), else "paper". The controllers use the paper's model in every case. |
+
+    An unknown argument is a TypeError naming the valid ones.
 
     All randomness comes from ``self.np_random`` (one block of uniforms per reset; per-step noise
     from a counter-based generator keyed per episode), so trajectories are reproducible from the
@@ -165,37 +161,67 @@ class SoftPVTOLEnv(gym.Env):
 
     ## Version History
 
-    * v0: initial version. Fixed before any release (2026-11-23): with ``residual_space="virtual"``
-      the residual was added to the controller's tau *and* its first four entries to the actuators;
-      it is now applied once, through tau, as documented.
-    * v0, physics fix (2026-12-01, a behaviour change; committed figures regenerated): the zero-order
-      hold holds the *actuators* (T_l, T_r, tau_l, tau_r) over the control step, so the generalized
-      force B(q) a is re-evaluated at every RK4 stage (it was B(q_k) a held as a generalized force,
-      an error of up to 1.4e-3 relative per 0.01 s step). ``allocation="ideal"`` holds tau itself.
+    Version policy: the id's version is the env's behaviour. After a release, any change of what a
+    given id, arguments and seed produce (dynamics, observation, reward, termination, starting states,
+    defaults) bumps the id (``SoftPVTOL-v0`` -> ``SoftPVTOL-v1``) and is listed here; additions that
+    leave every existing configuration bit-identical (a new argument with an unchanged default, a new
+    task or tier) keep it. ``SoftPVTOL-v0`` has not been released yet, so the behaviour changes made
+    during its development kept v0; they are listed below (CHANGELOG.md has the details).
+
+    * v0, residual fix (2026-11-23, behaviour change): with ``residual_space="virtual"`` the residual was
+      added to the controller's tau *and* its first four entries to the actuators; it is now applied
+      once, through tau, as documented.
+    * v0, physics fix (issue 12, 2026-12-01, behaviour change; committed figures regenerated): the
+      zero-order hold holds the *actuators* (T_l, T_r, tau_l, tau_r) over the control step, so the
+      generalized force B(q) a is re-evaluated at every RK4 stage (it was B(q_k) a held as a generalized
+      force, an error of up to 1.4e-3 relative per 0.01 s step). ``allocation="ideal"`` holds tau itself.
       The built-in references are evaluated in compiled code (same formulas; last-bit differences).
       Tasks come from a registry (:mod:`softpvtol_gym.tasks`): ``task=`` takes any registered name.
-    * v0, input checks (issue 13): ``step()`` before ``reset()`` raises gymnasium's ``ResetNeeded``
-      (as under ``gym.make``) also for the class used directly; stepping after ``terminated`` or
-      ``truncated`` warns once per episode (as CartPole) and stays allowed; str/bool/complex actions,
-      reset states q0 outside the position limits, ``tier_options["mismatch_scale"] >= 1`` and
-      ``max_episode_seconds`` below one control step are refused; numpy integer seeds are accepted.
+    * v0, input checks (issue 13, behaviour change for bad input only): ``step()`` before ``reset()``
+      raises gymnasium's ``ResetNeeded`` (as under ``gym.make``) also for the class used directly;
+      stepping after ``terminated`` or ``truncated`` warns once per episode (as CartPole) and stays
+      allowed; str/bool/complex actions, reset states q0 outside the position limits,
+      ``tier_options["mismatch_scale"] >= 1`` and ``max_episode_seconds`` below one control step are
+      refused; numpy integer seeds are accepted.
     * v0, consistent model (issue 14, an addition: the default is unchanged, bit for bit): the ``model``
       argument (None default: "paper" unless the tier says otherwise; "consistent": the rotor masses at
-      the tips rotated by theta) and the
-      "model_gap" tier (consistent plant, controllers on the paper's model). Under the consistent plant
-      ``info["total_energy"]`` is that model's energy.
-    * v0, analytic control (issue 14, 2026-12-01; a behaviour change of the residual mode, committed
+      the tips rotated by theta) and the "model_gap" tier (consistent plant, controllers on the paper's
+      model). Under the consistent plant ``info["total_energy"]`` is that model's energy.
+    * v0, analytic control (issue 14, 2026-12-01, behaviour change of the residual mode; committed
       figures regenerated): the base controller solves the algebraic loop to 1e-10 rad every step (it
-      used the previous step's arm references), the paper allocation uses the quadrant-correct
-      atan2, and the default base loop is "bounded" (was "exact"); ``controller_loop=`` selects it.
+      used the previous step's arm references), the paper allocation uses the quadrant-correct atan2,
+      and the default base loop is "bounded" (was "exact"); ``controller_loop=`` selects it.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 100}  # per instance: 1 / control period
 
-    def __init__(self, render_mode: str | None = None, **config) -> None:
-        # the arguments of EnvConfig (see Arguments above), validated there: one signature for the
-        # single and the vector env
-        self.config = EnvConfig.from_kwargs(**config)
+    def __init__(
+        self,
+        render_mode: str | None = None,
+        *,
+        action_mode: str = "actuators",
+        task: str = "hover",
+        tier: str = "nominal",
+        params: SoftPVTOLParams | None = None,
+        input_map: str = "paper",
+        allocation: str | None = None,
+        residual_space: str = "virtual",
+        frame_skip: int = 1,
+        max_episode_seconds: float | None = None,
+        tier_options: dict | None = None,
+        residual_scale: float = 0.2,
+        actuator_limits: tuple | None = None,
+        controller_loop: str | None = None,
+        model: str | None = None,
+        **unknown,
+    ) -> None:
+        """The arguments are :class:`EnvConfig`'s fields (see Arguments), validated there; ``unknown``
+        only collects misspelled names, refused with a TypeError that lists the valid ones."""
+        self.config = EnvConfig.from_kwargs(
+            action_mode=action_mode, task=task, tier=tier, params=params, input_map=input_map,
+            allocation=allocation, residual_space=residual_space, frame_skip=frame_skip,
+            max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
+            actuator_limits=actuator_limits, controller_loop=controller_loop, model=model, **unknown)
         choice("render_mode", render_mode, RENDER_MODES)
         self.render_mode = render_mode
         self.observation_space, self.action_space = make_spaces(self.config)

@@ -7,6 +7,10 @@ controller is the controller block driver of :mod:`softpvtol_gym.control._kernel
 measured state. Entry points: :func:`serial_step_kernel` (one call, small batches) and, for large batches
 split over threads by BatchSim, :func:`step_check_actions`, :func:`step_controller_rows` and
 :func:`step_physics_rows`. An error code changes nothing.
+
+Its parts, by job: the command (:mod:`.command`: actions checked, clipped and scaled, allocation), the
+diagnostics (:mod:`.diagnostics`: energy and storage), the episode starts (:mod:`.reset`), and row and
+lane access to the packed state (:mod:`.rows`); observation, reward and termination have their modules.
 """
 
 from __future__ import annotations
@@ -16,14 +20,17 @@ import math
 import numpy as np
 from numba import njit
 
-from .. import _kernels as MK
+from .. import model as MK
 from ..control import _kernels as CK
-from .actions import MODE_ACT, MODE_IDEAL, MODE_RES_ACT
+from ..references import REF_CONSTANT, REF_CUSTOM, reference_row
+from .actions import MODE_IDEAL, MODE_RES_ACT
+from .command import check_actions, clip_actions, command
+from .diagnostics import consistent_energy_lanes, diag_lanes, diag_lanes_partial
 from .layout import LANES, SC, SI, SK, SL, S
 from .noise import STREAM_WIND, counter_normal
 from .observation import observe_range, wrap
-from .references import REF_CONSTANT, REF_CUSTOM, reference_row
 from .reward import REWARD_TERMS, reward_terms
+from .rows import lane5, lane_put, nominal_params, row5, row10, vec5
 from .termination import R_NONE, R_NONFINITE, termination_reason
 
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
@@ -32,87 +39,6 @@ _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 LANE_BLOCK = LANES.size * MK.LANES
 #: step kernel return codes
 STEP_OK, STEP_BAD_ACTION = 0, 1
-
-
-@_jit
-def _row5(A, n, c):
-    return (A[n, c], A[n, c + 1], A[n, c + 2], A[n, c + 3], A[n, c + 4])
-
-
-@_jit
-def _row10(A, n, c):
-    return _row5(A, n, c) + _row5(A, n, c + 5)
-
-
-@_jit
-def _vec5(v, c):
-    return (v[c], v[c + 1], v[c + 2], v[c + 3], v[c + 4])
-
-
-@_jit
-def _nominal_params(consts):
-    return _vec5(consts, SC.p_nominal) + _vec5(consts, SC.p_nominal + 5)
-
-
-# ---------------------------------------------------------------------------------- lane blocks
-@_jit
-def _lane_put(lanes, row, j, v):
-    """Rows row .. row + len(v) - 1 of lane j from the tuple v."""
-    for i in range(len(v)):
-        lanes[(row + i) * MK.LANES + j] = v[i]
-
-
-@_jit
-def _lane5(lanes, row, j):
-    L = MK.LANES
-    o = row * L + j
-    return (lanes[o], lanes[o + L], lanes[o + 2 * L], lanes[o + 3 * L], lanes[o + 4 * L])
-
-
-# ---------------------------------------------------------------------------------- diagnostics
-@MK._inline
-def _energy_storage(q, qd, qr, qdr, P, Pnom, lam, kg):
-    """(total energy of the plant, controller storage w.r.t. the body reference with arm references 0)."""
-    energy = MK.kinetic_energy(q, qd, P) + MK.potential_energy(q, P)
-    storage = CK.storage(q, qd, (qr[0], qr[1], qr[2], 0.0, 0.0), (qdr[0], qdr[1], qdr[2], 0.0, 0.0), Pnom, lam, kg)
-    return energy, storage
-
-
-@_jit
-def energy_storage(q, qd, qr, qdr, P, Pnom, lam, kg):
-    """:func:`_energy_storage` as a compiled call (the non-inlined copy, shared by partial lane blocks
-    and resets: inlining costs compile time)."""
-    return _energy_storage(q, qd, qr, qdr, P, Pnom, lam, kg)
-
-
-@MK._inline
-def _diag_lane_in(lanes, j):
-    q, qd, _u, _ext, p = MK._lane_load(lanes, j)
-    L = MK.LANES
-    qr = (lanes[SL.qr * L + j], lanes[(SL.qr + 1) * L + j], lanes[(SL.qr + 2) * L + j])
-    qdr = (lanes[SL.qdr * L + j], lanes[(SL.qdr + 1) * L + j], lanes[(SL.qdr + 2) * L + j])
-    return q, qd, qr, qdr, p
-
-
-@_jit
-def _diag_lanes(lanes, m, pnom, lam, kg):
-    """Energy and storage of the first m lanes (SIMD for full blocks)."""
-    L = MK.LANES
-    if m == L:
-        for j in range(L):
-            q, qd, qr, qdr, p = _diag_lane_in(lanes, j)
-            lanes[SL.energy * L + j], lanes[SL.storage * L + j] = _energy_storage(q, qd, qr, qdr, p, pnom, lam, kg)
-    else:
-        _diag_lanes_partial(lanes, m, pnom, lam, kg)
-
-
-@_jit
-def _diag_lanes_partial(lanes, m, pnom, lam, kg):
-    """The lane-by-lane path of :func:`_diag_lanes` (any m <= LANES)."""
-    L = MK.LANES
-    for j in range(m):
-        q, qd, qr, qdr, p = _diag_lane_in(lanes, j)
-        lanes[SL.energy * L + j], lanes[SL.storage * L + j] = energy_storage(q, qd, qr, qdr, p, pnom, lam, kg)
 
 
 # ------------------------------------------------------------------------------------ reference
@@ -124,59 +50,6 @@ def _put_reference(state, n, code, t):
         state[n, S.qr + i] = pos[i]
         state[n, S.qdr + i] = vel[i]
         state[n, S.qddr + i] = acc[i]
-
-
-# -------------------------------------------------------------------------------------- command
-@_jit
-def _virtual_allocation(state, n, consts, alloc, imap, cmd):
-    """Virtual mode: thrusts from the body rows of tau (cmd[5:10]) by the allocation, arm rows as
-    generalized forces; the command into cmd[0:4], diagnostics into state. Returns the thrust flag."""
-    pnom = _nominal_params(consts)
-    thrust_sat = 0.0
-    if alloc == CK.ALLOC_PAPER:
-        out, info = CK.allocate_paper(cmd[5], cmd[6], cmd[7], state[n, S.q + 2], pnom, 0.0, 0.0, False)
-    else:
-        out, info = CK.allocate_exact(cmd[5], cmd[6], cmd[7], state[n, S.q + 2], pnom, imap, 0.0, 0.0, False, math.pi)
-    Tl, Tr = out[0], out[1]
-    if not (math.isfinite(Tl) and math.isfinite(Tr)):
-        Tl, Tr = 0.0, 0.0
-        thrust_sat = 1.0
-    cmd[0], cmd[1] = Tl, Tr
-    state[n, S.allocation_residual] = info[CK.INFO_RESIDUAL] if math.isfinite(info[CK.INFO_RESIDUAL]) else 1.0e300
-    state[n, S.arm_reference] = out[2]
-    state[n, S.arm_reference + 1] = out[3]
-    cmd[2], cmd[3] = cmd[8], cmd[9]
-    if imap == MK.INPUT_MAP_EXACT:  # the arm rows get the requested generalized force
-        gf = MK.generalized_forces(_row5(state, n, S.q), (Tl, Tr, 0.0, 0.0), pnom, imap)
-        cmd[2] -= gf[3]
-        cmd[3] -= gf[4]
-    return thrust_sat
-
-
-@_jit
-def _command(state, n, consts, mode, alloc, imap, ctl, cmd):
-    """The command of env n before saturation into cmd[0:5] (actuators (4), or tau (5) in ideal mode);
-    returns the thrust-saturation flag of the allocation. One branch per action mode (``MODE_*``)."""
-    for i in range(5):
-        cmd[i] = 0.0
-    tmax, taumax = consts[SC.thrust_max], consts[SC.arm_torque_max]
-    if mode == MODE_ACT:
-        cmd[0] = tmax * 0.5 * (state[n, S.u] + 1.0)
-        cmd[1] = tmax * 0.5 * (state[n, S.u + 1] + 1.0)
-        cmd[2] = taumax * state[n, S.u + 2]
-        cmd[3] = taumax * state[n, S.u + 3]
-        return 0.0
-    if mode == MODE_RES_ACT:
-        for i in range(4):
-            cmd[i] = ctl[n, CK.OUT_ACT + i] + consts[SC.residual_actuator_scale + i] * state[n, S.u + i]
-        return 0.0
-    for i in range(5):
-        cmd[5 + i] = consts[SC.virtual_offset + i] + consts[SC.virtual_scale + i] * state[n, S.u + i]
-    if mode == MODE_IDEAL:
-        for i in range(5):
-            cmd[i] = cmd[5 + i]
-        return 0.0
-    return _virtual_allocation(state, n, consts, alloc, imap, cmd)
 
 
 @_jit
@@ -201,7 +74,7 @@ def _begin_range(lo, hi, state, istate, consts, codes, ctl, lanes, cmd):
         state[n, S.allocation_residual] = 0.0
         state[n, S.arm_reference] = 0.0
         state[n, S.arm_reference + 1] = 0.0
-        thrust_sat = _command(state, n, consts, mode, alloc, imap, ctl, cmd)
+        thrust_sat = command(state, n, consts, mode, alloc, imap, ctl, cmd)
         torque_sat = 0.0
         if mode != MODE_IDEAL:
             for i in range(2):
@@ -239,12 +112,12 @@ def _begin_range(lo, hi, state, istate, consts, codes, ctl, lanes, cmd):
             state[n, S.arm_reference] = ctl[n, CK.OUT_ARM]
             state[n, S.arm_reference + 1] = ctl[n, CK.OUT_ARM + 1]
         j = n - lo
-        _lane_put(lanes, SL.q, j, _row5(state, n, S.q))
-        _lane_put(lanes, SL.qd, j, _row5(state, n, S.qd))
+        lane_put(lanes, SL.q, j, row5(state, n, S.q))
+        lane_put(lanes, SL.qd, j, row5(state, n, S.qd))
         # the held command: actuators (cmd[4] = 0), or tau in ideal mode
-        _lane_put(lanes, SL.u, j, (cmd[0], cmd[1], cmd[2], cmd[3], cmd[4]))
-        _lane_put(lanes, SL.ext, j, (state[n, S.wind], state[n, S.wind + 1]))  # (0 unless the wind is on)
-        _lane_put(lanes, SL.p, j, _row10(state, n, S.P))
+        lane_put(lanes, SL.u, j, (cmd[0], cmd[1], cmd[2], cmd[3], cmd[4]))
+        lane_put(lanes, SL.ext, j, (state[n, S.wind], state[n, S.wind + 1]))  # (0 unless the wind is on)
+        lane_put(lanes, SL.p, j, row10(state, n, S.P))
 
 
 @_jit
@@ -260,8 +133,8 @@ def _end_range(lo, hi, state, keys, istate, consts, lanes):
             wa, wb = consts[SC.wind_a], consts[SC.wind_b]
             state[n, S.wind] = wa * state[n, S.wind] + wb * counter_normal(keys[n], counter, STREAM_WIND)
             state[n, S.wind + 1] = wa * state[n, S.wind + 1] + wb * counter_normal(keys[n], counter, STREAM_WIND + 1)
-        q = _lane5(lanes, SL.q, j)
-        qd = _lane5(lanes, SL.qd, j)
+        q = lane5(lanes, SL.q, j)
+        qd = lane5(lanes, SL.qd, j)
         finite = True
         for i in range(5):
             if not (math.isfinite(q[i]) and math.isfinite(qd[i])):
@@ -273,10 +146,10 @@ def _end_range(lo, hi, state, keys, istate, consts, lanes):
             istate[n, SI.reason] = termination_reason(q, qd)
         else:  # keep the last finite state: observation and info stay finite
             istate[n, SI.reason] = R_NONFINITE
-            _lane_put(lanes, SL.q, j, _row5(state, n, S.q))
-            _lane_put(lanes, SL.qd, j, _row5(state, n, S.qd))
-        _lane_put(lanes, SL.qr, j, (state[n, S.qr], state[n, S.qr + 1], state[n, S.qr + 2]))
-        _lane_put(lanes, SL.qdr, j, (state[n, S.qdr], state[n, S.qdr + 1], state[n, S.qdr + 2]))
+            lane_put(lanes, SL.q, j, row5(state, n, S.q))
+            lane_put(lanes, SL.qd, j, row5(state, n, S.qd))
+        lane_put(lanes, SL.qr, j, (state[n, S.qr], state[n, S.qr + 1], state[n, S.qr + 2]))
+        lane_put(lanes, SL.qdr, j, (state[n, S.qdr], state[n, S.qdr + 1], state[n, S.qdr + 2]))
 
 
 @_jit
@@ -325,16 +198,6 @@ def _consistent_physics(lanes, m, consts, codes):
         MK.rk4_lanes_consistent(lanes, consts[SC.dt_physics], m, held)
 
 
-@_jit
-def _consistent_energy_lanes(lanes, m):
-    """The plant's total energy of the first m lanes under the consistent model (replaces the paper
-    model's in the energy row; the storage row is the controller's and stays)."""
-    L = MK.LANES
-    for j in range(m):
-        q, qd, _u, _ext, p = MK._lane_load(lanes, j)
-        kin, pot = MK.consistent_energies(q, qd, p)
-        lanes[SL.energy * L + j] = kin + pot
-
 
 @_jit
 def _step_block(n0, m, state, obs, keys, istate, consts, codes, ctl, lanes, cmd):
@@ -349,9 +212,9 @@ def _step_block(n0, m, state, obs, keys, istate, consts, codes, ctl, lanes, cmd)
         for _ in range(int(consts[SC.frame_skip])):  # the command and the wind held over frame_skip RK4 steps
             MK.rk4_lanes(lanes, consts[SC.dt_physics], m, held)
     _end_range(n0, hi, state, keys, istate, consts, lanes)
-    _diag_lanes(lanes, m, _nominal_params(consts), _vec5(consts, SC.lam), _vec5(consts, SC.kg))
+    diag_lanes(lanes, m, nominal_params(consts), vec5(consts, SC.lam), vec5(consts, SC.kg))
     if consts[SC.consistent_plant] > 0.0:
-        _consistent_energy_lanes(lanes, m)
+        consistent_energy_lanes(lanes, m)
     observe_range(n0, hi, state, keys, istate, consts, obs)
     _reward_range(n0, hi, state, istate, consts, codes, lanes)
 
@@ -369,84 +232,11 @@ def _step_block_partial(n0, m, state, obs, keys, istate, consts, codes, ctl, lan
         for _ in range(int(consts[SC.frame_skip])):
             MK.rk4_lanes_partial(lanes, consts[SC.dt_physics], m, held)
     _end_range(n0, hi, state, keys, istate, consts, lanes)
-    _diag_lanes_partial(lanes, m, _nominal_params(consts), _vec5(consts, SC.lam), _vec5(consts, SC.kg))
+    diag_lanes_partial(lanes, m, nominal_params(consts), vec5(consts, SC.lam), vec5(consts, SC.kg))
     if consts[SC.consistent_plant] > 0.0:
-        _consistent_energy_lanes(lanes, m)
+        consistent_energy_lanes(lanes, m)
     observe_range(n0, hi, state, keys, istate, consts, obs)
     _reward_range(n0, hi, state, istate, consts, codes, lanes)
-
-
-# ---------------------------------------------------------------------------------------- reset
-@njit(cache=True, nogil=True)
-def reset_rows(state, obs, keys, istate, consts, rows, q0, qd0, P, new_keys, refp, ref):
-    """Start new episodes in the given rows (initial state, plant params, noise keys, reference
-    parameters and the reference at t = 0 as (N, 9), row j of the inputs for rows[j]): clear the
-    episode state, draw the initial wind, compute the observation, measured state and diagnostics."""
-    std = consts[SC.wind_std]
-    for j in range(rows.shape[0]):
-        n = rows[j]
-        for i in range(S.P):  # every float column up to the plant parameters: cleared
-            state[n, i] = 0.0
-        for i in range(5):
-            state[n, S.q + i] = q0[j, i]
-            state[n, S.qd + i] = qd0[j, i]
-            state[n, S.applied + i] = math.nan
-        for i in range(3):
-            state[n, S.qr + i] = ref[j, i]
-            state[n, S.qdr + i] = ref[j, 3 + i]
-            state[n, S.qddr + i] = ref[j, 6 + i]
-        for i in range(refp.shape[1]):
-            state[n, S.refp + i] = refp[j, i]
-        for i in range(10):
-            state[n, S.P + i] = P[j, i]
-        state[n, S.t] = 0.0
-        keys[n] = new_keys[j]
-        istate[n, SI.counter] = 0
-        istate[n, SI.steps] = 0
-        istate[n, SI.lag_init] = 1
-        istate[n, SI.clipped] = 0
-        istate[n, SI.reason] = R_NONE
-        if std > 0:  # initial wind: a stationary OU sample from the counter noise at counter 0
-            state[n, S.wind] = std * counter_normal(keys[n], 0, STREAM_WIND)
-            state[n, S.wind + 1] = std * counter_normal(keys[n], 0, STREAM_WIND + 1)
-        observe_range(n, n + 1, state, keys, istate, consts, obs)
-        state[n, S.total_energy], state[n, S.storage_function] = energy_storage(
-            _row5(state, n, S.q), _row5(state, n, S.qd), (state[n, S.qr], state[n, S.qr + 1], state[n, S.qr + 2]),
-            (state[n, S.qdr], state[n, S.qdr + 1], state[n, S.qdr + 2]), _row10(state, n, S.P), _nominal_params(consts),
-            _vec5(consts, SC.lam), _vec5(consts, SC.kg))
-        if consts[SC.consistent_plant] > 0.0:
-            kin, pot = MK.consistent_energies(_row5(state, n, S.q), _row5(state, n, S.qd), _row10(state, n, S.P))
-            state[n, S.total_energy] = kin + pot
-        state[n, S.curvature_violation] = max(abs(state[n, S.q + 3]) - math.pi, abs(state[n, S.q + 4]) - math.pi, 0.0)
-
-
-# -------------------------------------------------------------------------------------- actions
-@_jit
-def _check_actions(act, adim):
-    """(all actions finite, any action nonzero): read only, so a bad action changes nothing."""
-    anyu = False
-    for i in range(act.shape[0]):
-        for k in range(adim):
-            x = act[i, k]
-            if not math.isfinite(x):
-                return False, False
-            if x != 0.0:  # the clipped value is nonzero exactly when x is (x finite)
-                anyu = True
-    return True, anyu
-
-
-@_jit
-def _clip_actions(lo, hi, act, state, istate, adim):
-    """Clip the actions of envs lo .. hi - 1 to [-1, 1] into state's action block; flag clipped rows."""
-    for i in range(lo, hi):
-        clipped = 0
-        for k in range(adim):
-            x = act[i, k]
-            c = -1.0 if x < -1.0 else (1.0 if x > 1.0 else x)
-            state[i, S.u + k] = c
-            if c != x:
-                clipped = 1
-        istate[i, SI.clipped] = clipped
 
 
 # ----------------------------------------------------------------------------------- controller
@@ -492,15 +282,15 @@ def _physics_rows_small(lo, hi, state, obs, keys, istate, consts, codes, ctl):
 # --------------------------------------------------------------------------------- entry points
 @njit(cache=True, nogil=True)
 def step_check_actions(act, codes):
-    """(all actions finite, a tau residual is added) (see _check_actions)."""
-    ok, anyu = _check_actions(act, codes[SK.action_dim])
+    """(all actions finite, a tau residual is added) (see check_actions)."""
+    ok, anyu = check_actions(act, codes[SK.action_dim])
     return ok, anyu and codes[SK.res_virtual] != 0
 
 
 @njit(cache=True, nogil=True)
 def step_controller_rows(lo, hi, act, state, istate, consts, codes, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err):
     """Residual mode, envs lo .. hi - 1: clip the actions, then the base controller."""
-    _clip_actions(lo, hi, act, state, istate, codes[SK.action_dim])
+    clip_actions(lo, hi, act, state, istate, codes[SK.action_dim])
     _controller_rows(lo, hi, state, consts, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err)
 
 
@@ -508,7 +298,7 @@ def step_controller_rows(lo, hi, act, state, istate, consts, codes, has_res, cc,
 def step_physics_rows(lo, hi, act, state, obs, keys, istate, consts, codes, ctl):
     """Envs lo .. hi - 1: clip the actions (unless the controller phase did), then the step."""
     if codes[SK.mode] != MODE_RES_ACT:
-        _clip_actions(lo, hi, act, state, istate, codes[SK.action_dim])
+        clip_actions(lo, hi, act, state, istate, codes[SK.action_dim])
     _physics_rows(lo, hi, state, obs, keys, istate, consts, codes, ctl)
 
 
@@ -521,10 +311,10 @@ def step_physics_rows(lo, hi, act, state, obs, keys, istate, consts, codes, ctl)
 def step_serial(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl, ctl_err):
     """Action modes without the base controller, any N."""
     n = state.shape[0]
-    ok, _ = _check_actions(act, codes[SK.action_dim])
+    ok, _ = check_actions(act, codes[SK.action_dim])
     if not ok:
         return STEP_BAD_ACTION
-    _clip_actions(0, n, act, state, istate, codes[SK.action_dim])
+    clip_actions(0, n, act, state, istate, codes[SK.action_dim])
     _physics_rows(0, n, state, obs, keys, istate, consts, codes, ctl)
     return STEP_OK
 
@@ -533,10 +323,10 @@ def step_serial(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, 
 def step_serial_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl, ctl_err):
     """Residual mode (the base controller, then the physics), any N."""
     n = state.shape[0]
-    ok, anyu = _check_actions(act, codes[SK.action_dim])
+    ok, anyu = check_actions(act, codes[SK.action_dim])
     if not ok:
         return STEP_BAD_ACTION
-    _clip_actions(0, n, act, state, istate, codes[SK.action_dim])
+    clip_actions(0, n, act, state, istate, codes[SK.action_dim])
     has_res = anyu and codes[SK.res_virtual] != 0
     _controller_rows(0, n, state, consts, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err)
     _physics_rows(0, n, state, obs, keys, istate, consts, codes, ctl)
@@ -547,10 +337,10 @@ def step_serial_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem
 def step_serial_small(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl, ctl_err):
     """:func:`step_serial` for N < LANES."""
     n = state.shape[0]
-    ok, _ = _check_actions(act, codes[SK.action_dim])
+    ok, _ = check_actions(act, codes[SK.action_dim])
     if not ok:
         return STEP_BAD_ACTION
-    _clip_actions(0, n, act, state, istate, codes[SK.action_dim])
+    clip_actions(0, n, act, state, istate, codes[SK.action_dim])
     _physics_rows_small(0, n, state, obs, keys, istate, consts, codes, ctl)
     return STEP_OK
 
@@ -560,10 +350,10 @@ def step_serial_small_residual(act, state, obs, keys, istate, consts, codes, cc,
                                ctl_err):
     """:func:`step_serial_residual` for N < LANES."""
     n = state.shape[0]
-    ok, anyu = _check_actions(act, codes[SK.action_dim])
+    ok, anyu = check_actions(act, codes[SK.action_dim])
     if not ok:
         return STEP_BAD_ACTION
-    _clip_actions(0, n, act, state, istate, codes[SK.action_dim])
+    clip_actions(0, n, act, state, istate, codes[SK.action_dim])
     has_res = anyu and codes[SK.res_virtual] != 0
     _controller_rows(0, n, state, consts, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err)
     _physics_rows_small(0, n, state, obs, keys, istate, consts, codes, ctl)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from .. import _kernels as MK
+from .. import model as MK
 
 GROUND_Z = -1.0  # m: terminate when z < GROUND_Z
 BOX_X = 20.0  # m: terminate when |x| > BOX_X
@@ -24,7 +24,7 @@ REASONS = ("", "curvature_limit", "ground", "out_of_bounds", "non_finite")
 R_NONE, R_CURV, R_GROUND, R_OOB, R_NONFINITE = range(5)
 
 
-@MK._inline
+@MK.inline
 def termination_reason(q, qd):
     """``R_*`` code of a finite state (q, qdot): the first limit it violates, in the order of REASONS."""
     if abs(q[3]) > math.pi or abs(q[4]) > math.pi:

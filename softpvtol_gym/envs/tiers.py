@@ -2,14 +2,25 @@
 
 An effect is a kernel branch of the env step with its options (:data:`EFFECT_OPTIONS`); a tier is a
 named set of effects (:class:`TierSpec`). Adding a tier built from the existing effects is one
-:func:`register_tier` call; a new effect is one entry here plus its branch in the step kernel.
+:func:`register_tier` call; a new effect is one entry in :data:`EFFECT_OPTIONS` and the defaults
+here plus its branch in the step kernel.
+
+The registry itself is :mod:`softpvtol_gym.registry` (shared with the tasks); this module registers
+the built-in tiers and re-exports the tier functions. ``TIERS`` is a live lookup: the names
+registered at the time it is read (as :func:`registered_tiers`); :data:`BUILTIN_TIERS` are the
+built-in ones.
 """
 
 from __future__ import annotations
 
-import dataclasses
-
+from ..registry import EFFECT_OPTIONS, TierSpec, get_tier, register_tier, registered_tiers
 from ._validation import positive_number, short_repr
+
+__all__ = [
+    "TIERS",  # noqa: F822 (a live lookup: module __getattr__)
+    "TierSpec", "register_tier", "get_tier", "registered_tiers", "BUILTIN_TIERS", "EFFECT_OPTIONS",
+    "DEFAULT_TIER_OPTIONS", "OBS_NOISE_Q", "OBS_NOISE_QD", "check_tier_options", "tier_values",
+]
 
 #: default option values (every effect's options)
 DEFAULT_TIER_OPTIONS = {
@@ -18,15 +29,6 @@ DEFAULT_TIER_OPTIONS = {
     "wind_correlation_time": 1.0,  # s
     "obs_noise_scale": 1.0,  # multiplies OBS_NOISE_Q / OBS_NOISE_QD
     "actuator_time_constant": 0.05,  # s, first-order lag of the applied command
-}
-#: the effects and the options that parametrise each (an option given by hand switches its effect on)
-EFFECT_OPTIONS = {
-    "mismatch": ("mismatch_scale",),
-    "wind": ("wind_std", "wind_correlation_time"),
-    "noise": ("obs_noise_scale",),
-    "lag": ("actuator_time_constant",),
-    # the plant integrates the consistent model (docs/model.md) while the controllers keep the paper's
-    "consistent_plant": (),
 }
 _EFFECT_OF = {opt: eff for eff, opts in EFFECT_OPTIONS.items() for opt in opts}
 #: options whose "off" value is not 0 (kept as given when the effect is off)
@@ -37,49 +39,7 @@ OBS_NOISE_Q = (0.02, 0.02, 0.01, 0.02, 0.02)  # m, m, rad, rad, rad
 OBS_NOISE_QD = (0.05, 0.05, 0.02, 0.05, 0.05)  # m/s, m/s, rad/s, rad/s, rad/s
 
 
-@dataclasses.dataclass(frozen=True)
-class TierSpec:
-    """A robustness tier: ``name`` and the ``effects`` it switches on (keys of :data:`EFFECT_OPTIONS`;
-    "consistent_plant" has no options: the plant integrates ``model="consistent"``)."""
-
-    name: str
-    effects: tuple = ()
-    description: str = ""
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name:
-            raise ValueError(f"TierSpec.name must be a non-empty str, got {self.name!r}")
-        unknown = [e for e in self.effects if e not in EFFECT_OPTIONS]
-        if unknown:
-            raise ValueError(f"unknown tier effects {unknown}; valid ones are {sorted(EFFECT_OPTIONS)}")
-        object.__setattr__(self, "effects", tuple(self.effects))
-
-
-_TIERS: dict[str, TierSpec] = {}
-
-
-def register_tier(spec: TierSpec, *, overwrite: bool = False) -> TierSpec:
-    """Make a tier available to every env by name."""
-    if not isinstance(spec, TierSpec):
-        raise TypeError(f"register_tier takes a TierSpec, got {type(spec).__name__}")
-    if spec.name in _TIERS and not overwrite:
-        raise ValueError(f"tier {spec.name!r} is already registered (pass overwrite=True to replace it)")
-    _TIERS[spec.name] = spec
-    return spec
-
-
-def get_tier(name) -> TierSpec:
-    try:
-        return _TIERS[name]
-    except (KeyError, TypeError):
-        raise ValueError(f"tier must be one of {list(_TIERS)}, got {name!r}") from None
-
-
-def registered_tiers() -> tuple[str, ...]:
-    return tuple(_TIERS)
-
-
-for _spec in (
+_BUILTIN = (
     TierSpec("nominal", (), "the nominal plant, no disturbance"),
     TierSpec("mismatch", ("mismatch",), "plant masses, inertias and arm lengths x U(0.8, 1.2) per episode"),
     TierSpec("wind", ("wind",), "Ornstein-Uhlenbeck force on x and z, std 3 N, correlation time 1 s"),
@@ -88,10 +48,22 @@ for _spec in (
     TierSpec("model_gap", ("consistent_plant",),
              "the plant is the consistent model (rotor masses at the rotated tips, virtual-work input map); "
              "the controllers, the allocation and PassivityPolicy keep the paper's model"),
-):
+)
+for _spec in _BUILTIN:
     register_tier(_spec)
-#: the built-in tiers
-TIERS = registered_tiers()
+#: the names of the built-in tiers (``TIERS``: every registered one)
+BUILTIN_TIERS: tuple[str, ...] = tuple(s.name for s in _BUILTIN)
+
+
+def __getattr__(name: str):
+    """``TIERS``: the names of the tiers registered now (a live lookup, PEP 562)."""
+    if name == "TIERS":
+        return registered_tiers()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | {"TIERS"})
 
 
 def check_tier_options(options) -> None:

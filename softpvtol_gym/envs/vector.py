@@ -9,6 +9,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from ..params import SoftPVTOLParams
 from ._validation import choice, seed_value, short_repr
 from .batch_sim import BatchSim
 from .config import EnvConfig
@@ -23,7 +24,7 @@ _REASON_NAMES = np.array(REASONS, dtype=object)
 class SoftPVTOLVectorEnv(VectorEnv):
     """``num_envs`` SoftPVTOL envs in one set of arrays (see :class:`SoftPVTOLEnv` for the env).
 
-    Same arguments as :class:`SoftPVTOLEnv` plus ``num_envs`` and ``autoreset_mode``
+    Same arguments as :class:`SoftPVTOLEnv` (its Arguments table) plus ``num_envs`` and ``autoreset_mode``
     (``"NextStep"`` default, as gymnasium's SyncVectorEnv, or ``"SameStep"``/``"Disabled"``).
     Sub-env i has its own ``numpy.random.Generator``; ``reset(seed=s)`` seeds it with s + i exactly as
     SyncVectorEnv does, so with the same actions sub-env i reproduces bit for bit the trajectory of a
@@ -42,13 +43,37 @@ class SoftPVTOLVectorEnv(VectorEnv):
 
     metadata = {"render_modes": ["rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP, "render_fps": 100}
 
-    def __init__(self, num_envs: int = 1, render_mode: str | None = None,
-                 autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP, **config) -> None:
+    def __init__(
+        self,
+        num_envs: int = 1,
+        render_mode: str | None = None,
+        autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
+        *,
+        action_mode: str = "actuators",
+        task: str = "hover",
+        tier: str = "nominal",
+        params: SoftPVTOLParams | None = None,
+        input_map: str = "paper",
+        allocation: str | None = None,
+        residual_space: str = "virtual",
+        frame_skip: int = 1,
+        max_episode_seconds: float | None = None,
+        tier_options: dict | None = None,
+        residual_scale: float = 0.2,
+        actuator_limits: tuple | None = None,
+        controller_loop: str | None = None,
+        model: str | None = None,
+        **unknown,
+    ) -> None:
         if isinstance(num_envs, (bool, np.bool_)) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an int >= 1, got {short_repr(num_envs)} of type "
                              f"{type(num_envs).__name__}")
-        # the arguments of EnvConfig, as SoftPVTOLEnv (one signature for both)
-        self.config = EnvConfig.from_kwargs(**config)
+        # the arguments of EnvConfig, as SoftPVTOLEnv (one signature for both; a test keeps them equal)
+        self.config = EnvConfig.from_kwargs(
+            action_mode=action_mode, task=task, tier=tier, params=params, input_map=input_map,
+            allocation=allocation, residual_space=residual_space, frame_skip=frame_skip,
+            max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
+            actuator_limits=actuator_limits, controller_loop=controller_loop, model=model, **unknown)
         choice("render_mode", render_mode, (None, "rgb_array"))
         try:
             self.autoreset_mode = AutoresetMode(autoreset_mode)

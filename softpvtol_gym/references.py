@@ -2,8 +2,9 @@
 
 A reference is (position, velocity, acceleration) of the body coordinates (x, z, theta) at episode
 time t; its per-episode parameters are a row of ``N_REF_PARAMS`` numbers (the ``refp`` field of the
-packed state): constant set-point (x, z, theta) in columns 0-2; track_random: z0 in column 1 and
-three sinusoids (A, w, phi) x 3 for x in columns 3-11 and for z in columns 12-20. A task registered
+packed state), declared by :data:`REF_PARAMS`: the constant set-point (x, z, theta) in the ``setpoint``
+columns; track_random: z0 in the set-point's z column (:data:`RP_Z0`) and three sinusoids
+(a1, a2, a3, w1, w2, w3, phi1, phi2, phi3) for x and for z in ``x_sinusoids`` and ``z_sinusoids``. A task registered
 from user code has no compiled reference (``REF_CUSTOM``): its Python ``reference(t)`` is called
 once per step for the whole batch.
 """
@@ -15,9 +16,16 @@ import math
 import numpy as np
 from numba import njit
 
+from ._layout import Layout
+
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 
-N_REF_PARAMS = 21
+#: columns of a reference parameter row (refp)
+REF_PARAMS = Layout("reference_params", [("setpoint", 3), ("x_sinusoids", 9), ("z_sinusoids", 9)])
+RP = REF_PARAMS.at
+#: track_random's mean height z0 [m]: the set-point's z column
+RP_Z0 = RP.setpoint + 1
+N_REF_PARAMS = REF_PARAMS.size
 REF_CUSTOM, REF_CONSTANT, REF_PAPER, REF_SINUSOIDS = -1, 0, 1, 2
 
 
@@ -48,10 +56,11 @@ def reference_row(code, t, A, n, c):
         sz, cz = math.sin(0.1 * t), math.cos(0.1 * t)
         return (4.0 * s, 3.0 * math.cos(-0.1 * t) + 4.0, 0.0), (2.0 * co, -0.3 * sz, 0.0), (-s, -0.03 * cz, 0.0)
     if code == REF_SINUSOIDS:
-        x, xd, xdd = _sinusoids(A, n, c + 3, t)
-        z, zd, zdd = _sinusoids(A, n, c + 12, t)
-        return (x, A[n, c + 1] + z, 0.0), (xd, zd, 0.0), (xdd, zdd, 0.0)
-    return (A[n, c], A[n, c + 1], A[n, c + 2]), zero, zero
+        x, xd, xdd = _sinusoids(A, n, c + RP.x_sinusoids, t)
+        z, zd, zdd = _sinusoids(A, n, c + RP.z_sinusoids, t)
+        return (x, A[n, c + RP_Z0] + z, 0.0), (xd, zd, 0.0), (xdd, zdd, 0.0)
+    o = c + RP.setpoint  # (x, z, theta)
+    return (A[n, o], A[n, o + 1], A[n, o + 2]), zero, zero
 
 
 @njit(cache=True, nogil=True)
