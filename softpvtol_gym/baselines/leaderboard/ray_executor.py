@@ -22,7 +22,9 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import signal
 import tempfile
+import threading
 from concurrent.futures import Future
 from pathlib import Path
 
@@ -76,16 +78,28 @@ def start_ray(address: str | None = None, num_cpus: int | None = None, num_gpus:
             raise ConfigError("the CPUs and GPUs of an existing Ray cluster are set by its `ray start` commands, not "
                               "by the driver (leave out --workers with --address)")
         kwargs.update(address=address)
+    # ray.init replaces this process's SIGTERM handler by one that calls sys.exit: the command's handler
+    # (softpvtol_gym.baselines.util.args.run_main: a KeyboardInterrupt, exit 143) is put back after it
+    own_handler = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
     try:
         try:
             ray.init(**kwargs)
+        except SystemExit as exc:  # SIGTERM during ray.init, through Ray's handler
+            if exc.code == signal.SIGTERM and callable(own_handler):
+                own_handler(signal.SIGTERM, None)
+            raise
         except ConnectionError as exc:
             raise ConfigError(f"cannot connect to a Ray cluster at {address!r}: {' '.join(str(exc).split())} "
                               f"(start one with `ray start --head`, or leave out --address for a local instance)"
                               ) from None
+        finally:
+            if own_handler is not None:
+                signal.signal(signal.SIGTERM, own_handler)
         yield ray.cluster_resources()
     finally:
-        if ray.is_initialized():
+        # unconditionally: interrupted inside ray.init, Ray may have started its processes without being
+        # "initialised" yet, and shutdown() is what stops them (no orphan raylet or workers)
+        with contextlib.suppress(Exception):
             ray.shutdown()
         if temp_dir is not None:
             shutil.rmtree(temp_dir, ignore_errors=True)
