@@ -63,7 +63,15 @@ from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes, s
 from softpvtol_gym.baselines.leaderboard.ray_executor import start_ray
 from softpvtol_gym.baselines.training.loop import train
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
-from softpvtol_gym.baselines.util.args import Parser, Terminated, command_main, int_arg, interrupted
+from softpvtol_gym.baselines.util.args import (
+    Parser,
+    Terminated,
+    check_output_dir,
+    check_output_file,
+    command_main,
+    int_arg,
+    interrupted,
+)
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout, data_file
 from softpvtol_gym.envs.actions import ACTION_MODES
@@ -314,6 +322,7 @@ def _check_out(ap: Parser, out: Path, force: bool) -> None:
         parent = parent.parent
     if not parent.is_dir() or not os.access(parent, os.W_OK):
         ap.error(f"--out {out}: {parent} is not a writable directory")
+    check_output_file(out, force=True, option="--out")  # /proc, read-only mounts: before Ray starts
 
 
 def _main(argv, layout: Layout, prog: str) -> int:
@@ -327,6 +336,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
     _check_out(ap, out, args.force)
     if args.storage is not None and args.storage.exists() and not args.storage.is_dir():
         ap.error(f"--storage {args.storage} is a file; expected a directory")
+    if args.storage is not None:
+        check_output_dir(args.storage, "--storage")
     base = apply_overrides(load_hyperparams(args.algo, args.action_mode, args.hyperparams), args.hp)
     validate_hyperparams(args.algo, base)
     space = load_space(args.space, args.algo, base)

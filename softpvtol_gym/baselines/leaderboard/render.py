@@ -177,6 +177,16 @@ def _entry_order(entry: str) -> tuple:
 
 
 def render_chart(data: dict, path: Path) -> None:
+    """Write the chart of :func:`chart_png` to ``path`` (atomically)."""
+    png = chart_png(data)
+    with atomic_path(Path(path)) as tmp:
+        tmp.write_bytes(png)
+
+
+def chart_png(data: dict) -> bytes:
+    """The leaderboard chart (IQM RMS position error per task, tier and entry, with CIs) as PNG bytes."""
+    import io
+
     import matplotlib
 
     matplotlib.use("Agg")
@@ -208,6 +218,9 @@ def render_chart(data: dict, path: Path) -> None:
         ax.grid(True, axis="y", alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    with atomic_path(Path(path)) as tmp:
-        fig.savefig(tmp, format="png", dpi=110, metadata={"Software": None})
-    plt.close(fig)
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
+    finally:
+        plt.close(fig)
+    return buf.getvalue()
