@@ -414,7 +414,7 @@ def _failure_line(exc: BaseException) -> str:
 
 def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevaluate: bool = False,
              check_root: bool = False, progress: bool = True, base: Path | None = None,
-             rerun: str | None = None) -> list[str]:
+             rerun: str | None = None, entry=None) -> list[str]:
     """Submit every job to ``executor`` (anything with ``submit`` returning futures: a
     :class:`~softpvtol_gym.baselines.leaderboard.process_executor.ProcessPerJobExecutor`, a process pool, a
     :class:`softpvtol_gym.baselines.leaderboard.ray_executor.RayExecutor`); returns the names of the jobs that
@@ -426,7 +426,8 @@ def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevalu
     (:func:`softpvtol_gym.baselines.util.args.interrupted`).
     ``check_root``: every job first checks that it sees the same ``root`` as this process (for executors
     on other machines). ``base``: the checkpoint paths in ``eval.json`` are recorded relative to it (default:
-    the current directory)."""
+    the current directory). ``entry``: the function each job runs in its worker (default :func:`_run_job_entry`;
+    another, with the same arguments and ``(name, seconds)`` result, for tests of the executors)."""
     from tqdm import tqdm
 
     from softpvtol_gym.baselines.util.args import interrupted
@@ -439,7 +440,8 @@ def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevalu
         with contextlib.ExitStack() as stack:
             token = stack.enter_context(shared_root_token(root)) if check_root else None
             base = str((Path.cwd() if base is None else Path(base)).resolve())  # paths in eval.json relative to it
-            futures = {executor.submit(_run_job_entry, job, str(root), reevaluate, token, base): job for job in jobs}
+            entry = entry or _run_job_entry
+            futures = {executor.submit(entry, job, str(root), reevaluate, token, base): job for job in jobs}
             # disable=None: a bar on a terminal only (logs get the one line per job below)
             bar = stack.enter_context(tqdm(total=len(jobs), unit="job", file=sys.stderr,
                                            disable=None if progress else True))

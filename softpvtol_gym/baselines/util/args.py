@@ -106,8 +106,9 @@ def run_main(main, argv=None, prog: str | None = None) -> int:
     except KeyboardInterrupt as exc:
         code, what = (EXIT_SIGTERM, "terminated (SIGTERM)") if isinstance(exc, Terminated) else (
             EXIT_SIGINT, "interrupted (Ctrl-C)")
-        kept = getattr(exc, "kept", None) or ("no result was completed; files are written atomically, so none is "
-                                              "left half-written")
+        kept = getattr(exc, "kept", None) or ("the run is incomplete and its result was not written; no file is left "
+                                              "half-written (each is written atomically: the old one or a complete "
+                                              "new one)")
         fail(name, f"{what}: {kept}", code=code)
     except OSError as exc:
         fail(name, io_error_message(exc), code=EXIT_IO_ERROR)
