@@ -308,7 +308,6 @@ def test_run_jobs_interrupted_stops_its_workers_and_says_what_was_kept(sig, code
         assert not Path(f"/proc/{pid}").exists() or "Z" in Path(f"/proc/{pid}/stat").read_text().split()[2]
 
 
-@pytest.mark.slow  # a real command in a subprocess: imports and the first numba compile
 def test_passivity_metrics_terminated_exits_143_and_writes_no_report(tmp_path):
     out = tmp_path / "p.json"
     proc = subprocess.Popen([sys.executable, "-m", "softpvtol_gym.baselines", "passivity-metrics", "--episodes",

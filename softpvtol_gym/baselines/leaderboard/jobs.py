@@ -53,6 +53,7 @@ from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes
 from softpvtol_gym.baselines.training.loop import EVALUATIONS_FILE, train
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
+from softpvtol_gym.baselines.util.args import interrupted
 from softpvtol_gym.baselines.util.atomic import atomic_copy, atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout, check_slug, data_file, relative_to_root, under
 from softpvtol_gym.control import LOOPS
@@ -429,8 +430,6 @@ def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevalu
     the current directory). ``entry``: the function each job runs in its worker (default :func:`_run_job_entry`;
     another, with the same arguments and ``(name, seconds)`` result, for tests of the executors)."""
     from tqdm import tqdm
-
-    from softpvtol_gym.baselines.util.args import interrupted
 
     for job in jobs:
         job.folder(root)  # every output path checked before anything runs

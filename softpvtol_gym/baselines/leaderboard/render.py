@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
@@ -185,8 +186,6 @@ def render_chart(data: dict, path: Path) -> None:
 
 def chart_png(data: dict) -> bytes:
     """The leaderboard chart (IQM RMS position error per task, tier and entry, with CIs) as PNG bytes."""
-    import io
-
     import matplotlib
 
     matplotlib.use("Agg")

@@ -50,11 +50,12 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> tuple[list[dict], 
         if not path.is_file():
             missing.append(job.name)
             continue
-        rec = check_result(read_eval(path), path)
+        rec = read_eval(path)
         j = rec["job"]
         if (j.get("policy"), j.get("task"), j.get("seed")) != (job.policy, job.task, job.seed):
             raise ConfigError(f"{path} holds the result of another job ({j.get('policy')}, {j.get('task')}, seed "
                               f"{j.get('seed')}); expected {job.name}")
+        check_result(rec, path)
         evaluations = evaluations_of(rec)
         lost = missing_evaluations(job, rec)
         if lost:

@@ -22,6 +22,7 @@ import math
 import os
 import signal
 import sys
+import tempfile
 import threading
 from pathlib import Path
 
@@ -205,8 +206,6 @@ def _check_writable(directory: Path, what: str) -> None:
 
 
 def _probe_file(directory: Path):
-    import tempfile
-
     return tempfile.mkstemp(prefix=".write-probe.", dir=directory)
 
 
