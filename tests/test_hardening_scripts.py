@@ -164,7 +164,7 @@ def _finished_analytic_root(tmp: Path) -> tuple[Path, Path]:
     (lambda r: r["eval"]["nominal"][0].update({"return": float("inf")}), "return"),
     (lambda r: r["eval"]["nominal"][2].pop("crashed"), "crashed is missing"),
     (lambda r: r["eval"]["nominal"][0].update(length="100"), "length"),
-    (lambda r: r["job"].pop("seed"), "job.seed is missing"),
+    (lambda r: r["job"].pop("eval_seed"), "job.eval_seed is missing"),
     (lambda r: r.update(train_seconds=float("nan")), "train_seconds"),
     (lambda r: r["eval"].update(nominal={}), "non-empty list"),
 ], ids=["nan", "inf", "missing-key", "wrong-type", "missing-job-key", "nan-seconds", "episodes-not-a-list"])
