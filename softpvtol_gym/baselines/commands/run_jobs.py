@@ -37,7 +37,7 @@ from pathlib import Path
 from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_jobs, pending, run_jobs
 from softpvtol_gym.baselines.leaderboard.process_executor import ProcessPerJobExecutor
 from softpvtol_gym.baselines.leaderboard.ray_executor import RayExecutor, start_ray
-from softpvtol_gym.baselines.util.args import Parser, check_output_dir, command_main, int_arg
+from softpvtol_gym.baselines.util.args import Parser, check_output_dir, command_main, int_arg, interrupted
 from softpvtol_gym.baselines.util.extras import DISTRIBUTED, require
 from softpvtol_gym.baselines.util.locks import DirectoryLock
 from softpvtol_gym.baselines.util.paths import Layout
@@ -95,6 +95,17 @@ def _main(argv, layout: Layout, prog: str) -> int:
     rerun = f"{'python baselines/' if prog.endswith('.py') else ''}{prog} {shlex.join(given)}".strip()
 
     progress = not args.no_progress_bar
+    try:
+        _run(args, jobs, layout, rerun, progress)
+    except KeyboardInterrupt as exc:
+        if not getattr(exc, "kept", None):  # stopped before the first job was submitted (Ray starting, say)
+            interrupted(exc, f"no job had started, nothing was written under {args.root}; rerun: {rerun}")
+        raise
+    return 0
+
+
+def _run(args, jobs, layout: Layout, rerun: str, progress: bool) -> None:
+    """The jobs on the chosen executor, with the root locked."""
     with DirectoryLock(args.root, "job root"):
         if args.executor == "ray":
             with start_ray(address=args.address, num_cpus=args.workers) as resources:
@@ -110,7 +121,6 @@ def _main(argv, layout: Layout, prog: str) -> int:
             with ProcessPerJobExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
                 run_jobs(jobs, ex, args.root, reevaluate=args.reevaluate, progress=progress,
                          base=layout.root, rerun=rerun)
-    return 0
 
 
 main = command_main("run_jobs.py", _main,

@@ -398,8 +398,10 @@ def _main(argv, layout: Layout, prog: str) -> int:
             if signals:  # swallowed by Tune: the search is partial all the same
                 raise Terminated() if signals[-1] == signal.SIGTERM else KeyboardInterrupt()
     except KeyboardInterrupt as exc:
-        raise interrupted(exc, f"the search was stopped before its end, so no best configuration was written ({out} "
-                               f"is unchanged); {kept}") from None
+        if signal.SIGTERM in signals and not isinstance(exc, Terminated):
+            exc = Terminated()  # Tune re-raises what it caught as a plain KeyboardInterrupt
+        raise interrupted(exc, f"the search was stopped before its end, so no best configuration was written (nothing "
+                               f"written to {out}); {kept}") from None
     finally:
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
