@@ -354,3 +354,78 @@ def test_the_exit_codes_are_documented():
     assert "## Exit codes and interrupts" in text
     for code in args_mod.EXIT_CODES:
         assert f"`{code}`" in text
+
+
+# ------------------------------------------------------------------------------------------ Ray (slow)
+def _ray_leftovers() -> list[str]:
+    """Ray processes (raylet, GCS, workers) and local Ray temporary folders that exist now."""
+    procs = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            except OSError:
+                continue
+            if any(k in cmd for k in ("raylet", "gcs_server", "default_worker.py", "ray::")):
+                procs.append(f"{d.name}: {cmd[:80]}")
+    temps = [*Path("/tmp").glob("ray-*"), *Path("/tmp").glob("softpvtol-tune-*")]
+    return procs + [str(p) for p in temps]
+
+
+def _signal_command(argv: list[str], cwd: Path, ready: str, sig: int, delay: float) -> tuple[int, str]:
+    """Run ``softpvtol argv`` in ``cwd``; once it handles SIGTERM (the command has started) and its stdout shows
+    ``ready``, wait ``delay`` s more and send ``sig``."""
+    out = cwd / "stdout.txt"
+    with open(out, "w") as fh:
+        proc = subprocess.Popen([sys.executable, "-m", "softpvtol_gym.baselines", *argv], env=ENV, cwd=cwd,
+                                stdout=fh, stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 240
+            while not _handles_sigterm(proc.pid) or ready not in out.read_text():
+                assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+                time.sleep(0.2)
+            time.sleep(delay)
+            proc.send_signal(sig)
+            _, err = proc.communicate(timeout=120)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    time.sleep(2.0)  # Ray's processes exit asynchronously after shutdown
+    assert not _children(proc.pid)
+    return proc.returncode, err
+
+
+@pytest.mark.slow  # a local Ray instance, twice: ~40 s
+@pytest.mark.parametrize("when", ["starting", "running"])
+def test_run_jobs_on_ray_terminated_leaves_no_ray_process_or_temp_folder(when, tmp_path):
+    pytest.importorskip("ray")
+    if _ray_leftovers():
+        pytest.skip(f"another Ray is running here: {_ray_leftovers()[:2]}")
+    spec = _write_spec(tmp_path, episodes=5000)
+    ready = "Ray:" if when == "running" else ""
+    code, err = _signal_command(["run-jobs", "--executor", "ray", "--workers", "1", "--spec", str(spec), "--root",
+                                 "runs"], tmp_path, ready, signal.SIGTERM, 8.0 if when == "running" else 4.0)
+    assert code == EXIT_SIGTERM, err
+    line = err.strip().splitlines()[-1]
+    assert line.startswith("softpvtol run-jobs: error: terminated (SIGTERM): "), err
+    assert "rerun: softpvtol run-jobs --executor ray" in line, line
+    assert "Traceback" not in err and not _ray_leftovers()
+    assert not (tmp_path / "runs" / ".run_jobs.token").exists()
+
+
+@pytest.mark.slow  # a local Ray Tune search, interrupted: ~30 s
+def test_tune_interrupted_writes_no_best_configuration(tmp_path):
+    pytest.importorskip("ray")
+    if _ray_leftovers():
+        pytest.skip(f"another Ray is running here: {_ray_leftovers()[:2]}")
+    space = tmp_path / "space.yml"
+    space.write_text("ppo:\n  learning_rate: {loguniform: [1.0e-4, 1.0e-3]}\n  n_epochs: {randint: [1, 2]}\n")
+    code, err = _signal_command(["tune", "--trials", "4", "--workers", "1", "--space", str(space), "--out", "best.yml",
+                                 "--hp", "n_envs=4", "--hp", "n_steps=32", "--hp", "batch_size=64", "--timesteps",
+                                 "100000", "--reports", "4", "--eval-episodes", "2"], tmp_path, "Ray Tune:",
+                                signal.SIGINT, 10.0)
+    assert code == EXIT_SIGINT, err
+    line = err.strip().splitlines()[-1]
+    assert "interrupted (Ctrl-C): the search was stopped before its end, so no best configuration was written" in line
+    assert "restore" not in err.lower() and "Traceback" not in err
+    assert not (tmp_path / "best.yml").exists() and not _ray_leftovers()

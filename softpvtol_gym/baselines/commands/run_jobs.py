@@ -64,6 +64,18 @@ def _main(argv, layout: Layout, prog: str) -> int:
                     help="re-run the evaluation of finished jobs with their committed models (no training)")
     ap.add_argument("--no-progress-bar", action="store_true", help="no progress bar (one line per job stays)")
     args = ap.parse_args(argv)
+    given = sys.argv[1:] if argv is None else list(argv)
+    rerun = f"{'python baselines/' if prog.endswith('.py') else ''}{prog} {shlex.join(given)}".strip()
+    try:
+        return _checked(ap, args, layout, prog, rerun)
+    except KeyboardInterrupt as exc:
+        if not getattr(exc, "kept", None):  # stopped before the first job was submitted (Ray starting, say)
+            interrupted(exc, f"no job had started, nothing was written under {args.root}; rerun: {rerun}")
+        raise
+
+
+def _checked(ap: Parser, args, layout: Layout, prog: str, rerun: str) -> int:
+    """The options checked, then the pending jobs run."""
     if args.workers is not None and not 1 <= args.workers <= MAX_WORKERS:
         ap.error(f"--workers must be in [1, {MAX_WORKERS}], got {args.workers}")
     if args.address is not None and args.executor != "ray":
@@ -91,16 +103,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
     if args.executor == "ray":
         require("run_jobs.py", DISTRIBUTED, prog=prog)
     check_output_dir(args.root, "--root")  # before any job: not under /proc, a file or a read-only mount
-    given = sys.argv[1:] if argv is None else list(argv)
-    rerun = f"{'python baselines/' if prog.endswith('.py') else ''}{prog} {shlex.join(given)}".strip()
-
-    progress = not args.no_progress_bar
-    try:
-        _run(args, jobs, layout, rerun, progress)
-    except KeyboardInterrupt as exc:
-        if not getattr(exc, "kept", None):  # stopped before the first job was submitted (Ray starting, say)
-            interrupted(exc, f"no job had started, nothing was written under {args.root}; rerun: {rerun}")
-        raise
+    _run(args, jobs, layout, rerun, progress=not args.no_progress_bar)
     return 0
 
 

@@ -58,6 +58,48 @@ def runtime_env() -> dict:
 
 
 @contextlib.contextmanager
+def _signals_deferred(ray):
+    """Ctrl-C and SIGTERM held back while ``ray.init`` starts Ray's processes, then acted on.
+
+    Interrupted half-way, ``ray.init`` leaves processes that ``ray.shutdown`` does not know of (the audit found
+    a dashboard and a runtime-env agent orphaned, and their temporary folders). Here a signal that arrives
+    during the start is recorded and re-delivered to the command's own handler (a KeyboardInterrupt,
+    :func:`softpvtol_gym.baselines.util.args.run_main`) once Ray is up, so that the shutdown in :func:`start_ray`
+    stops a complete instance. Ray's own SIGTERM handler (``sys.exit`` from inside ``ray.init``) is not installed
+    meanwhile. Only in the main thread (elsewhere signals cannot be handled, and nothing changes)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    own = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    received: list[int] = []
+
+    def record(signum, frame):
+        received.append(signum)
+
+    utils = getattr(getattr(ray, "_private", None), "utils", None)
+    ray_setter = getattr(utils, "set_sigterm_handler", None)
+    for sig in own:
+        signal.signal(sig, record)
+    if ray_setter is not None:
+        utils.set_sigterm_handler = lambda handler: None
+    try:
+        yield
+    finally:
+        if ray_setter is not None:
+            utils.set_sigterm_handler = ray_setter
+        for sig, handler in own.items():
+            signal.signal(sig, handler)
+    if received:
+        handler = own[received[0]]
+        if callable(handler):
+            handler(received[0], None)
+        elif received[0] == signal.SIGINT:
+            raise KeyboardInterrupt()
+        else:
+            os.kill(os.getpid(), received[0])
+
+
+@contextlib.contextmanager
 def start_ray(address: str | None = None, num_cpus: int | None = None, num_gpus: int | None = None):
     """Start a local Ray instance (``address=None``: ``num_cpus`` CPUs, default all; no dashboard; a fresh
     temporary directory, removed afterwards) or connect to the cluster at ``address`` (``"auto"``: the one
@@ -78,23 +120,14 @@ def start_ray(address: str | None = None, num_cpus: int | None = None, num_gpus:
             raise ConfigError("the CPUs and GPUs of an existing Ray cluster are set by its `ray start` commands, not "
                               "by the driver (leave out --workers with --address)")
         kwargs.update(address=address)
-    # ray.init replaces this process's SIGTERM handler by one that calls sys.exit: the command's handler
-    # (softpvtol_gym.baselines.util.args.run_main: a KeyboardInterrupt, exit 143) is put back after it
-    own_handler = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
     try:
-        try:
-            ray.init(**kwargs)
-        except SystemExit as exc:  # SIGTERM during ray.init, through Ray's handler
-            if exc.code == signal.SIGTERM and callable(own_handler):
-                own_handler(signal.SIGTERM, None)
-            raise
-        except ConnectionError as exc:
-            raise ConfigError(f"cannot connect to a Ray cluster at {address!r}: {' '.join(str(exc).split())} "
-                              f"(start one with `ray start --head`, or leave out --address for a local instance)"
-                              ) from None
-        finally:
-            if own_handler is not None:
-                signal.signal(signal.SIGTERM, own_handler)
+        with _signals_deferred(ray):
+            try:
+                ray.init(**kwargs)
+            except ConnectionError as exc:
+                raise ConfigError(f"cannot connect to a Ray cluster at {address!r}: {' '.join(str(exc).split())} "
+                                  f"(start one with `ray start --head`, or leave out --address for a local instance)"
+                                  ) from None
         yield ray.cluster_resources()
     finally:
         # unconditionally: interrupted inside ray.init, Ray may have started its processes without being
