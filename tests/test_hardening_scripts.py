@@ -429,3 +429,26 @@ def test_tune_interrupted_writes_no_best_configuration(tmp_path):
     assert "interrupted (Ctrl-C): the search was stopped before its end, so no best configuration was written" in line
     assert "restore" not in err.lower() and "Traceback" not in err
     assert not (tmp_path / "best.yml").exists() and not _ray_leftovers()
+
+
+@pytest.mark.slow  # a real (tiny) training run in a subprocess: torch and SB3 imports, ~60 s on a busy machine
+def test_train_terminated_keeps_its_checkpoint_and_says_how_to_resume(tmp_path):
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "softpvtol_gym.baselines", "train", "--out", str(out),
+                             "--timesteps", "10000000", "--n-envs", "4", "--hp", "n_steps=32", "--hp", "batch_size=64",
+                             "--checkpoint-freq", "256", "--eval-episodes", "0", "--no-progress-bar"],
+                            env=ENV, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not (out / "checkpoints" / "latest").is_file():
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == EXIT_SIGTERM, err
+    line = err.strip().splitlines()[-1]
+    assert line.startswith("softpvtol train: error: terminated (SIGTERM): the run in") and "--resume" in line, err
+    assert "Traceback" not in err and not (out / "result.json").exists() and not _children(proc.pid)
