@@ -217,9 +217,9 @@ def chart_png(data: dict) -> bytes:
         ax.grid(True, axis="y", alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    buf = io.BytesIO()
+    tmp = io.BytesIO()  # in memory: the caller writes the bytes atomically (render_chart, atomic_write_all)
     try:
-        fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
+        fig.savefig(tmp, format="png", dpi=110, metadata={"Software": None})
     finally:
         plt.close(fig)
-    return buf.getvalue()
+    return tmp.getvalue()
