@@ -64,7 +64,8 @@ class ProcessPerJobExecutor:
         with self._lock:
             if self._closing:
                 raise WorkerCrashed("not started: the executor was shut down")
-            proc = self._ctx.Process(target=_child, args=(child, fn, args, kwargs), daemon=True)
+            # not a daemon: a job may start processes of its own; shutdown() stops it explicitly
+            proc = self._ctx.Process(target=_child, args=(child, fn, args, kwargs), daemon=False)
             proc.start()
             self._procs.add(proc)
         child.close()
