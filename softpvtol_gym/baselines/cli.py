@@ -12,7 +12,8 @@ the same commands with the checkout's paths.
 
 A subcommand's module is imported only after the packages it needs are found
 (:func:`softpvtol_gym.baselines.util.extras.require`), so a missing extra is one line with exit code 2;
-bad input is one line with exit code 2 too, Ctrl-C exit 130.
+bad input is one line with exit code 2 too; an I/O error (disk full, read-only) one line naming the path,
+exit 74; Ctrl-C exit 130, SIGTERM 143 (:mod:`softpvtol_gym.baselines.util.args`, docs/baselines.md).
 """
 
 from __future__ import annotations

@@ -39,7 +39,6 @@ Outputs are overwritten; their folders are checked before any work. Exit codes: 
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 from softpvtol_gym.baselines.errors import ConfigError
@@ -62,7 +61,14 @@ from softpvtol_gym.baselines.figures.tracking import (
     tracking_figure,
 )
 from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_spec
-from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, int_arg, refuse_overwrite
+from softpvtol_gym.baselines.util.args import (
+    Parser,
+    check_output_file,
+    command_main,
+    float_arg,
+    int_arg,
+    refuse_overwrite,
+)
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.envs.tiers import registered_tiers
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
@@ -79,11 +85,7 @@ def _check_output(path: Path, option: str, suffix: str) -> None:
         raise ConfigError(f"{option} {path} is a directory; expected a file name")
     if path.suffix.lower() != suffix:
         raise ConfigError(f"{option} must name a {suffix} file, got {path}")
-    parent = path.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise ConfigError(f"{option} {path}: {parent} is not a writable directory")
+    check_output_file(path, force=True, option=option)  # before anything renders: a writable directory
 
 
 def build_parser(layout: Layout | None = None, prog: str = "tracking_figures.py") -> Parser:

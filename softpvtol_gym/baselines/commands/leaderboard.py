@@ -23,8 +23,12 @@ bootstrap for pairs does not support resampling episodes), so for the passivity-
 is a point. The bootstrap is seeded: the JSON, and
 therefore docs/leaderboard.md, are reproducible.
 
-Every output (JSON, Markdown, PNG) is written atomically; the output paths are checked, and the spec or
-the JSON validated, before any work. Exit codes: 0 done, 2 bad input (one line, nothing written).
+The output paths are checked, and the spec, every job result (required keys and types, finite numbers: a NaN
+in an ``eval.json`` is refused naming the file) or the JSON validated, before any work; then every output (JSON,
+Markdown, PNG, the README block) is rendered in memory and written together: each to a temporary file first,
+renamed over the targets only once all are written, so a failure (bad input, a full disk) changes none of them.
+Exit codes: 0 done, 2 bad input (one line, nothing written), 74 an output that cannot be written (one line naming
+it; nothing changed), 130 / 143 interrupted (nothing changed).
 """
 
 from __future__ import annotations
@@ -34,24 +38,28 @@ import json
 import os
 from pathlib import Path
 
-from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE
-from softpvtol_gym.baselines.leaderboard.render import SUMMARY_BLOCK, render_chart, render_markdown, summary_markdown
-from softpvtol_gym.baselines.leaderboard.stats import build, read_data
-from softpvtol_gym.baselines.util.args import Parser, command_main, refuse_overwrite
-from softpvtol_gym.baselines.util.atomic import atomic_write_text
-from softpvtol_gym.baselines.util.blocks import write_block
+from softpvtol_gym.baselines.leaderboard.render import SUMMARY_BLOCK, chart_png, render_markdown, summary_markdown
+from softpvtol_gym.baselines.leaderboard.stats import build, read_data, validate_data
+from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main, refuse_overwrite
+from softpvtol_gym.baselines.util.atomic import atomic_write_all
+from softpvtol_gym.baselines.util.blocks import markers
 from softpvtol_gym.baselines.util.paths import Layout
 
 
 def _check_output(path: Path, option: str) -> None:
-    if path.is_dir():
-        raise ConfigError(f"{option} {path} is a directory; expected a file name")
-    parent = path.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise ConfigError(f"{option} {path}: {parent} is not a writable directory")
+    check_output_file(path, force=True, option=option)
+
+
+def _with_block(name: str, source: str, table: str, path: Path) -> bytes | None:
+    """``path``'s text with the block ``name`` replaced by ``table`` (as :func:`write_block`), or None if it has
+    no such block."""
+    start, end = markers(name, source)
+    text = path.read_text(encoding="utf-8")
+    if start not in text or end not in text:
+        return None
+    a, b = text.index(start) + len(start), text.index(end)
+    return (text[:a] + "\n" + table.strip() + "\n" + text[b:]).encode("utf-8")
 
 
 def _main(argv, layout: Layout, prog: str) -> int:
@@ -79,13 +87,20 @@ def _main(argv, layout: Layout, prog: str) -> int:
         if not args.root.is_dir():
             ap.error(f"--root {args.root} is not a directory")
         data = build(args.root, args.spec, base=layout.root)
-        atomic_write_text(args.json, json.dumps(data, indent=1))
+        data = validate_data(json.loads(json.dumps(data)), "built from " + str(args.root))  # what is written renders
+    # everything rendered in memory first, then written all together (nothing changes if any part fails)
+    outputs = {}
+    if not args.from_json:
+        outputs[args.json] = json.dumps(data, indent=1, allow_nan=False).encode("utf-8")
     chart_link = os.path.relpath(args.chart.resolve(), args.markdown.resolve().parent)
-    atomic_write_text(args.markdown, render_markdown(data, chart=chart_link))
-    render_chart(data, args.chart)
+    outputs[args.markdown] = render_markdown(data, chart=chart_link).encode("utf-8")
+    outputs[args.chart] = chart_png(data)
     if layout.readme is not None and args.markdown.resolve() == page.resolve():  # the committed page: the README too
         link = os.path.relpath(page.resolve(), layout.readme.resolve().parent)
-        write_block(*SUMMARY_BLOCK, summary_markdown(data, link), layout.readme)
+        readme = _with_block(*SUMMARY_BLOCK, summary_markdown(data, link), layout.readme)
+        if readme is not None:
+            outputs[layout.readme] = readme
+    atomic_write_all(outputs)
     print(f"wrote {args.markdown} and {args.chart}" + ("" if args.from_json else f" from {args.json}"))
     return 0
 

@@ -27,7 +27,14 @@ from pathlib import Path
 import numpy as np
 
 from softpvtol_gym.baselines.figures.model import compare
-from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, int_arg, refuse_overwrite
+from softpvtol_gym.baselines.util.args import (
+    Parser,
+    check_output_file,
+    command_main,
+    float_arg,
+    int_arg,
+    refuse_overwrite,
+)
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout
 
@@ -42,6 +49,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
     ap.add_argument("--force", action="store_true", help="let a run with other settings overwrite the default report")
     args = ap.parse_args(argv)
     refuse_overwrite(ap, args, ("t_final", "passes"), [(args.json, ap.get_default("json"), "--json")])
+    check_output_file(args.json, force=True, option="--json")  # before simulating
     t0 = time.perf_counter()
     result = compare(args.t_final, args.passes)
     for name, r in result.items():

@@ -19,7 +19,14 @@ from pathlib import Path
 
 from softpvtol_gym import PassivityPolicy
 from softpvtol_gym.baselines.evaluation import evaluate
-from softpvtol_gym.baselines.util.args import Parser, command_main, int_arg, read_json_report, refuse_overwrite
+from softpvtol_gym.baselines.util.args import (
+    Parser,
+    check_output_file,
+    command_main,
+    int_arg,
+    read_json_report,
+    refuse_overwrite,
+)
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.blocks import write_block
 from softpvtol_gym.baselines.util.paths import Layout
@@ -69,6 +76,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
     args = ap.parse_args(argv)
     if not args.render_only:
         refuse_overwrite(ap, args, ("episodes", "seed"), [(args.json, default_json, "--json")])
+        check_output_file(args.json, force=True, option="--json")  # before running any episode
     if args.render_only:
         report = read_json_report(args.json, "passivity metrics report")
     else:

@@ -8,7 +8,8 @@
 ``--policy``: ``passivity`` (PassivityPolicy with the env's default loop) or a checkpoint (run
 directory, checkpoint directory or model.safetensors; the safe format only, nothing is unpickled).
 The episode runs at the env's 100 Hz from seed ``--seed``; every ``100 / --fps``-th frame of the
-renderer (600 x 450) is kept, scaled by ``--scale``. Exit codes: 0 done, 2 bad input.
+renderer (600 x 450) is kept, scaled by ``--scale``. ``--out`` is checked writable before anything renders.
+Exit codes: 0 done, 2 bad input, 74 an unwritable output, 130 / 143 interrupted (nothing written).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from pathlib import Path
 
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.figures.gif import make_policy_env, render_frames, save_gif
-from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, int_arg
+from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main, float_arg, int_arg
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.envs.tiers import registered_tiers
 from softpvtol_gym.tasks import registered_tasks
@@ -45,6 +46,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
         raise ConfigError(f"--fps must divide 100 (the env's rate), got {args.fps}")
     if args.out.suffix.lower() != ".gif":
         raise ConfigError(f"--out must name a .gif file, got {args.out}")
+    check_output_file(args.out, force=True, option="--out")  # before rendering anything
     policy, env, label = make_policy_env(args.policy, args.task, args.tier)
     task = env.config.task
     frames, steps = render_frames(policy, env, args.seed, args.seconds, args.fps, args.scale)

@@ -33,7 +33,15 @@ import numpy as np
 
 from softpvtol_gym import SoftPVTOLParams
 from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.baselines.util.args import Parser, command_main, float_arg, read_json_report, refuse_overwrite
+from softpvtol_gym.baselines.util.args import (
+    Parser,
+    check_output_dir,
+    check_output_file,
+    command_main,
+    float_arg,
+    read_json_report,
+    refuse_overwrite,
+)
 from softpvtol_gym.baselines.util.atomic import atomic_path, atomic_write_text
 from softpvtol_gym.baselines.util.blocks import write_block
 from softpvtol_gym.baselines.util.paths import Layout
@@ -352,6 +360,9 @@ def _main(argv, layout: Layout, prog: str) -> int:
     if not args.render_only:
         refuse_overwrite(parser, args, ("t_final", "no_steady"),
                          [(args.out / "metrics.json", default_out / "metrics.json", "--out")])
+        check_output_dir(args.out, "--out")  # before simulating anything
+    if args.page is not None and args.page.exists():
+        check_output_file(args.page, force=True, option="--page")
     if args.render_only:
         report = read_json_report(args.out / "metrics.json", "paper reproduction metrics")
         if "loops" not in report or "steady_state" not in report:

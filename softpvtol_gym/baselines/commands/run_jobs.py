@@ -17,7 +17,12 @@ Afterwards ``softpvtol leaderboard`` (``python baselines/leaderboard.py``) build
 
 The spec is validated first (unknown keys, bad values and job names that would leave ``--root`` are
 errors); the root is locked while the jobs run (a second run_jobs.py on it gets exit 2 naming the
-holder). Exit codes: 0 done, 2 bad input, a busy root or failed jobs (one line each).
+holder). Each job runs in a process of its own (at most ``--workers`` at once): a worker that is killed (``kill
+-9``, the OOM killer; on Ray a crashed worker) fails only its job, reported as ``worker crashed``; the other jobs
+go on, and at the end the failed jobs and the command that re-runs them are printed (exit 2). Ctrl-C / SIGTERM
+stop the running workers (none is left behind), keep the finished jobs and print how many (exit 130 / 143).
+Exit codes: 0 done, 2 bad input, a busy root or failed jobs (one line each), 74 an unwritable ``--root`` found
+late (disk full), 130 / 143 interrupted.
 """
 
 from __future__ import annotations
@@ -25,12 +30,14 @@ from __future__ import annotations
 import argparse
 import multiprocessing as mp
 import os
-from concurrent.futures import ProcessPoolExecutor
+import shlex
+import sys
 from pathlib import Path
 
 from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_jobs, pending, run_jobs
+from softpvtol_gym.baselines.leaderboard.process_executor import ProcessPerJobExecutor
 from softpvtol_gym.baselines.leaderboard.ray_executor import RayExecutor, start_ray
-from softpvtol_gym.baselines.util.args import Parser, command_main, int_arg
+from softpvtol_gym.baselines.util.args import Parser, check_output_dir, command_main, int_arg, interrupted
 from softpvtol_gym.baselines.util.extras import DISTRIBUTED, require
 from softpvtol_gym.baselines.util.locks import DirectoryLock
 from softpvtol_gym.baselines.util.paths import Layout
@@ -57,6 +64,18 @@ def _main(argv, layout: Layout, prog: str) -> int:
                     help="re-run the evaluation of finished jobs with their committed models (no training)")
     ap.add_argument("--no-progress-bar", action="store_true", help="no progress bar (one line per job stays)")
     args = ap.parse_args(argv)
+    given = sys.argv[1:] if argv is None else list(argv)
+    rerun = f"{'python baselines/' if prog.endswith('.py') else ''}{prog} {shlex.join(given)}".strip()
+    try:
+        return _checked(ap, args, layout, prog, rerun)
+    except KeyboardInterrupt as exc:
+        if not getattr(exc, "kept", None):  # stopped before the first job was submitted (Ray starting, say)
+            interrupted(exc, f"no job had started, nothing was written under {args.root}; rerun: {rerun}")
+        raise
+
+
+def _checked(ap: Parser, args, layout: Layout, prog: str, rerun: str) -> int:
+    """The options checked, then the pending jobs run."""
     if args.workers is not None and not 1 <= args.workers <= MAX_WORKERS:
         ap.error(f"--workers must be in [1, {MAX_WORKERS}], got {args.workers}")
     if args.address is not None and args.executor != "ray":
@@ -83,22 +102,28 @@ def _main(argv, layout: Layout, prog: str) -> int:
         return 0
     if args.executor == "ray":
         require("run_jobs.py", DISTRIBUTED, prog=prog)
+    check_output_dir(args.root, "--root")  # before any job: not under /proc, a file or a read-only mount
+    _run(args, jobs, layout, rerun, progress=not args.no_progress_bar)
+    return 0
 
-    progress = not args.no_progress_bar
+
+def _run(args, jobs, layout: Layout, rerun: str, progress: bool) -> None:
+    """The jobs on the chosen executor, with the root locked."""
     with DirectoryLock(args.root, "job root"):
         if args.executor == "ray":
             with start_ray(address=args.address, num_cpus=args.workers) as resources:
                 print(f"Ray: {len(jobs)} jobs on {resources.get('CPU', 0):g} CPUs", flush=True)
                 run_jobs(jobs, RayExecutor(num_cpus=1), args.root, reevaluate=args.reevaluate, check_root=True,
-                         progress=progress, base=layout.root)
+                         progress=progress, base=layout.root, rerun=rerun)
         else:
             # numba's threading layer per worker would oversubscribe the cores: one thread per worker process
             os.environ.setdefault("NUMBA_NUM_THREADS", "1")
             workers = args.workers or os.cpu_count() or 1
-            with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
+            # a process per job: a killed worker fails its own job only; leaving the block (Ctrl-C, SIGTERM)
+            # terminates the running ones
+            with ProcessPerJobExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
                 run_jobs(jobs, ex, args.root, reevaluate=args.reevaluate, progress=progress,
-                         base=layout.root)
-    return 0
+                         base=layout.root, rerun=rerun)
 
 
 main = command_main("run_jobs.py", _main,

@@ -21,7 +21,8 @@ below) and prints both.
 ``--resume`` continues the run in ``--out`` (options left out take the run's saved values; ``--timesteps``
 may extend it); a run killed before its first checkpoint starts over with the same command; on a finished
 run it says so and exits 0. Exit codes: 0 done, 2 bad input or a run directory in use (one line, nothing
-written or overwritten), 130 interrupted.
+written or overwritten), 74 an I/O error (disk full, read-only: one line naming the path; the last checkpoint
+stays whole), 130 / 143 interrupted by Ctrl-C / SIGTERM (the last checkpoint is kept; ``--resume`` continues).
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, evaluate
 from softpvtol_gym.baselines.training.loop import prepare, train
 from softpvtol_gym.baselines.training.models import DEVICES
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
-from softpvtol_gym.baselines.util.args import Parser, command_main, int_arg
+from softpvtol_gym.baselines.util.args import Parser, check_output_dir, command_main, int_arg, interrupted
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.locks import DirectoryLock
 from softpvtol_gym.baselines.util.paths import Layout
@@ -177,8 +178,16 @@ def _main(argv, layout: Layout, prog: str) -> int:
     ap = build_parser(prog)
     args = ap.parse_args(argv)
     config, out = make_config(args, ap)
+    check_output_dir(out, "--out")  # before any work: not under /proc, a file, or a read-only place
+    try:
+        return _train_and_compare(args, config, out)
+    except KeyboardInterrupt as exc:
+        raise interrupted(exc, f"the run in {out} keeps its last complete checkpoint (none if it stopped before the "
+                               f"first; nothing half-written); continue it with the same command and --resume "
+                               f"--out {out}") from None
 
 
+def _train_and_compare(args, config: RunConfig, out: Path) -> int:
     prepared = prepare(config, out, device=args.device)  # bad hyperparameters or device end here: nothing written yet
 
     with DirectoryLock(out, "run directory"):

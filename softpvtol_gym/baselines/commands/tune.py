@@ -24,7 +24,9 @@ The evaluation episodes are seeded from ``--eval-seed`` (default 3,000,000): hel
 The best configuration is written (atomically; ``--out`` must not exist unless ``--force``) as YAML, data
 only: the full hyperparameter entry, the searched values as ``train.py --hp`` arguments, the objective,
 and the provenance (trials, budget per trial, scheduler, search space, seeds, date, git commit, versions,
-every trial's result). Exit codes: 0 done, 2 bad input (one line; nothing started), 130 interrupted.
+every trial's result). Exit codes: 0 done, 2 bad input (one line; nothing started), 74 an unwritable path,
+130 / 143 interrupted by Ctrl-C / SIGTERM: no best configuration is written from a partial search (one line saying
+so), Ray is shut down and the temporary trial folders removed.
 Needs the ``distributed`` extra.
 """
 
@@ -36,9 +38,11 @@ import json
 import math
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 import yaml
@@ -59,7 +63,15 @@ from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes, s
 from softpvtol_gym.baselines.leaderboard.ray_executor import start_ray
 from softpvtol_gym.baselines.training.loop import train
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
-from softpvtol_gym.baselines.util.args import Parser, command_main, int_arg
+from softpvtol_gym.baselines.util.args import (
+    Parser,
+    Terminated,
+    check_output_dir,
+    check_output_file,
+    command_main,
+    int_arg,
+    interrupted,
+)
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout, data_file
 from softpvtol_gym.envs.actions import ACTION_MODES
@@ -310,6 +322,7 @@ def _check_out(ap: Parser, out: Path, force: bool) -> None:
         parent = parent.parent
     if not parent.is_dir() or not os.access(parent, os.W_OK):
         ap.error(f"--out {out}: {parent} is not a writable directory")
+    check_output_file(out, force=True, option="--out")  # /proc, read-only mounts: before Ray starts
 
 
 def _main(argv, layout: Layout, prog: str) -> int:
@@ -323,6 +336,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
     _check_out(ap, out, args.force)
     if args.storage is not None and args.storage.exists() and not args.storage.is_dir():
         ap.error(f"--storage {args.storage} is a file; expected a directory")
+    if args.storage is not None:
+        check_output_dir(args.storage, "--storage")
     base = apply_overrides(load_hyperparams(args.algo, args.action_mode, args.hyperparams), args.hp)
     validate_hyperparams(args.algo, base)
     space = load_space(args.space, args.algo, base)
@@ -349,6 +364,20 @@ def _main(argv, layout: Layout, prog: str) -> int:
     started = _dt.datetime.now(_dt.timezone.utc)
     scheduler = {"time_attr": "training_iteration", "max_t": args.reports, "grace_period": 1,
                  "reduction_factor": REDUCTION_FACTOR}
+    # Ctrl-C must stop the search, not end it quietly with a "best" of the trials so far: Tune's own SIGINT
+    # handler (which ends fit() normally) is turned off, and a flag catches a signal that Tune swallows anyway
+    os.environ["TUNE_DISABLE_SIGINT_HANDLER"] = "1"
+    signals: list[int] = []
+
+    def _note(signum, frame):
+        signals.append(signum)
+        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+    handlers = {}
+    if threading.current_thread() is threading.main_thread():
+        handlers = {sig: signal.signal(sig, _note) for sig in (signal.SIGINT, signal.SIGTERM)}
+    kept = (f"the trials' folders are kept in --storage {storage}" if args.storage is not None else
+            "the trials' temporary folders were removed")
     try:
         with start_ray(address=args.address, num_cpus=args.workers) as resources:
             print(f"Ray Tune: {args.trials} trials x {args.timesteps:,} steps ({args.reports} reports each) on "
@@ -366,13 +395,23 @@ def _main(argv, layout: Layout, prog: str) -> int:
                                           callbacks=[_TrialLines(args.trials, args.metric)]),
             )
             results = tuner.fit()
+            if signals:  # swallowed by Tune: the search is partial all the same
+                raise Terminated() if signals[-1] == signal.SIGTERM else KeyboardInterrupt()
+    except KeyboardInterrupt as exc:
+        if signal.SIGTERM in signals and not isinstance(exc, Terminated):
+            exc = Terminated()  # Tune re-raises what it caught as a plain KeyboardInterrupt
+        raise interrupted(exc, f"the search was stopped before its end, so no best configuration was written (nothing "
+                               f"written to {out}); {kept}") from None
     finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
         if args.storage is None:
             shutil.rmtree(storage, ignore_errors=True)
     best, trials = summarize_search(results, args.metric, mode)
     if best is None:
         errors = sorted({t["error"] for t in trials if t["error"]})
-        raise ConfigError(f"no trial finished ({len(trials)} tried); first error: {errors[0] if errors else 'none'}")
+        why = f"first error: {errors[0]}" if errors else "none reported an error or a result"
+        raise ConfigError(f"no trial finished ({len(trials)} tried; {why}); nothing was written")
     record = {
         "format": FORMAT,
         "cell": {"algo": args.algo, "env_id": ENV_ID, "action_mode": args.action_mode, "task": args.task,

@@ -53,6 +53,7 @@ from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes
 from softpvtol_gym.baselines.training.loop import EVALUATIONS_FILE, train
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
+from softpvtol_gym.baselines.util.args import interrupted
 from softpvtol_gym.baselines.util.atomic import atomic_copy, atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout, check_slug, data_file, relative_to_root, under
 from softpvtol_gym.control import LOOPS
@@ -397,40 +398,67 @@ def check_shared_root(root: Path, token: str) -> None:
                           f"node mounts at the same path")
 
 
+#: exception type names of a worker that died under its job (the pool's, Ray's, ours)
+WORKER_CRASHES = ("WorkerCrashed", "BrokenProcessPool", "WorkerCrashedError", "NodeDiedError", "LocalRayletDiedError",
+                  "ActorDiedError", "OutOfMemoryError")
+
+
+def _failure_line(exc: BaseException) -> str:
+    """One line for a failed job: what a user must fix (ConfigError), a dead worker, or the unexpected error."""
+    text = " ".join(str(exc).split())
+    if isinstance(exc, ConfigError):
+        return text
+    if type(exc).__name__ in WORKER_CRASHES:
+        return f"worker crashed ({type(exc).__name__}: {text[:300]})"
+    return f"{type(exc).__name__}: {text[:300]}"
+
+
 def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevaluate: bool = False,
-             check_root: bool = False, progress: bool = True, base: Path | None = None) -> list[str]:
-    """Submit every job to ``executor`` (anything with ``submit`` returning futures: a process pool, a
+             check_root: bool = False, progress: bool = True, base: Path | None = None,
+             rerun: str | None = None, entry=None) -> list[str]:
+    """Submit every job to ``executor`` (anything with ``submit`` returning futures: a
+    :class:`~softpvtol_gym.baselines.leaderboard.process_executor.ProcessPerJobExecutor`, a process pool, a
     :class:`softpvtol_gym.baselines.leaderboard.ray_executor.RayExecutor`); returns the names of the jobs that
     finished, in completion order, printing one line per job (and a progress bar on a terminal, ``progress``). A job
-    that fails on a :class:`~softpvtol_gym.baselines.errors.ConfigError` (an unusable checkpoint, a busy folder) is
-    reported in one line and the others go on; a ConfigError listing the failed jobs is raised at the end.
+    that fails (a :class:`~softpvtol_gym.baselines.errors.ConfigError`: an unusable checkpoint, a busy folder; a
+    worker that was killed: ``worker crashed``; any other error) is reported in one line and the others go on; at
+    the end a ConfigError lists the failed jobs and the command that re-runs them (``rerun``; finished jobs are
+    skipped then). Interrupted (Ctrl-C, SIGTERM), the KeyboardInterrupt is re-raised with what was kept
+    (:func:`softpvtol_gym.baselines.util.args.interrupted`).
     ``check_root``: every job first checks that it sees the same ``root`` as this process (for executors
     on other machines). ``base``: the checkpoint paths in ``eval.json`` are recorded relative to it (default:
-    the current directory)."""
+    the current directory). ``entry``: the function each job runs in its worker (default :func:`_run_job_entry`;
+    another, with the same arguments and ``(name, seconds)`` result, for tests of the executors)."""
     from tqdm import tqdm
 
     for job in jobs:
         job.folder(root)  # every output path checked before anything runs
-    with contextlib.ExitStack() as stack:
-        token = stack.enter_context(shared_root_token(root)) if check_root else None
-        base = str((Path.cwd() if base is None else Path(base)).resolve())  # checkpoint paths recorded relative to it
-        futures = {executor.submit(_run_job_entry, job, str(root), reevaluate, token, base): job for job in jobs}
-        # disable=None: a bar on a terminal only (logs get the one line per job below)
-        bar = stack.enter_context(tqdm(total=len(jobs), unit="job", file=sys.stderr,
-                                       disable=None if progress else True))
-        done, failed = [], []
-        for fut in as_completed(futures):
-            bar.update(1)
-            try:
-                name, seconds = fut.result()
-            except ConfigError as exc:
-                failed.append(futures[fut].name)
-                bar.write(f"[failed] {futures[fut].name}: {' '.join(str(exc).split())}", file=sys.stderr)
-                continue
-            done.append(name)
-            bar.write(f"[{len(done)}/{len(jobs)}] {name} ({seconds:.0f} s)", file=sys.stdout)
+    again = f"; rerun: {rerun} (finished jobs are skipped)" if rerun else ""
+    done, failed = [], []
+    try:
+        with contextlib.ExitStack() as stack:
+            token = stack.enter_context(shared_root_token(root)) if check_root else None
+            base = str((Path.cwd() if base is None else Path(base)).resolve())  # paths in eval.json relative to it
+            entry = entry or _run_job_entry
+            futures = {executor.submit(entry, job, str(root), reevaluate, token, base): job for job in jobs}
+            # disable=None: a bar on a terminal only (logs get the one line per job below)
+            bar = stack.enter_context(tqdm(total=len(jobs), unit="job", file=sys.stderr,
+                                           disable=None if progress else True))
+            for fut in as_completed(futures):
+                bar.update(1)
+                try:
+                    name, seconds = fut.result()
+                except Exception as exc:  # noqa: BLE001 - one job's failure must not stop the others
+                    failed.append(futures[fut].name)
+                    bar.write(f"[failed] {futures[fut].name}: {_failure_line(exc)}", file=sys.stderr)
+                    continue
+                done.append(name)
+                bar.write(f"[{len(done)}/{len(jobs)}] {name} ({seconds:.0f} s)", file=sys.stdout)
+    except KeyboardInterrupt as exc:
+        raise interrupted(exc, f"{len(done)} of {len(jobs)} jobs finished and are kept under {root}, "
+                               f"{len(jobs) - len(done) - len(failed)} not finished{again}") from None
     if failed:
-        raise ConfigError(f"{len(failed)} of {len(jobs)} jobs failed (see above): {', '.join(sorted(failed))}")
+        raise ConfigError(f"{len(failed)} of {len(jobs)} jobs failed (see above): {', '.join(sorted(failed))}{again}")
     return done
 
 

@@ -22,7 +22,9 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import signal
 import tempfile
+import threading
 from concurrent.futures import Future
 from pathlib import Path
 
@@ -56,6 +58,48 @@ def runtime_env() -> dict:
 
 
 @contextlib.contextmanager
+def _signals_deferred(ray):
+    """Ctrl-C and SIGTERM held back while ``ray.init`` starts Ray's processes, then acted on.
+
+    Interrupted half-way, ``ray.init`` leaves processes that ``ray.shutdown`` does not know of (the audit found
+    a dashboard and a runtime-env agent orphaned, and their temporary folders). Here a signal that arrives
+    during the start is recorded and re-delivered to the command's own handler (a KeyboardInterrupt,
+    :func:`softpvtol_gym.baselines.util.args.run_main`) once Ray is up, so that the shutdown in :func:`start_ray`
+    stops a complete instance. Ray's own SIGTERM handler (``sys.exit`` from inside ``ray.init``) is not installed
+    meanwhile. Only in the main thread (elsewhere signals cannot be handled, and nothing changes)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    own = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    received: list[int] = []
+
+    def record(signum, frame):
+        received.append(signum)
+
+    utils = getattr(getattr(ray, "_private", None), "utils", None)
+    ray_setter = getattr(utils, "set_sigterm_handler", None)
+    for sig in own:
+        signal.signal(sig, record)
+    if ray_setter is not None:
+        utils.set_sigterm_handler = lambda handler: None
+    try:
+        yield
+    finally:
+        if ray_setter is not None:
+            utils.set_sigterm_handler = ray_setter
+        for sig, handler in own.items():
+            signal.signal(sig, handler)
+    if received:
+        handler = own[received[0]]
+        if callable(handler):
+            handler(received[0], None)
+        elif received[0] == signal.SIGINT:
+            raise KeyboardInterrupt()
+        else:
+            os.kill(os.getpid(), received[0])
+
+
+@contextlib.contextmanager
 def start_ray(address: str | None = None, num_cpus: int | None = None, num_gpus: int | None = None):
     """Start a local Ray instance (``address=None``: ``num_cpus`` CPUs, default all; no dashboard; a fresh
     temporary directory, removed afterwards) or connect to the cluster at ``address`` (``"auto"``: the one
@@ -77,15 +121,18 @@ def start_ray(address: str | None = None, num_cpus: int | None = None, num_gpus:
                               "by the driver (leave out --workers with --address)")
         kwargs.update(address=address)
     try:
-        try:
-            ray.init(**kwargs)
-        except ConnectionError as exc:
-            raise ConfigError(f"cannot connect to a Ray cluster at {address!r}: {' '.join(str(exc).split())} "
-                              f"(start one with `ray start --head`, or leave out --address for a local instance)"
-                              ) from None
+        with _signals_deferred(ray):
+            try:
+                ray.init(**kwargs)
+            except ConnectionError as exc:
+                raise ConfigError(f"cannot connect to a Ray cluster at {address!r}: {' '.join(str(exc).split())} "
+                                  f"(start one with `ray start --head`, or leave out --address for a local instance)"
+                                  ) from None
         yield ray.cluster_resources()
     finally:
-        if ray.is_initialized():
+        # unconditionally: interrupted inside ray.init, Ray may have started its processes without being
+        # "initialised" yet, and shutdown() is what stops them (no orphan raylet or workers)
+        with contextlib.suppress(Exception):
             ray.shutdown()
         if temp_dir is not None:
             shutil.rmtree(temp_dir, ignore_errors=True)

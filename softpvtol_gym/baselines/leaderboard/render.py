@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
@@ -177,6 +178,14 @@ def _entry_order(entry: str) -> tuple:
 
 
 def render_chart(data: dict, path: Path) -> None:
+    """Write the chart of :func:`chart_png` to ``path`` (atomically)."""
+    png = chart_png(data)
+    with atomic_path(Path(path)) as tmp:
+        tmp.write_bytes(png)
+
+
+def chart_png(data: dict) -> bytes:
+    """The leaderboard chart (IQM RMS position error per task, tier and entry, with CIs) as PNG bytes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -208,6 +217,9 @@ def render_chart(data: dict, path: Path) -> None:
         ax.grid(True, axis="y", alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    with atomic_path(Path(path)) as tmp:
+    tmp = io.BytesIO()  # in memory: the caller writes the bytes atomically (render_chart, atomic_write_all)
+    try:
         fig.savefig(tmp, format="png", dpi=110, metadata={"Software": None})
-    plt.close(fig)
+    finally:
+        plt.close(fig)
+    return tmp.getvalue()

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.baselines.evaluation import summarize
+from softpvtol_gym.baselines.evaluation import EPISODE_METRICS, summarize
 from softpvtol_gym.baselines.leaderboard.jobs import (
     EVAL_FILE,
     RUNS_DIR,
@@ -55,6 +55,7 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> tuple[list[dict], 
         if (j.get("policy"), j.get("task"), j.get("seed")) != (job.policy, job.task, job.seed):
             raise ConfigError(f"{path} holds the result of another job ({j.get('policy')}, {j.get('task')}, seed "
                               f"{j.get('seed')}); expected {job.name}")
+        check_result(rec, path)
         evaluations = evaluations_of(rec)
         lost = missing_evaluations(job, rec)
         if lost:
@@ -71,6 +72,53 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> tuple[list[dict], 
                     "eval_seed": j["eval_seed"], "episodes": episodes, "summary": _summary(episodes),
                 })
     return cells, missing
+
+
+def _number(v, allow_bool: bool = False) -> bool:
+    return (isinstance(v, (int, float)) and (allow_bool or not isinstance(v, bool))) and math.isfinite(v)
+
+
+#: the job fields a result must carry (name -> accepted types)
+_RESULT_JOB_KEYS = {"policy": (str,), "action_mode": (str,), "task": (str,), "train_tier": (str, type(None)),
+                    "seed": (int,), "eval_seed": (int,)}
+
+
+def check_result(rec: dict, path: Path) -> dict:
+    """``rec`` (a job's eval.json) if every field the leaderboard reads is there, of the right type and finite;
+    else ConfigError naming the file and the field (nothing is written then)."""
+    def bad(what: str):
+        raise ConfigError(f"{path}: {what}; delete it and re-run the job (python baselines/run_jobs.py)")
+
+    job = rec["job"]
+    for key, types in _RESULT_JOB_KEYS.items():
+        if key not in job:
+            bad(f"job.{key} is missing")
+        if not isinstance(job[key], types) or isinstance(job[key], bool):
+            bad(f"job.{key} must be {' or '.join(t.__name__ for t in types)}, got {job[key]!r}")
+    if job.get("timesteps") is not None and not (_number(job["timesteps"]) and isinstance(job["timesteps"], int)):
+        bad(f"job.timesteps must be an integer, got {job['timesteps']!r}")
+    if rec["checkpoint"] is not None and not isinstance(rec["checkpoint"], str):
+        bad(f"checkpoint must be a path or null, got {rec['checkpoint']!r}")
+    if rec["train_seconds"] is not None and not _number(rec["train_seconds"]):
+        bad(f"train_seconds must be a finite number or null, got {rec['train_seconds']!r}")
+    other = rec.get("eval_other_tasks", {})
+    if not isinstance(other, dict):
+        bad("eval_other_tasks must be an object (task -> tier -> episodes)")
+    for where, tiers in [("eval", rec["eval"]), *((f"eval_other_tasks.{t}", v) for t, v in other.items())]:
+        if not isinstance(tiers, dict):
+            bad(f"{where} must be an object (tier -> episodes)")
+        for tier, episodes in tiers.items():
+            if not isinstance(episodes, list) or not episodes:
+                bad(f"{where}.{tier} must be a non-empty list of episodes")
+            for i, e in enumerate(episodes):
+                if not isinstance(e, dict):
+                    bad(f"{where}.{tier}[{i}] must be an object")
+                for key in EPISODE_METRICS:
+                    if key not in e:
+                        bad(f"{where}.{tier}[{i}].{key} is missing")
+                    if not _number(e[key], allow_bool=key == "crashed"):
+                        bad(f"{where}.{tier}[{i}].{key} must be a finite number, got {e[key]!r}")
+    return rec
 
 
 def _summary(episodes: list[dict]) -> dict:
@@ -245,6 +293,9 @@ def validate_data(data, source: str) -> dict:
             bad(f"meta.{key} must be a {typ.__name__}, got {meta.get(key)!r}")
     if not isinstance(data["aggregates"], list) or not isinstance(data["cells"], list):
         bad("aggregates and cells must be lists")
+    non_finite = _first_non_finite(data)
+    if non_finite is not None:
+        bad(f"{non_finite} is not a finite number")
     for i, r in enumerate(data["aggregates"]):
         where = f"aggregates[{i}]"
         if not isinstance(r, dict):
@@ -264,6 +315,23 @@ def validate_data(data, source: str) -> dict:
             if not (isinstance(ci, list) and len(ci) == 2 and all(number(v) for v in ci)):
                 bad(f"{where}.{key} must be a list of two finite numbers, got {ci!r}")
     return data
+
+
+def _first_non_finite(value, where: str = "") -> str | None:
+    """The path (``cells[3].summary.mean_return``) of the first NaN or infinity in ``value``, or None."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return where or "the value"
+    if isinstance(value, dict):
+        items = ((f"{where}.{k}" if where else str(k), v) for k, v in value.items())
+    elif isinstance(value, list):
+        items = ((f"{where}[{i}]", v) for i, v in enumerate(value))
+    else:
+        return None
+    for w, v in items:
+        found = _first_non_finite(v, w)
+        if found is not None:
+            return found
+    return None
 
 
 def read_data(path: Path) -> dict:

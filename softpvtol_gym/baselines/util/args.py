@@ -1,6 +1,11 @@
 """Command-line plumbing shared by the subcommands: one-line errors with exit code 2, never a traceback for
 input a user can fix.
 
+Exit codes of every command (:data:`EXIT_CODES`; the commands' help and docs/baselines.md list them):
+0 done; 2 bad input (nothing started) or jobs that failed; 74 an input/output error (disk full, a read-only or
+unwritable path: the message names the path; files are written atomically, so what was there stays whole);
+130 interrupted by Ctrl-C (SIGINT), 143 by SIGTERM (the message says what was kept).
+
 :class:`Parser` is an ``argparse.ArgumentParser`` whose errors are one line (``prog: error: ...``) and exit 2;
 :func:`run_main` runs a command's body and turns a :class:`~softpvtol_gym.baselines.errors.ConfigError` (bad
 input, an unusable checkpoint, a busy run directory) into the same one-line exit 2, and Ctrl-C into exit 130;
@@ -11,10 +16,14 @@ types, the output-file check made before any work, and reading a command's JSON 
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import math
 import os
+import signal
 import sys
+import tempfile
+import threading
 from pathlib import Path
 
 from softpvtol_gym.baselines.errors import ConfigError
@@ -33,21 +42,80 @@ def fail(prog: str, message: str, code: int = 2):
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (``prog: error: message (see prog --help)``), exit code 2."""
+    """argparse with one-line errors (``prog: error: message (see prog --help)``), exit code 2; the help ends
+    with the exit codes (:data:`EXIT_EPILOG`)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("epilog", EXIT_EPILOG)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # noqa: D401 (argparse API)
         fail(self.prog, f"{message} (see {self.prog} --help)")
 
 
+#: exit codes of every command
+EXIT_OK, EXIT_BAD_INPUT, EXIT_IO_ERROR, EXIT_SIGINT, EXIT_SIGTERM = 0, 2, 74, 130, 143
+EXIT_CODES = {EXIT_OK: "done", EXIT_BAD_INPUT: "bad input (one line, nothing started) or failed jobs",
+              EXIT_IO_ERROR: "input/output error: disk full, a read-only or unwritable path (one line naming it)",
+              EXIT_SIGINT: "interrupted by Ctrl-C (SIGINT)", EXIT_SIGTERM: "terminated by SIGTERM"}
+#: the epilog of every command's --help
+EXIT_EPILOG = ("exit codes: 0 done; 2 bad input or failed jobs (one line);\n"
+               "  74 input/output error (disk full, read-only or unwritable path; one line naming it);\n"
+               "  130 Ctrl-C, 143 SIGTERM (one line saying what was kept; nothing partial is presented as complete)")
+
+
+class Terminated(KeyboardInterrupt):
+    """Raised in the main thread by the SIGTERM handler that :func:`run_main` installs: a KeyboardInterrupt, so
+    that every ``finally`` and ``except KeyboardInterrupt`` that cleans up after Ctrl-C does so after SIGTERM too."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+def interrupted(exc: BaseException, kept: str) -> BaseException:
+    """Attach ``kept`` (what the interrupted command kept, how to continue) to a KeyboardInterrupt, for the
+    one-line message of :func:`run_main`; returns ``exc`` (``raise interrupted(exc, "...")``)."""
+    exc.kept = kept
+    return exc
+
+
+def io_error_message(exc: OSError) -> str:
+    """One line for an OSError: the path(s), and what went wrong in words."""
+    reason = {errno.ENOSPC: "no space left on the device (disk full)", errno.EROFS: "read-only file system",
+              errno.EACCES: "permission denied", errno.EPERM: "operation not permitted",
+              errno.ENOTDIR: "a path component is a file, not a directory",
+              errno.EDQUOT: "disk quota exceeded"}.get(exc.errno, exc.strerror or str(exc))
+    paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
+    where = " -> ".join(paths) if paths else "(no path given by the system)"
+    return f"cannot write {where}: {reason}; files already written were replaced atomically and are whole"
+
+
 def run_main(main, argv=None, prog: str | None = None) -> int:
-    """``main(argv)`` with ConfigError -> one-line message and exit 2, KeyboardInterrupt -> exit 130."""
+    """``main(argv)`` with ConfigError -> one-line message and exit 2, OSError -> one line naming the path and exit
+    74, Ctrl-C (KeyboardInterrupt) -> exit 130 and SIGTERM (:class:`Terminated`, from a handler installed for the
+    call in the main thread) -> exit 143, each with one line saying what was kept (``exc.kept``, see
+    :func:`interrupted`)."""
     name = prog or (sys.argv[0].rsplit("/", 1)[-1] if sys.argv and sys.argv[0] else "script")
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         return main(argv)
     except ConfigError as exc:
         fail(name, str(exc))
-    except KeyboardInterrupt:
-        fail(name, "interrupted", code=130)
+    except KeyboardInterrupt as exc:
+        code, what = (EXIT_SIGTERM, "terminated (SIGTERM)") if isinstance(exc, Terminated) else (
+            EXIT_SIGINT, "interrupted (Ctrl-C)")
+        kept = getattr(exc, "kept", None) or ("the run is incomplete and its result was not written; no file is left "
+                                              "half-written (each is written atomically: the old one or a complete "
+                                              "new one)")
+        fail(name, f"{what}: {kept}", code=code)
+    except OSError as exc:
+        fail(name, io_error_message(exc), code=EXIT_IO_ERROR)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 # ------------------------------------------------------------------------- argparse value types
@@ -96,12 +164,49 @@ def check_output_file(path: Path, force: bool, option: str = "--json") -> None:
     if path.exists() and not force:
         raise ConfigError(f"{option} {path} exists; pass --force to overwrite it (nothing was written)")
     parent = path.parent
-    while not parent.exists():
+    while not parent.exists() and parent.parent != parent:
         parent = parent.parent
     if not parent.is_dir():
         raise ConfigError(f"{option} {path}: {parent} is a file, not a directory")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ConfigError(f"{option} {path}: directory {parent} is not writable")
+    _check_writable(parent, f"{option} {path}")
+
+
+def check_output_dir(path: Path, option: str) -> None:
+    """ConfigError unless ``path`` is, or can be created as, a writable directory: checked before any work, so
+    that an output under /proc, under a file, or in a read-only place is refused at once (``os.access`` and
+    the mount's read-only flag, which hold for root too)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{option} {path} is a file; expected a directory")
+    probe = path
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ConfigError(f"{option} {path}: {probe} is a file, not a directory")
+    _check_writable(probe, f"{option} {path}")
+
+
+def _check_writable(directory: Path, what: str) -> None:
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise ConfigError(f"{what}: directory {directory} is not writable")
+    try:
+        read_only = bool(os.statvfs(directory).f_flag & os.ST_RDONLY)
+    except OSError:
+        read_only = False
+    if read_only:
+        raise ConfigError(f"{what}: directory {directory} is on a read-only file system")
+    try:  # /proc, /sys and the like pass both checks above: try to create a file
+        fd, tmp = _probe_file(directory)
+    except OSError as exc:
+        raise ConfigError(f"{what}: cannot create files in {directory} ({exc.strerror or exc})") from None
+    os.close(fd)
+    os.unlink(tmp)
+
+
+def _probe_file(directory: Path):
+    return tempfile.mkstemp(prefix=".write-probe.", dir=directory)
 
 
 def read_json_report(path: Path, what: str) -> dict:

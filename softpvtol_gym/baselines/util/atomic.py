@@ -97,6 +97,34 @@ def atomic_write_text(path: Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
+def atomic_write_all(files: dict) -> None:
+    """Write several files, all or nothing as far as POSIX allows: ``files`` maps each path to its bytes. Every
+    content is first written and fsync'ed to a temporary sibling; only when all of them are written (a full disk
+    or a read-only directory fails here, with every target unchanged) are they renamed over their targets, one
+    ``os.replace`` each."""
+    temps: list[tuple[Path, Path]] = []
+    try:
+        for path, data in files.items():
+            path = Path(path)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            clean_stale_temps(path.parent, name=path.name)
+            tmp = temp_name(path)
+            temps.append((tmp, path))
+            with open(tmp, "wb") as fh:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+    except BaseException:
+        for tmp, _ in temps:
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+        raise
+    for tmp, path in temps:
+        os.replace(tmp, path)
+    for parent in {path.parent for _, path in temps}:
+        fsync_dir(parent)
+
+
 def atomic_copy(src: Path, dst: Path) -> None:
     """Copy the bytes of ``src`` to ``dst`` atomically and durably."""
     atomic_write_bytes(dst, Path(src).read_bytes())
