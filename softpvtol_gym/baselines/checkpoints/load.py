@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from softpvtol_gym.baselines.checkpoints.manifest import (
     CONFIG_FILE,
@@ -28,6 +27,7 @@ from softpvtol_gym.baselines.config.hyperparams import normalize_kwargs
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import CheckpointError, ConfigError
 from softpvtol_gym.baselines.training.models import build_model, frame_stack_wrapper, make_env, stack_frames
+from softpvtol_gym.baselines.util.safe_load import loads_yaml
 
 
 # ------------------------------------------------------------------------------------- loading
@@ -46,10 +46,7 @@ def load_folder(folder: Path, *, training: bool = False, n_envs: int | None = No
     manifest = read_manifest(folder)
     config_bytes = read_verified(folder, manifest, CONFIG_FILE)
 
-    try:
-        raw = yaml.safe_load(config_bytes)
-    except yaml.YAMLError as exc:
-        raise CheckpointError(f"{folder / CONFIG_FILE} is not valid YAML ({exc})") from None
+    raw = loads_yaml(config_bytes, str(folder / CONFIG_FILE), error=CheckpointError)
     if isinstance(raw, dict) and raw.get("algo") != manifest["algo"]:
         raise CheckpointError(f"{folder}: {MANIFEST_FILE} says {manifest['algo'].upper()}, config.yaml says "
                               f"{str(raw.get('algo')).upper()}")
