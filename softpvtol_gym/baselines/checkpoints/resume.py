@@ -373,19 +373,39 @@ def save_replay_buffer(buffer, folder: Path) -> tuple[list[str], dict]:
 
 
 def restore_replay_buffer(buffer, info: dict, arrays: dict, source: str) -> None:
+    """Fill the run's replay buffer from a checkpoint, every field checked first (sizes, position, dtypes,
+    shapes (filled, n_envs, ...) of the run's buffer, finite values)."""
     try:
+        if not isinstance(info, dict):
+            raise ValueError(f"replay_buffer.json must be a mapping, got {type(info).__name__}")
+        for key in ("buffer_size", "n_envs", "filled", "pos"):
+            if isinstance(info.get(key), bool) or not isinstance(info.get(key), int):
+                raise ValueError(f"{key} must be an integer, got {str(info.get(key))[:40]!r}")
+        if not isinstance(info.get("full"), bool):
+            raise ValueError(f"full must be true or false, got {str(info.get('full'))[:40]!r}")
         if info["buffer_size"] != buffer.buffer_size or info["n_envs"] != buffer.n_envs:
             raise ValueError(f"saved buffer of {info['buffer_size']} x {info['n_envs']}, the run's is "
                              f"{buffer.buffer_size} x {buffer.n_envs}")
-        n = int(info["filled"])
+        n, pos, full = info["filled"], info["pos"], info["full"]
+        if not (0 <= pos < buffer.buffer_size and n == (buffer.buffer_size if full else pos)):
+            raise ValueError(f"position {pos}, {n} filled, full={full} are inconsistent for a buffer of "
+                             f"{buffer.buffer_size}")
+        checked = {}
         for k in _REPLAY_ARRAYS:
             target = getattr(buffer, k, None)
             if target is None:
                 continue
+            if k not in arrays:
+                raise ValueError(f"{k} is missing")
             saved = arrays[k]
             if saved.shape != (n, *target.shape[1:]) or saved.dtype != target.dtype:
-                raise ValueError(f"{k} is {saved.dtype}{saved.shape}")
-            target[:n] = saved
-        buffer.pos, buffer.full = int(info["pos"]), bool(info["full"])
+                raise ValueError(f"{k} is {saved.dtype}{saved.shape}, the run's buffer needs "
+                                 f"{target.dtype}{(n, *target.shape[1:])}")
+            if saved.dtype.kind == "f" and not np.isfinite(saved).all():
+                raise ValueError(f"{k} holds non-finite values")
+            checked[k] = saved
     except (KeyError, TypeError, ValueError) as exc:
         raise CheckpointError(f"{source}: {REPLAY_FILE} does not fit the run's replay buffer ({exc})") from None
+    for k, saved in checked.items():
+        getattr(buffer, k)[:n] = saved
+    buffer.pos, buffer.full = pos, full
