@@ -106,7 +106,7 @@ def apply_overrides(hyperparams: dict, overrides: list[str]) -> dict:
         key = key.strip()
         if not key:
             raise ConfigError(f"a hyperparameter override must look like key=value, got {item!r}")
-        out[key] = _parse_value(raw)
+        out[key] = _parse_value(raw, f"hyperparameter {key}")
     return out
 
 
@@ -121,7 +121,7 @@ def parse_env_options(items: list[str]) -> dict:
             raise ConfigError(f"an env option must look like key=value, got {item!r}")
         if key not in ENV_OPTION_KEYS:
             raise ConfigError(f"unknown env option {key!r}; a run may set {list(ENV_OPTION_KEYS)}")
-        out[key] = _parse_value(raw, "env option")
+        out[key] = _parse_value(raw, f"env option {key}")
     return out
 
 
