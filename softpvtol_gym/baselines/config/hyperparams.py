@@ -69,7 +69,7 @@ def read_yaml(path: Path, what: str) -> Any:
         raise ConfigError(f"no {what} at {path}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"cannot read {what} {path}: {exc}") from None
-    # bounded: size, nesting, no aliases (util.safe_load)
+    # bounded: size, nesting, node count with aliases expanded (util.safe_load)
     return loads_yaml(text, f"{what} {path}", error=ConfigError)
 
 

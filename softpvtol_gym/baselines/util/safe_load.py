@@ -1,4 +1,4 @@
-"""JSON and YAML parsing with bounds: size, nesting depth, node count, no YAML aliases.
+"""JSON and YAML parsing with bounds: size, nesting depth, node count (YAML aliases expanded).
 
 Every file a command reads (checkpoint manifests and descriptions, config.yaml, hyperparameter files,
 search spaces, leaderboard specs, eval.json, ...) goes through these two functions, so a crafted file
@@ -9,8 +9,9 @@ laughs" alias bomb) or memory exhaustion (size):
   npz and is not parsed here; JSON and YAML files are kilobytes);
 * at most :data:`MAX_DEPTH` levels of nested lists / mappings (the deepest file the project writes has
   6);
-* YAML: no aliases (``*name``; the project never writes them, and they are what makes an alias bomb
-  expand exponentially), at most :data:`MAX_NODES` nodes, only the safe loader's standard tags;
+* YAML: at most :data:`MAX_NODES` nodes and :data:`MAX_DEPTH` levels counted with every alias expanded
+  (an alias bomb, aliases of aliases that expand to billions of nodes, is refused while it is read,
+  without expanding it), only the safe loader's standard tags;
 * JSON: ``NaN`` / ``Infinity`` refused unless ``allow_nan`` (the checkpoint files never hold them).
 
 Failures raise ``error`` (a :class:`ValueError` subclass given by the caller, default
@@ -26,7 +27,7 @@ import yaml
 
 MAX_BYTES = 64 * 2**20
 MAX_DEPTH = 64
-MAX_NODES = 1_000_000
+MAX_NODES = 100_000
 
 
 class UnsafeInputError(ValueError):
@@ -74,8 +75,10 @@ def loads_json(data: bytes | str, source: str, *, error=UnsafeInputError, allow_
 
 
 class _BoundedSafeLoader(yaml.SafeLoader):
-    """PyYAML's SafeLoader with aliases refused and the nesting depth and node count bounded (checked while
-    the document is composed, before anything is constructed)."""
+    """PyYAML's SafeLoader with the nesting depth and the node count bounded *as if every alias were expanded*
+    (the project's hyperparameter files use anchors and aliases; an alias bomb nests aliases of aliases
+    until the expanded document has billions of nodes). Checked while the document is composed, bottom up
+    (each node's expanded size and height from its children's), so nothing is ever expanded."""
 
     max_depth = MAX_DEPTH
     max_nodes = MAX_NODES
@@ -83,25 +86,35 @@ class _BoundedSafeLoader(yaml.SafeLoader):
     def __init__(self, stream):
         super().__init__(stream)
         self._depth = 0
-        self._nodes = 0
+        self._size: dict[int, int] = {}    # id(node) -> nodes below it, aliases expanded (itself included)
+        self._height: dict[int, int] = {}  # id(node) -> levels below it, aliases expanded (itself included)
+        self._keep: list = []              # the nodes whose ids are recorded (ids stay unique)
+
+    def _fail(self, problem: str, mark):
+        raise yaml.composer.ComposerError(None, None, problem, mark)
 
     def compose_node(self, parent, index):
-        if self.check_event(yaml.AliasEvent):
-            event = self.peek_event()
-            raise yaml.composer.ComposerError(None, None, f"alias *{event.anchor} (aliases are not allowed here)",
-                                              event.start_mark)
-        self._nodes += 1
-        if self._nodes > self.max_nodes:
-            raise yaml.composer.ComposerError(None, None, f"more than {self.max_nodes:,} nodes",
-                                              self.peek_event().start_mark)
+        mark = self.peek_event().start_mark
+        alias = self.check_event(yaml.AliasEvent)
         self._depth += 1
+        if self._depth > self.max_depth:
+            self._fail(f"nested more than {self.max_depth} levels deep", mark)
         try:
-            if self._depth > self.max_depth:
-                raise yaml.composer.ComposerError(None, None, f"nested more than {self.max_depth} levels deep",
-                                                  self.peek_event().start_mark)
-            return super().compose_node(parent, index)
+            node = super().compose_node(parent, index)
         finally:
             self._depth -= 1
+        if not alias:
+            children = node.value if isinstance(node, yaml.SequenceNode) else (
+                [n for pair in node.value for n in pair] if isinstance(node, yaml.MappingNode) else [])
+            self._size[id(node)] = 1 + sum(self._size.get(id(c), 1) for c in children)
+            self._height[id(node)] = 1 + max((self._height.get(id(c), 1) for c in children), default=0)
+            self._keep.append(node)
+        if self._size.get(id(node), 1) > self.max_nodes:
+            self._fail(f"more than {self.max_nodes:,} nodes once its aliases are expanded", mark)
+        if self._depth + self._height.get(id(node), 1) - 1 > self.max_depth:
+            self._fail(f"nested more than {self.max_depth} levels deep" + (" once its aliases are expanded"
+                                                                          if alias else ""), mark)
+        return node
 
 
 def loads_yaml(text: bytes | str, source: str, *, error=UnsafeInputError, max_bytes: int = MAX_BYTES,
