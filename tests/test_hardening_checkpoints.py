@@ -212,6 +212,14 @@ def _edit_tensor(run: Path, name_start: str, fn) -> str:
     return name
 
 
+def _edit_vecnorm(run: Path, key: str, literal: str) -> None:
+    """The first entry of obs_rms.<key> of vecnormalize.json replaced by a JSON literal (NaN, 1e400 = inf)."""
+    data = json.loads((run / "vecnormalize.json").read_text())
+    data["obs_rms"][key][0] = "PLACEHOLDER"
+    (run / "vecnormalize.json").write_text(json.dumps(data).replace('"PLACEHOLDER"', literal))
+    rewrite_manifest(run)
+
+
 def _nan(t):
     t.view(-1)[0] = float("nan")
     return t
@@ -241,12 +249,8 @@ FILE_POISONS = {
     "weight_nan": (lambda r: _edit_tensor(r, "policy/", _nan), "tensor policy/"),
     "weight_huge": (lambda r: _edit_tensor(r, "policy/", _huge), "tensor policy/"),
     "optimizer_state_nan": (lambda r: _edit_tensor(r, "policy.optimizer/state/", _nan), "tensor policy.optimizer/"),
-    "vecnormalize_nan": (lambda r: ((r / "vecnormalize.json").write_text(
-        (r / "vecnormalize.json").read_text().replace('"mean": [', '"mean": [NaN, ', 1)), rewrite_manifest(r)),
-        "vecnormalize.json"),
-    "vecnormalize_huge": (lambda r: ((r / "vecnormalize.json").write_text(
-        (r / "vecnormalize.json").read_text().replace('"var": [', '"var": [1e400, ', 1)), rewrite_manifest(r)),
-        "obs_rms holds non-finite"),
+    "vecnormalize_nan": (lambda r: _edit_vecnorm(r, "mean", "NaN"), "vecnormalize.json is not valid JSON (NaN"),
+    "vecnormalize_huge": (lambda r: _edit_vecnorm(r, "var", "1e400"), "obs_rms holds non-finite"),
     "vecnormalize_clip_negative": (lambda r: ((r / "vecnormalize.json").write_text(
         json.dumps({**json.loads((r / "vecnormalize.json").read_text()), "clip_obs": -1.0})), rewrite_manifest(r)),
         "clip_obs"),
