@@ -16,7 +16,7 @@ from softpvtol_gym.baselines.errors import CheckpointError
 from softpvtol_gym.baselines.util.atomic import (
     atomic_write_text,
 )
-from softpvtol_gym.baselines.util.safe_load import loads_json
+from softpvtol_gym.baselines.util.safe_load import UnsafeInputError, loads_json
 
 FORMAT = "softpvtol-gym checkpoint"
 FORMAT_VERSION = 1
@@ -77,7 +77,10 @@ def read_manifest(folder: Path) -> dict:
         data = path.read_bytes()
     except OSError as exc:
         raise CheckpointError(f"{path} is not readable ({exc})") from None
-    manifest = loads_json(data, str(path), error=CheckpointError, allow_nan=False, max_bytes=MAX_MANIFEST_BYTES)
+    try:
+        manifest = loads_json(data, "its text", allow_nan=False, max_bytes=MAX_MANIFEST_BYTES)
+    except UnsafeInputError as exc:
+        raise CheckpointError(f"{path} is not readable JSON ({exc})") from None
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a {FORMAT} manifest")
     if manifest.get("version") != FORMAT_VERSION:

@@ -265,7 +265,7 @@ def vecnorm_from_dict(data, venv, training: bool, source: str):
             mean = np.asarray(saved["mean"], dtype=np.float64)
             var = np.asarray(saved["var"], dtype=np.float64)
             if mean.shape != np.shape(r.mean) or var.shape != np.shape(r.var):
-                raise ValueError(f"{name} has mean {mean.shape} and var {var.shape}, the env needs {np.shape(r.mean)}")
+                raise ValueError(f"{name} has shape {mean.shape} (var {var.shape}), the env needs {np.shape(r.mean)}")
             if not (np.isfinite(mean).all() and np.isfinite(var).all()):
                 raise ValueError(f"{name} holds non-finite values (mean or var)")
             if not (var >= 0).all():

@@ -56,7 +56,7 @@ def _check_size(data, source: str, max_bytes: int, error) -> None:
 
 
 def _refuse_constant(name: str):
-    raise ValueError(f"{name} is not a finite number (NaN and Infinity are not allowed here)")
+    raise ValueError(f"{name}: non-finite numbers (NaN, Infinity) are not allowed here")
 
 
 def loads_json(data: bytes | str, source: str, *, error=UnsafeInputError, allow_nan: bool = True,
