@@ -379,7 +379,7 @@ def test_poisoned_replay_buffer_is_refused_before_it_is_written():
     src = buffer()
     for _ in range(5):
         src.add(np.ones((2, 3)), np.ones((2, 3)), np.zeros((2, 2)), np.ones(2), np.zeros(2), [{}, {}])
-    info = {"pos": 5, "full": False, "filled": 5, "buffer_size": 16, "n_envs": 2}
+    info = {"pos": 5, "full": False, "filled": 5, "buffer_size": src.buffer_size, "n_envs": 2}
     good = {k: getattr(src, k)[:5].copy() for k in ("observations", "next_observations", "actions", "rewards",
                                                     "dones", "timeouts")}
     dst = buffer()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections import deque
 from pathlib import Path
 
@@ -143,8 +144,9 @@ def check_model_meta(meta, source: str) -> None:
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             raise CheckpointError(f"{where}: counters.{c} must be an integer >= 0, got {str(v)[:60]!r}")
     p = counters.get("_current_progress_remaining", 1.0)
-    if isinstance(p, bool) or not isinstance(p, (int, float)) or not -1.0 <= p <= 1.0:
-        raise CheckpointError(f"{where}: counters._current_progress_remaining must be a number in [-1, 1], got "
+    # 1 - num_timesteps / total: below 0 when the last rollout overshoots the total
+    if isinstance(p, bool) or not isinstance(p, (int, float)) or not (math.isfinite(p) and p <= 1.0):
+        raise CheckpointError(f"{where}: counters._current_progress_remaining must be a finite number <= 1, got "
                               f"{str(p)[:60]!r}")
     optimizers = meta.get("optimizers", {})
     if not isinstance(optimizers, dict) or not all(
