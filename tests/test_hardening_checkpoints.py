@@ -399,3 +399,32 @@ def test_poisoned_replay_buffer_is_refused_before_it_is_written():
         with pytest.raises(CheckpointError, match=what) as exc:
             restore_replay_buffer(dst, bad_info, bad_arrays, "ck")
         assert "replay_buffer.npz" in str(exc.value) and dst.pos == 0 and (dst.observations == 0).all()
+
+
+# ------------------------------------------------------------------------------------ export from-sb3
+def test_from_sb3_refuses_an_existing_target_and_nan_weights(tmp_path, tiny_run, capsys):
+    """from-sb3 never replaces a safe checkpoint without --force, and never converts NaN weights."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from softpvtol_gym.baselines.commands.export import main as export_main
+
+    sb3 = tmp_path / "sb3"
+    assert export_main(["to-sb3", "--policy", str(tiny_run), "--out", str(sb3 / "model.zip"), "--vecnormalize",
+                        str(sb3 / "vecnormalize.pkl")]) == 0
+    (sb3 / "config.yaml").write_bytes((tiny_run / "config.yaml").read_bytes())
+    target = copy_run(tiny_run, tmp_path / "safe")
+    before = (target / "model.safetensors").read_bytes()
+    with pytest.raises(SystemExit) as exc:
+        export_main(["from-sb3", "--trust-pickle", str(sb3), "--out", str(target)])
+    assert exc.value.code == 2 and "already holds a safe checkpoint" in capsys.readouterr().err
+    assert (target / "model.safetensors").read_bytes() == before
+    model = PPO.load(sb3 / "model.zip", device="cpu")
+    with torch.no_grad():
+        next(model.policy.parameters()).view(-1)[0] = float("nan")
+    model.save(sb3 / "model.zip")
+    with pytest.raises(SystemExit) as exc:
+        export_main(["from-sb3", "--trust-pickle", "--force", str(sb3), "--out", str(target)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and "tensor policy/" in err[-1] and "non-finite" in err[-1], err
+    assert (target / "model.safetensors").read_bytes() == before
