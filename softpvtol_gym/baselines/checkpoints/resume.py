@@ -25,7 +25,11 @@ from softpvtol_gym.baselines.util.atomic import (
     atomic_write_bytes,
     atomic_write_text,
 )
+from softpvtol_gym.control import _kernels as CK
+from softpvtol_gym.envs.layout import ISTATE, STATE, S
 from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
+from softpvtol_gym.envs.termination import REASONS
+from softpvtol_gym.params import SoftPVTOLParams
 
 
 def innermost(venv):
@@ -139,10 +143,6 @@ def _array(name: str, value, fresh: np.ndarray) -> np.ndarray:
 
 def _check_sim_state(sim, F: np.ndarray, I: np.ndarray, obs: np.ndarray) -> None:  # noqa: E741
     """Value checks of the simulator's saved state (shapes and dtypes are checked already)."""
-    from softpvtol_gym.envs.layout import ISTATE, STATE
-    from softpvtol_gym.envs.termination import REASONS
-    from softpvtol_gym.params import SoftPVTOLParams
-
     bad = ~np.isfinite(F)
     bad[:, STATE.at.applied:STATE.at.applied + STATE.widths["applied"]] = False  # NaN: no command applied yet
     if bad.any():
@@ -170,8 +170,6 @@ def _check_sim_state(sim, F: np.ndarray, I: np.ndarray, obs: np.ndarray) -> None
 
 
 def _check_controller_memory(ctrl, name: str, value) -> None:
-    from softpvtol_gym.control import _kernels as CK
-
     if name == "_state" and value is not None and not np.isin(value[:, CK.ST_FRESH], (0.0, 1.0)).all():
         raise _Mismatch("controller._state: the 'fresh' flags must be 0 or 1")
 
@@ -252,8 +250,6 @@ def _validated_part(part: str, obj, entry, arrays: dict, num_envs: int) -> dict:
             out[n] = _array(f"{part}.{n}", value, current).copy()
     if part == "sim":
         _check_sim_state(obj, out["F"], out["I"], out["obs"])
-        from softpvtol_gym.envs.layout import ISTATE, STATE, S
-
         views = {**STATE.views(out["F"]), **ISTATE.views(out["I"]), "u": out["F"][:, S.u:S.u + obj.action_dim]}
         for n, kind in saved_kind.items():
             if kind == "views":
