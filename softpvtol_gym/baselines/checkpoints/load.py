@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from softpvtol_gym.baselines.checkpoints.manifest import (
     CONFIG_FILE,
@@ -28,6 +27,7 @@ from softpvtol_gym.baselines.config.hyperparams import normalize_kwargs
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import CheckpointError, ConfigError
 from softpvtol_gym.baselines.training.models import build_model, frame_stack_wrapper, make_env, stack_frames
+from softpvtol_gym.baselines.util.safe_load import loads_yaml
 
 
 # ------------------------------------------------------------------------------------- loading
@@ -46,10 +46,7 @@ def load_folder(folder: Path, *, training: bool = False, n_envs: int | None = No
     manifest = read_manifest(folder)
     config_bytes = read_verified(folder, manifest, CONFIG_FILE)
 
-    try:
-        raw = yaml.safe_load(config_bytes)
-    except yaml.YAMLError as exc:
-        raise CheckpointError(f"{folder / CONFIG_FILE} is not valid YAML ({exc})") from None
+    raw = loads_yaml(config_bytes, str(folder / CONFIG_FILE), error=CheckpointError)
     if isinstance(raw, dict) and raw.get("algo") != manifest["algo"]:
         raise CheckpointError(f"{folder}: {MANIFEST_FILE} says {manifest['algo'].upper()}, config.yaml says "
                               f"{str(raw.get('algo')).upper()}")
@@ -85,6 +82,33 @@ def load_folder(folder: Path, *, training: bool = False, n_envs: int | None = No
     return model, vecnorm, config, manifest
 
 
+def _vecnorm_state(vecnorm, arrays: dict, num_envs: int, source: str) -> dict:
+    """The VecNormalize attributes of a resume state (running returns, last raw observation and reward),
+    checked: shape (num_envs, ...) of the run's env, finite."""
+    if vecnorm is None:
+        return {}
+    obs_shape = tuple(vecnorm.observation_space.shape)
+    expected = {"returns": ((num_envs,), True), "old_obs": ((num_envs, *obs_shape), False),
+                "old_reward": ((num_envs,), False)}
+    out = {}
+    for attr, (shape, required) in expected.items():
+        key = f"vecnormalize_{attr}"
+        if key not in arrays:
+            if required:
+                raise CheckpointError(f"{source} lacks {key} (the run normalises its observations or rewards)")
+            continue
+        value = arrays[key]
+        if attr == "old_reward" and value.shape == (0,):  # SB3's value before the first step
+            shape = (0,)
+        if value.shape != shape or value.dtype.kind != "f":
+            raise CheckpointError(f"{source}: {key} is {value.dtype}{value.shape}, the run needs a float array of "
+                                  f"shape {shape}")
+        if not np.isfinite(value).all():
+            raise CheckpointError(f"{source}: {key} holds non-finite values")
+        out[attr] = value.astype(np.float64 if attr == "returns" else value.dtype, copy=True)
+    return out
+
+
 def load_for_resume(folder: Path, config: RunConfig, run_dir: Path, verbose: int = 0, device: str = "cpu"):
     """``(model, vecnorm, restore_rng)`` of a training checkpoint: the env rebuilt and put back in its saved
     state, the model and VecNormalize filled in. ``restore_rng()`` sets the global RNGs (call it last)."""
@@ -105,17 +129,7 @@ def load_for_resume(folder: Path, config: RunConfig, run_dir: Path, verbose: int
         raise CheckpointError(f"{folder}: {state.get('num_envs')} sub-envs saved, the run has {env.num_envs}")
     restore_env_state(env.venv, state.get("env", {}),
                       {k[4:]: v for k, v in arrays.items() if k.startswith("env/")}, str(folder))
-    if vecnorm is not None:
-        try:
-            returns = arrays["vecnormalize_returns"]
-            if returns.shape != vecnorm.returns.shape:
-                raise ValueError(f"vecnormalize_returns has shape {returns.shape}")
-            vecnorm.returns = returns.astype(np.float64, copy=True)
-            for attr in ("old_obs", "old_reward"):
-                if f"vecnormalize_{attr}" in arrays:
-                    setattr(vecnorm, attr, arrays[f"vecnormalize_{attr}"].copy())
-        except (KeyError, ValueError) as exc:
-            raise CheckpointError(f"{folder}: {STATE_ARRAYS_FILE}: {exc}") from None
+    vecnorm_state = _vecnorm_state(vecnorm, arrays, env.num_envs, f"{folder / STATE_ARRAYS_FILE}")
     if getattr(model, "replay_buffer", None) is not None:
         if REPLAY_FILE not in manifest["files"]:
             raise CheckpointError(f"{folder}: an off-policy checkpoint without {REPLAY_FILE}")
@@ -131,6 +145,12 @@ def load_for_resume(folder: Path, config: RunConfig, run_dir: Path, verbose: int
         if saved_stack.shape != target.shape or saved_stack.dtype != target.dtype:
             raise CheckpointError(f"{folder}: framestack_obs is {saved_stack.dtype}{saved_stack.shape}, the run's "
                                   f"frame stack is {target.dtype}{target.shape}")
-        stack.stacked_obs.stacked_obs = saved_stack.copy()
+        if not np.isfinite(saved_stack).all():
+            raise CheckpointError(f"{folder / STATE_ARRAYS_FILE}: framestack_obs holds non-finite values")
     restore = global_rng_state(state, arrays, str(folder))
+    # everything checked: write the wrappers' state
+    if stack is not None:
+        stack.stacked_obs.stacked_obs = arrays["framestack_obs"].copy()
+    for attr, value in vecnorm_state.items():
+        setattr(vecnorm, attr, value)
     return model, vecnorm, restore

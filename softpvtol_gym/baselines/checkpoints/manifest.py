@@ -6,6 +6,7 @@ import hashlib
 import io
 import json
 import re
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ from softpvtol_gym.baselines.errors import CheckpointError
 from softpvtol_gym.baselines.util.atomic import (
     atomic_write_text,
 )
+from softpvtol_gym.baselines.util.safe_load import UnsafeInputError, loads_json
 
 FORMAT = "softpvtol-gym checkpoint"
 FORMAT_VERSION = 1
@@ -32,6 +34,7 @@ MODEL_FILES = (MODEL_FILE, MODEL_STATE_FILE, VECNORM_FILE, CONFIG_FILE)
 #: names of pickle-based files of earlier versions (and of SB3): never loaded without trust_pickle
 LEGACY_FILES = ("model.zip", "vecnormalize.pkl", "resume_state.pkl", "replay_buffer.pkl")
 STEP_RE = re.compile(r"^step_\d{10}$")
+MAX_MANIFEST_BYTES = 2**20
 #: model attributes saved in model.json (counters) and model.safetensors (arrays)
 COUNTERS = ("num_timesteps", "_total_timesteps", "_num_timesteps_at_start", "_n_updates", "_episode_num",
             "_current_progress_remaining")
@@ -68,8 +71,15 @@ def read_manifest(folder: Path) -> dict:
     if not path.is_file():
         raise CheckpointError(f"{folder} is not a checkpoint: no {MANIFEST_FILE}")
     try:
-        manifest = json.loads(path.read_bytes())
-    except (OSError, ValueError) as exc:
+        size = path.stat().st_size
+        if size > MAX_MANIFEST_BYTES:
+            raise CheckpointError(f"{path} is {size:,} bytes; a manifest has at most {MAX_MANIFEST_BYTES:,}")
+        data = path.read_bytes()
+    except OSError as exc:
+        raise CheckpointError(f"{path} is not readable ({exc})") from None
+    try:
+        manifest = loads_json(data, "its text", allow_nan=False, max_bytes=MAX_MANIFEST_BYTES)
+    except UnsafeInputError as exc:
         raise CheckpointError(f"{path} is not readable JSON ({exc})") from None
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a {FORMAT} manifest")
@@ -94,11 +104,16 @@ def read_verified(folder: Path, manifest: dict, name: str) -> bytes:
     if entry is None:
         raise CheckpointError(f"checkpoint {folder} has no {name} (its manifest does not list it)")
     path = Path(folder) / name
+    size = entry.get("bytes")
     try:
+        # the size first: a file that does not match is not read into memory
+        if isinstance(size, bool) or not isinstance(size, int) or path.stat().st_size != size:
+            raise CheckpointError(f"{path} is corrupt or was changed after it was written: its size does not match "
+                                  f"{MANIFEST_FILE}")
         data = path.read_bytes()
     except OSError as exc:
         raise CheckpointError(f"cannot read {path}: {exc}") from None
-    if len(data) != entry.get("bytes") or _sha256(data) != entry.get("sha256"):
+    if len(data) != size or _sha256(data) != entry.get("sha256"):
         raise CheckpointError(f"{path} is corrupt or was changed after it was written: its size or SHA-256 does "
                               f"not match {MANIFEST_FILE}")
     return data
@@ -106,10 +121,7 @@ def read_verified(folder: Path, manifest: dict, name: str) -> bytes:
 
 def read_json(folder: Path, manifest: dict, name: str):
     data = read_verified(folder, manifest, name)
-    try:
-        return json.loads(data)
-    except ValueError as exc:
-        raise CheckpointError(f"{Path(folder) / name} is not valid JSON ({exc})") from None
+    return loads_json(data, str(Path(folder) / name), error=CheckpointError, allow_nan=False)
 
 
 def read_npz(folder: Path, manifest: dict, name: str) -> dict[str, np.ndarray]:
@@ -117,8 +129,9 @@ def read_npz(folder: Path, manifest: dict, name: str) -> dict[str, np.ndarray]:
     try:
         with np.load(io.BytesIO(data), allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError) as exc:
-        raise CheckpointError(f"{Path(folder) / name} is not a readable npz archive ({exc})") from None
+    except (OSError, ValueError, EOFError, MemoryError, zipfile.BadZipFile) as exc:
+        raise CheckpointError(f"{Path(folder) / name} is not a readable npz archive ({type(exc).__name__}: "
+                              f"{str(exc)[:200]})") from None
 
 
 def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:

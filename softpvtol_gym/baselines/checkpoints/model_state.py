@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections import deque
 from pathlib import Path
 
@@ -107,12 +108,68 @@ def load_tensors(folder: Path, manifest: dict) -> dict:
         raise CheckpointError(f"{Path(folder) / MODEL_FILE} is not a readable safetensors file ({exc})") from None
 
 
-def load_model_state(model, tensors: dict, meta: dict, source: str) -> None:
-    """Fill a freshly built SB3 ``model`` with saved tensors and metadata (strict: every tensor must fit)."""
+#: the largest magnitude a network weight (``policy/...`` tensor) may have: trained weights are of order 1; a
+#: weight of 1e30 (finite in float32) overflows the first layer's activations to inf
+MAX_WEIGHT = 1e6
+#: counters of model.json that are step / update / episode counts
+_COUNT_COUNTERS = tuple(c for c in COUNTERS if c != "_current_progress_remaining")
+
+
+def check_tensors(tensors: dict, source: str) -> None:
+    """CheckpointError naming the first tensor that holds a non-finite value, or a network weight larger in
+    magnitude than :data:`MAX_WEIGHT` (they would load, then make every action NaN inside torch)."""
     import torch
 
+    for name, t in tensors.items():
+        if not (t.is_floating_point() or t.is_complex()):
+            continue
+        if not bool(torch.isfinite(t).all()):
+            raise CheckpointError(f"{source}: tensor {name} of {MODEL_FILE} holds non-finite values (NaN or inf)")
+        if name.startswith("policy/") and t.numel() and float(t.abs().max()) > MAX_WEIGHT:
+            raise CheckpointError(f"{source}: tensor {name} of {MODEL_FILE} holds a weight of magnitude "
+                                  f"{float(t.abs().max()):.3g} > {MAX_WEIGHT:g} (a trained network's weights are of "
+                                  f"order 1; this one would overflow)")
+
+
+def check_model_meta(meta, source: str) -> None:
+    """The schema of model.json: CheckpointError (one line, naming the field) for a wrong type or value."""
+    where = f"{source}: {MODEL_STATE_FILE}"
     if not isinstance(meta, dict) or meta.get("format") != FORMAT or meta.get("version") != FORMAT_VERSION:
-        raise CheckpointError(f"{source}: {MODEL_STATE_FILE} is not a version-{FORMAT_VERSION} model description")
+        raise CheckpointError(f"{where} is not a version-{FORMAT_VERSION} model description")
+    counters = meta.get("counters", {})
+    if not isinstance(counters, dict):
+        raise CheckpointError(f"{where}: counters must be a mapping of {list(COUNTERS)}, got {str(counters)[:60]!r}")
+    for c in _COUNT_COUNTERS:
+        v = counters.get(c, 0)
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise CheckpointError(f"{where}: counters.{c} must be an integer >= 0, got {str(v)[:60]!r}")
+    p = counters.get("_current_progress_remaining", 1.0)
+    # 1 - num_timesteps / total: below 0 when the last rollout overshoots the total
+    if isinstance(p, bool) or not isinstance(p, (int, float)) or not (math.isfinite(p) and p <= 1.0):
+        raise CheckpointError(f"{where}: counters._current_progress_remaining must be a finite number <= 1, got "
+                              f"{str(p)[:60]!r}")
+    optimizers = meta.get("optimizers", {})
+    if not isinstance(optimizers, dict) or not all(
+            isinstance(o, dict) and isinstance(o.get("param_groups"), list) and isinstance(o.get("scalar_state"), dict)
+            and isinstance(o.get("params_with_state"), list)
+            and all(isinstance(i, int) and not isinstance(i, bool) for i in o["params_with_state"])
+            for o in optimizers.values()):
+        raise CheckpointError(f"{where}: optimizers must map each optimizer to param_groups (a list), scalar_state "
+                              f"(a mapping) and params_with_state (a list of integers)")
+    for key in ("ep_info_buffer", "ep_success_buffer"):
+        buf = meta.get(key, [])
+        if not isinstance(buf, list) or (key == "ep_info_buffer" and not all(isinstance(e, dict) for e in buf)):
+            raise CheckpointError(f"{where}: {key} must be a list{' of mappings' if key == 'ep_info_buffer' else ''}, "
+                                  f"got {str(buf)[:60]!r}")
+
+
+def load_model_state(model, tensors: dict, meta: dict, source: str) -> None:
+    """Fill a freshly built SB3 ``model`` with saved tensors and metadata (strict: every tensor must fit,
+    every value finite, model.json of the right schema)."""
+    import torch
+
+    check_model_meta(meta, source)
+    check_tensors(tensors, source)
     algo = type(model).__name__.lower()
     if meta.get("algo") != algo:
         raise CheckpointError(f"{source}: the weights are of a {str(meta.get('algo')).upper()} model, config.yaml "
@@ -145,7 +202,7 @@ def load_model_state(model, tensors: dict, meta: dict, source: str) -> None:
             with torch.no_grad():
                 var.copy_(tensors[key])
             used.add(key)
-    except (KeyError, RuntimeError, ValueError, TypeError, IndexError) as exc:
+    except (KeyError, RuntimeError, ValueError, TypeError, IndexError, AttributeError) as exc:
         raise CheckpointError(f"{source}: the saved weights do not fit the network that config.yaml describes "
                               f"({type(exc).__name__}: {str(exc)[:300]})") from None
     for attr in ARRAY_ATTRIBUTES:
@@ -190,8 +247,17 @@ def vecnorm_from_dict(data, venv, training: bool, source: str):
     from stable_baselines3.common.vec_env import VecNormalize
 
     try:
-        if data.get("format") != FORMAT or data.get("version") != FORMAT_VERSION:
+        if not isinstance(data, dict) or data.get("format") != FORMAT or data.get("version") != FORMAT_VERSION:
             raise ValueError("not a version-1 VecNormalize description")
+        for key in ("norm_obs", "norm_reward"):
+            if not isinstance(data[key], bool):
+                raise ValueError(f"{key} must be true or false, got {str(data[key])[:40]!r}")
+        for key, hi in (("clip_obs", None), ("clip_reward", None), ("gamma", 1.0), ("epsilon", None)):
+            v = data[key]
+            if (isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v <= 0
+                    or (hi is not None and v > hi)):
+                raise ValueError(f"{key} must be a finite number > 0{f' and <= {hi:g}' if hi else ''}, got "
+                                 f"{str(v)[:40]!r}")
         vn = VecNormalize(venv, training=training, norm_obs=bool(data["norm_obs"]),
                           norm_reward=bool(data["norm_reward"]), clip_obs=float(data["clip_obs"]),
                           clip_reward=float(data["clip_reward"]), gamma=float(data["gamma"]),
@@ -201,10 +267,15 @@ def vecnorm_from_dict(data, venv, training: bool, source: str):
             mean = np.asarray(saved["mean"], dtype=np.float64)
             var = np.asarray(saved["var"], dtype=np.float64)
             if mean.shape != np.shape(r.mean) or var.shape != np.shape(r.var):
-                raise ValueError(f"{name} has shape {mean.shape}, the env needs {np.shape(r.mean)}")
-            if not (np.isfinite(mean).all() and np.isfinite(var).all() and (var >= 0).all()):
-                raise ValueError(f"{name} holds non-finite or negative values")
-            count = float(saved["count"])
+                raise ValueError(f"{name} has shape {mean.shape} (var {var.shape}), the env needs {np.shape(r.mean)}")
+            if not (np.isfinite(mean).all() and np.isfinite(var).all()):
+                raise ValueError(f"{name} holds non-finite values (mean or var)")
+            if not (var >= 0).all():
+                raise ValueError(f"{name}.var holds negative values")
+            count = saved["count"]
+            if isinstance(count, bool) or not isinstance(count, (int, float)):
+                raise ValueError(f"{name}.count must be a number, got {str(count)[:40]!r}")
+            count = float(count)
             if not (np.isfinite(count) and count > 0):
                 raise ValueError(f"{name}.count must be > 0, got {count}")
             r.mean, r.var, r.count = (mean if mean.ndim else float(mean)), (var if var.ndim else float(var)), count

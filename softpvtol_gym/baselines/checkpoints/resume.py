@@ -25,7 +25,11 @@ from softpvtol_gym.baselines.util.atomic import (
     atomic_write_bytes,
     atomic_write_text,
 )
+from softpvtol_gym.control import _kernels as CK
+from softpvtol_gym.envs.layout import ISTATE, STATE, S
 from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
+from softpvtol_gym.envs.termination import REASONS
+from softpvtol_gym.params import SoftPVTOLParams
 
 
 def innermost(venv):
@@ -95,47 +99,194 @@ def env_state(vector_env) -> tuple[dict, dict[str, np.ndarray]]:
     return meta, arrays
 
 
+# What a resume restores. Everything else a vector env holds (the constants C and codes K, max_steps, dt,
+# the controller's settings and kernel constants, num_envs, ...) derives from the run's config: the env
+# the resume builds from config.yaml has it already, and the checkpoint's copy is only compared with it
+# (a difference is an error, never written: the compiled kernels index C, K and the state arrays by the
+# layout's constants, so their memory safety does not rest on the checkpoint being honest).
+_DYNAMIC = {
+    "venv": ("_autoreset", "_fresh", "_over", "_warned", "_needs_reset", "_np_random_seed", "_rngs", "_np_random"),
+    "sim": ("F", "I", "key", "obs", "_ctl_in", "_ctl", "_ctl_err"),
+    "controller": ("_state", "_spare"),
+}
+_ENTRY_KEYS = {"arrays": list, "views": list, "numpy_scalars": list, "scalars": dict, "generators": dict}
+
+
+class _Mismatch(ValueError):
+    """A saved field that does not fit the env (the message names the field and what was expected)."""
+
+
+def _describe(value) -> str:
+    if isinstance(value, np.ndarray):
+        return f"{value.dtype}{tuple(value.shape)}"
+    return f"{value!r}"[:80]
+
+
+def _same(saved, fresh) -> bool:
+    """Exact equality (type, dtype, shape, bits) of a saved value and the freshly built one."""
+    if isinstance(fresh, np.ndarray) or isinstance(saved, np.ndarray):
+        return (isinstance(saved, np.ndarray) and isinstance(fresh, np.ndarray) and saved.dtype == fresh.dtype
+                and saved.shape == fresh.shape and saved.tobytes() == fresh.tobytes())
+    if isinstance(fresh, np.generic):
+        fresh = fresh.item()
+    if isinstance(saved, np.generic):
+        saved = saved.item()
+    return type(saved) is type(fresh) and saved == fresh
+
+
+def _array(name: str, value, fresh: np.ndarray) -> np.ndarray:
+    """``value`` if it is an array of ``fresh``'s dtype and shape (the layout of this run's env)."""
+    if not isinstance(value, np.ndarray) or value.dtype != fresh.dtype or value.shape != fresh.shape:
+        raise _Mismatch(f"{name} is {_describe(value)}, this run's env needs {fresh.dtype}{tuple(fresh.shape)}")
+    return value
+
+
+def _check_sim_state(sim, F: np.ndarray, I: np.ndarray, obs: np.ndarray) -> None:  # noqa: E741
+    """Value checks of the simulator's saved state (shapes and dtypes are checked already)."""
+    bad = ~np.isfinite(F)
+    bad[:, STATE.at.applied:STATE.at.applied + STATE.widths["applied"]] = False  # NaN: no command applied yet
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        field = next(f for f, w in STATE.fields if getattr(STATE.at, f) <= col < getattr(STATE.at, f) + w)
+        raise _Mismatch(f"sim.F holds a non-finite value (sub-env {row}, field {field}); the env's state is finite")
+    if not np.isfinite(obs).all():
+        raise _Mismatch("sim.obs holds non-finite values; the env's observations are finite")
+    views, iviews = STATE.views(F), ISTATE.views(I)
+    if np.abs(views["u"]).max(initial=0.0) > 1.0:
+        raise _Mismatch("sim.F: the clipped action u lies outside [-1, 1]")
+    if (views["t"] < 0).any():
+        raise _Mismatch("sim.F: the episode time t is negative")
+    for i, row in enumerate(views["P"]):
+        try:
+            SoftPVTOLParams.from_array(row)
+        except ValueError as exc:
+            raise _Mismatch(f"sim.F: the plant parameters P of sub-env {i} are invalid ({exc})") from None
+    for field, lo, hi in (("counter", 0, None), ("steps", 0, None), ("reason", 0, len(REASONS) - 1),
+                          ("lag_init", 0, 1), ("clipped", 0, 1)):
+        v = iviews[field]
+        if (v < lo).any() or (hi is not None and (v > hi).any()):
+            raise _Mismatch(f"sim.I: {field} must be in [{lo}, {'inf' if hi is None else hi}], got "
+                            f"{v.min()} .. {v.max()}")
+
+
+def _check_controller_memory(ctrl, name: str, value) -> None:
+    if name == "_state" and value is not None and not np.isin(value[:, CK.ST_FRESH], (0.0, 1.0)).all():
+        raise _Mismatch("controller._state: the 'fresh' flags must be 0 or 1")
+
+
+def _validated_part(part: str, obj, entry, arrays: dict, num_envs: int) -> dict:
+    """{attribute: value} of the dynamic state of one part, every value checked; the config-derived
+    attributes compared with the freshly built ones. Changes nothing."""
+    if not isinstance(entry, dict):
+        raise _Mismatch(f"{part} must be a mapping, got {_describe(entry)}")
+    for key, kind in _ENTRY_KEYS.items():
+        if not isinstance(entry.get(key), kind):
+            raise _Mismatch(f"{part}.{key} must be a {kind.__name__}, got {_describe(entry.get(key))}")
+    for key in ("arrays", "views", "numpy_scalars"):
+        if not all(isinstance(n, str) for n in entry[key]):
+            raise _Mismatch(f"{part}.{key} must list attribute names")
+    saved_kind = {}
+    for key in _ENTRY_KEYS:
+        for n in entry[key]:
+            if n in saved_kind:
+                raise _Mismatch(f"{part}.{n} is listed twice")
+            saved_kind[n] = key
+    fresh = _state_attributes(obj)
+    dynamic = _DYNAMIC[part]
+    for n in saved_kind:
+        if n not in fresh and n not in dynamic:
+            raise _Mismatch(f"{part}.{n} is not state of this env (the checkpoint names an attribute it does not have)")
+    # a None attribute may hold an array later (the controller's memory): compare what can be
+    lost = sorted(n for n in fresh if n not in saved_kind and getattr(obj, n) is not None)
+    if lost:
+        raise _Mismatch(f"{part} has state {lost} that the checkpoint lacks")
+
+    def saved_value(n):
+        kind = saved_kind[n]
+        if kind in ("arrays", "views", "numpy_scalars"):
+            key = f"{part}.{n}"
+            if key not in arrays:
+                raise _Mismatch(f"{key} is listed but not in {STATE_ARRAYS_FILE}")
+            return arrays[key][()] if kind == "numpy_scalars" else arrays[key]
+        return entry[kind][n]
+
+    out = {}
+    for n, kind in saved_kind.items():
+        value = saved_value(n)
+        current = getattr(obj, n)
+        if n not in dynamic:
+            if part == "sim" and kind == "views":
+                continue  # checked against the saved F and I below
+            if not _same(value, current):
+                raise _Mismatch(f"{part}.{n} is {_describe(value)}, this run's config gives {_describe(current)} "
+                                f"(derived from config.yaml, not restored: the checkpoint belongs to another "
+                                f"configuration or was edited)")
+            continue
+        if n in ("_rngs", "_np_random"):
+            if n == "_rngs":
+                if not isinstance(value, list) or len(value) != num_envs:
+                    raise _Mismatch(f"{part}._rngs must be {num_envs} generator states, got {_describe(value)}")
+                out[n] = [generator_from_state(g, f"{part}._rngs[{i}]") for i, g in enumerate(value)]
+            else:
+                out[n] = None if value is None else generator_from_state(value, f"{part}._np_random")
+        elif n == "_needs_reset":
+            if not isinstance(value, bool):
+                raise _Mismatch(f"{part}._needs_reset must be true or false, got {_describe(value)}")
+            out[n] = value
+        elif n == "_np_random_seed":
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
+                raise _Mismatch(f"{part}._np_random_seed must be an integer or null, got {_describe(value)}")
+            out[n] = value
+        elif part == "controller":
+            if value is None and n == "_spare":
+                out[n] = None
+                continue
+            ref = obj._state
+            if ref is None:  # pragma: no cover (the env's BatchSim creates the memory)
+                raise _Mismatch("controller has no memory to restore into")
+            out[n] = _array(f"controller.{n}", value, ref).copy()
+            _check_controller_memory(obj, n, out[n])
+        else:  # the simulator's and the vector env's arrays: this env's layout
+            out[n] = _array(f"{part}.{n}", value, current).copy()
+    if part == "sim":
+        _check_sim_state(obj, out["F"], out["I"], out["obs"])
+        views = {**STATE.views(out["F"]), **ISTATE.views(out["I"]), "u": out["F"][:, S.u:S.u + obj.action_dim]}
+        for n, kind in saved_kind.items():
+            if kind == "views":
+                if n not in views:
+                    raise _Mismatch(f"sim.{n} is not a field of this env's state layout")
+                if not _same(saved_value(n), views[n]):
+                    raise _Mismatch(f"sim.{n} is {_describe(saved_value(n))} and disagrees with the saved sim.F / "
+                                    f"sim.I it is a view of")
+    return out
+
+
 def restore_env_state(vector_env, meta: dict, arrays: dict, source: str) -> None:
-    """Write a saved :func:`env_state` into a freshly built vector env of the same configuration: arrays in
-    place (views stay views), the rest set. A state attribute the env has and the checkpoint lacks (or the
-    reverse) is an error: the checkpoint was written by another version of the env."""
+    """Write a saved :func:`env_state` into a freshly built vector env of the run's configuration.
+
+    Only the dynamic state (:data:`_DYNAMIC`: the sub-envs' state arrays, the controller's memory, the
+    generators, the autoreset flags) is restored, after every field has been checked (all of them before
+    anything changes): its dtype and shape against this env's layout (rows = num_envs, columns = the
+    layout's width), the state finite, the plant parameters valid, the integer counters non-negative, the
+    termination reasons and flags within their codes, the generator states valid, the views equal to the
+    arrays they view. The config-derived attributes are rebuilt from the config (the fresh env has them)
+    and must equal the checkpoint's copies. CheckpointError (one line, naming the field) otherwise."""
     try:
         parts = dict(_env_parts(vector_env))
-        if set(parts) != set(meta):
-            raise ValueError(f"saved parts {sorted(meta)}, the env has {sorted(parts)}")
-        for part, obj in parts.items():
-            entry = meta[part]
-            saved = (set(entry["arrays"]) | set(entry["views"]) | set(entry["numpy_scalars"]) | set(entry["scalars"])
-                     | set(entry["generators"]))
-            fresh = set(_state_attributes(obj))
-            # a None attribute may hold an array later (the controller's memory): compare what can be
-            lost = sorted(n for n in fresh - saved if getattr(obj, n) is not None)
-            if lost:
-                raise ValueError(f"{part} has state {lost} that the checkpoint lacks")
-            for name, value in entry["scalars"].items():
-                if not _is_scalar(value):
-                    raise ValueError(f"{part}.{name} is not a plain value")
+        if not isinstance(meta, dict) or set(parts) != set(meta):
+            raise _Mismatch(f"saved parts {sorted(meta) if isinstance(meta, dict) else _describe(meta)}, the env "
+                            f"has {sorted(parts)}")
+        n = vector_env.num_envs
+        restored = {part: _validated_part(part, obj, meta[part], arrays, n) for part, obj in parts.items()}
+    except (_Mismatch, CheckpointError) as exc:
+        raise CheckpointError(f"{source}: the saved env state does not fit this run's env: {exc}") from None
+    for part, obj in parts.items():  # everything checked: write
+        for name, value in restored[part].items():
+            cur = getattr(obj, name)
+            if isinstance(value, np.ndarray) and isinstance(cur, np.ndarray) and part == "sim":
+                np.copyto(cur, value)  # in place: the views into F and I stay views
+            else:
                 setattr(obj, name, value)
-            for name in entry["arrays"] + entry["views"]:  # bases before views
-                arr = arrays[f"{part}.{name}"]
-                cur = getattr(obj, name)
-                if isinstance(cur, np.ndarray) and cur.shape == arr.shape and cur.dtype == arr.dtype:
-                    np.copyto(cur, arr)
-                elif name in entry["views"]:
-                    raise ValueError(f"{part}.{name} is {arr.dtype}{arr.shape}, the env's is "
-                                     f"{getattr(cur, 'dtype', None)}{getattr(cur, 'shape', None)}")
-                else:
-                    setattr(obj, name, arr.copy())
-            for name in entry["numpy_scalars"]:
-                setattr(obj, name, arrays[f"{part}.{name}"][()])
-            for name, value in entry["generators"].items():
-                if isinstance(value, list):
-                    setattr(obj, name, [generator_from_state(g, source) for g in value])
-                else:
-                    setattr(obj, name, None if value is None else generator_from_state(value, source))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CheckpointError(f"{source}: the saved env state does not fit this run's env "
-                              f"({type(exc).__name__}: {exc})") from None
 
 
 def resume_payload(model, vecnorm) -> tuple[dict, dict]:
@@ -218,19 +369,39 @@ def save_replay_buffer(buffer, folder: Path) -> tuple[list[str], dict]:
 
 
 def restore_replay_buffer(buffer, info: dict, arrays: dict, source: str) -> None:
+    """Fill the run's replay buffer from a checkpoint, every field checked first (sizes, position, dtypes,
+    shapes (filled, n_envs, ...) of the run's buffer, finite values)."""
     try:
+        if not isinstance(info, dict):
+            raise ValueError(f"replay_buffer.json must be a mapping, got {type(info).__name__}")
+        for key in ("buffer_size", "n_envs", "filled", "pos"):
+            if isinstance(info.get(key), bool) or not isinstance(info.get(key), int):
+                raise ValueError(f"{key} must be an integer, got {str(info.get(key))[:40]!r}")
+        if not isinstance(info.get("full"), bool):
+            raise ValueError(f"full must be true or false, got {str(info.get('full'))[:40]!r}")
         if info["buffer_size"] != buffer.buffer_size or info["n_envs"] != buffer.n_envs:
             raise ValueError(f"saved buffer of {info['buffer_size']} x {info['n_envs']}, the run's is "
                              f"{buffer.buffer_size} x {buffer.n_envs}")
-        n = int(info["filled"])
+        n, pos, full = info["filled"], info["pos"], info["full"]
+        if not (0 <= pos < buffer.buffer_size and n == (buffer.buffer_size if full else pos)):
+            raise ValueError(f"position {pos}, {n} filled, full={full} are inconsistent for a buffer of "
+                             f"{buffer.buffer_size}")
+        checked = {}
         for k in _REPLAY_ARRAYS:
             target = getattr(buffer, k, None)
             if target is None:
                 continue
+            if k not in arrays:
+                raise ValueError(f"{k} is missing")
             saved = arrays[k]
             if saved.shape != (n, *target.shape[1:]) or saved.dtype != target.dtype:
-                raise ValueError(f"{k} is {saved.dtype}{saved.shape}")
-            target[:n] = saved
-        buffer.pos, buffer.full = int(info["pos"]), bool(info["full"])
+                raise ValueError(f"{k} is {saved.dtype}{saved.shape}, the run's buffer needs "
+                                 f"{target.dtype}{(n, *target.shape[1:])}")
+            if saved.dtype.kind == "f" and not np.isfinite(saved).all():
+                raise ValueError(f"{k} holds non-finite values")
+            checked[k] = saved
     except (KeyError, TypeError, ValueError) as exc:
         raise CheckpointError(f"{source}: {REPLAY_FILE} does not fit the run's replay buffer ({exc})") from None
+    for k, saved in checked.items():
+        getattr(buffer, k)[:n] = saved
+    buffer.pos, buffer.full = pos, full

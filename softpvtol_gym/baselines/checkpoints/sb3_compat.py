@@ -6,8 +6,11 @@ from __future__ import annotations
 import io
 from pathlib import Path
 
+import numpy as np
+
 from softpvtol_gym.baselines.checkpoints.load import load_folder
 from softpvtol_gym.baselines.checkpoints.manifest import CONFIG_FILE
+from softpvtol_gym.baselines.checkpoints.model_state import check_tensors, model_payload, vecnorm_dict
 from softpvtol_gym.baselines.checkpoints.store import find_checkpoint, warn, write_model_files
 from softpvtol_gym.baselines.config.hyperparams import normalize_kwargs
 from softpvtol_gym.baselines.config.run_config import RunConfig
@@ -75,6 +78,13 @@ def from_sb3(path: Path, out: Path | None = None) -> Path:
     """Convert pickle-based files to the safe format (see the module docstring); returns the folder."""
 
     model, vecnorm, config, zip_path, cfg = _read_pickled(path)
+    check_tensors(model_payload(model)[0], str(zip_path))  # no NaN / huge weights into the safe format
+    if vecnorm is not None:
+        stats = vecnorm_dict(vecnorm)
+        for name in ("obs_rms", "ret_rms"):
+            r = stats[name]
+            if not (np.isfinite(r["mean"]).all() and np.isfinite(r["var"]).all() and np.isfinite(r["count"])):
+                raise CheckpointError(f"{zip_path.parent / 'vecnormalize.pkl'}: {name} holds non-finite statistics")
     out = zip_path.parent if out is None else Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if cfg != out / CONFIG_FILE:  # the config next to the model (a checkpoint folder holds its own)

@@ -129,7 +129,19 @@ def load_space(path: Path, algo: str, base: dict) -> dict:
                     or (kind == "loguniform" and args[0] <= 0)):
                 need = "integers" if ints else "numbers" + (" > 0" if kind == "loguniform" else "")
                 raise ConfigError(f"{where}: {kind} needs [low, high] with low < high, {need}, got {args!r}")
-            candidates = args
+            # uniform and loguniform sample floats (whatever type the bounds are written in)
+            candidates = args if ints else [float(v) for v in args]
+            if not ints:
+                try:
+                    validate_hyperparams(algo, {**base, key: float(args[0])})
+                except ConfigError:
+                    try:
+                        validate_hyperparams(algo, {**base, key: int(args[0])})
+                    except ConfigError:
+                        pass
+                    else:
+                        raise ConfigError(f"{where}: {key} takes integers but {kind} samples floats; use "
+                                          f"{{randint: [low, high]}} or {{choice: [...]}}") from None
         for value in candidates:
             try:
                 validate_hyperparams(algo, {**base, key: value})

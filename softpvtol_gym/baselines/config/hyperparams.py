@@ -18,10 +18,9 @@ import math
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.util.paths import data_file
+from softpvtol_gym.baselines.util.safe_load import MAX_BYTES, MAX_DEPTH, loads_yaml, nesting_depth
 from softpvtol_gym.envs.actions import ACTION_MODES
 from softpvtol_gym.envs.registration import MODE_ENV_IDS
 
@@ -51,6 +50,8 @@ MAX_TIMESTEPS = 10**10
 MAX_ROLLOUT = 2**24          # PPO: n_steps * n_envs (the rollout buffer is allocated up front)
 MAX_BUFFER_SIZE = 10**7      # SAC: the replay buffer is allocated up front
 VECNORM_KEYS = ("norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon")
+#: the longest value of a --hp / --env-option override or a policy_kwargs / normalize "dict(...)" string
+MAX_VALUE_CHARS = 10_000
 
 
 def read_yaml(path: Path, what: str) -> Any:
@@ -60,18 +61,16 @@ def read_yaml(path: Path, what: str) -> Any:
     if path.is_dir():
         raise ConfigError(f"{what} {path} is a directory; expected a YAML file")
     try:
+        size = path.stat().st_size
+        if size > MAX_BYTES:
+            raise ConfigError(f"{what} {path} is {size:,} bytes, more than the {MAX_BYTES:,} a YAML file may have")
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"no {what} at {path}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"cannot read {what} {path}: {exc}") from None
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise ConfigError(f"{what} {path} is not valid YAML{where}: {problem}") from None
+    # bounded: size, nesting, node count with aliases expanded (util.safe_load)
+    return loads_yaml(text, f"{what} {path}", error=ConfigError)
 
 
 def hyperparams_key(action_mode: str) -> str:
@@ -107,7 +106,7 @@ def apply_overrides(hyperparams: dict, overrides: list[str]) -> dict:
         key = key.strip()
         if not key:
             raise ConfigError(f"a hyperparameter override must look like key=value, got {item!r}")
-        out[key] = _parse_value(raw)
+        out[key] = _parse_value(raw, f"hyperparameter {key}")
     return out
 
 
@@ -122,17 +121,14 @@ def parse_env_options(items: list[str]) -> dict:
             raise ConfigError(f"an env option must look like key=value, got {item!r}")
         if key not in ENV_OPTION_KEYS:
             raise ConfigError(f"unknown env option {key!r}; a run may set {list(ENV_OPTION_KEYS)}")
-        out[key] = _parse_value(raw, "env option")
+        out[key] = _parse_value(raw, f"env option {key}")
     return out
 
 
 def _parse_value(raw: str, what: str = "hyperparameter") -> Any:
     """A YAML value, with numbers like ``1e-4`` (a string for YAML 1.1) read as floats."""
 
-    try:
-        value = yaml.safe_load(raw)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{what} value {raw!r} is not valid YAML: {getattr(exc, 'problem', exc)}") from None
+    value = loads_yaml(raw, f"{what} value {raw[:80]!r}", error=ConfigError, max_bytes=MAX_VALUE_CHARS)
     if isinstance(value, str):
         try:
             return float(value)
@@ -209,11 +205,19 @@ def parse_dict_call(text: str, what: str = "policy_kwargs") -> dict:
             return node.value
         raise ConfigError(f"{what} may only hold dict(...), lists and constants, got {ast.dump(node)}")
 
+    if not isinstance(text, str) or len(text) > MAX_VALUE_CHARS:
+        raise ConfigError(f"{what} must be a string of at most {MAX_VALUE_CHARS:,} characters")
     try:
         tree = ast.parse(text, mode="eval")
+        value = conv(tree.body)
     except SyntaxError as exc:
-        raise ConfigError(f"{what} {text!r} is not a valid expression: {exc.msg}") from None
-    value = conv(tree.body)
+        raise ConfigError(f"{what} {text[:80]!r} is not a valid expression: {exc.msg}") from None
+    except (RecursionError, MemoryError):
+        raise ConfigError(f"{what} {text[:80]!r}... is nested too deeply") from None
+    except TypeError as exc:  # e.g. -"text"
+        raise ConfigError(f"{what} {text[:80]!r} is not a valid expression: {exc}") from None
+    if nesting_depth(value, MAX_DEPTH) > MAX_DEPTH:
+        raise ConfigError(f"{what} {text[:80]!r}... is nested more than {MAX_DEPTH} levels deep")
     if not isinstance(value, dict):
         raise ConfigError(f"{what} must be a dict, got {text!r}")
     return value

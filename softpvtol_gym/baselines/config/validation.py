@@ -81,15 +81,42 @@ def _number_or_linear_schedule(v):
         return "a finite number > 0 or a linear schedule 'lin_<initial value > 0>'"
 
 
+#: the largest network train.py builds: layers of at most MAX_LAYER_UNITS units, at most MAX_LAYERS of them (the
+#: project's networks have 2 layers of 64 - 256 units; a size like 4,000,000,000 cannot be allocated, 0 or a
+#: negative size is no layer)
+MAX_LAYER_UNITS = 4096
+MAX_LAYERS = 8
+_NET_ARCH_KEYS = ("pi", "vf", "qf")
+
+
+def _layer_sizes(v) -> bool:
+    return (isinstance(v, list) and len(v) <= MAX_LAYERS
+            and all(is_int(u) and 1 <= u <= MAX_LAYER_UNITS for u in v))
+
+
+def _net_arch(v):
+    if _layer_sizes(v):
+        return None
+    if isinstance(v, dict) and v and set(v) <= set(_NET_ARCH_KEYS) and all(_layer_sizes(x) for x in v.values()):
+        return None
+    return (f"a list of at most {MAX_LAYERS} layer sizes, each an integer in [1, {MAX_LAYER_UNITS}] (units per "
+            f"hidden layer), or dict(pi=[...], vf=[...]) / dict(pi=[...], qf=[...]) of such lists")
+
+
 def _policy_kwargs(v):
     if isinstance(v, str):
         try:
-            parse_dict_call(v)
+            v = parse_dict_call(v)
         except ConfigError as exc:
             return f"a dict(...) expression ({exc})"
-        return None
     if not isinstance(v, dict):
         return "a dict or a 'dict(...)' string"
+    if "net_arch" in v:
+        msg = _net_arch(v["net_arch"])
+        if msg is not None:
+            return f"a dict whose net_arch is {msg}"
+    if "log_std_init" in v and not _is_num(v["log_std_init"]):
+        return f"a dict whose log_std_init is a finite number, got {v['log_std_init']!r}"
 
 
 def _sac_ent_coef(v):

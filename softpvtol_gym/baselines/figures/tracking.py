@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import statistics
 import textwrap
@@ -21,6 +20,7 @@ from softpvtol_gym.baselines.training.loop import EVALUATIONS_FILE
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
 from softpvtol_gym.baselines.util.atomic import atomic_path
 from softpvtol_gym.baselines.util.paths import relative_to_root
+from softpvtol_gym.baselines.util.safe_load import loads_json
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
 #: the pictures' file names (under the layout's results: ``<results>/tracking/``)
@@ -89,7 +89,7 @@ def read_leaderboard(path: Path) -> dict:
         raise ConfigError(f"no leaderboard JSON at {path}; create it with python baselines/leaderboard.py or pass "
                           f"--checkpoint")
     try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
+        return loads_json(Path(path).read_text(encoding="utf-8"), str(path))
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise ConfigError(f"leaderboard JSON {path} is not valid JSON ({exc})") from None
 
@@ -244,7 +244,7 @@ def read_curves(runs_dir: Path) -> list[dict]:
     for path in sorted(Path(runs_dir).glob(f"ppo_*/seed_*/{EVALUATIONS_FILE}")):
         config = RunConfig.load(path.parent / "config.yaml")
         try:
-            history = json.loads(path.read_text(encoding="utf-8"))
+            history = loads_json(path.read_text(encoding="utf-8"), str(path))
             points = [(int(h["step"]), h.get("train_seconds"), float(h["mean_rms_position_error"])) for h in history]
         except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
             raise ConfigError(f"{path} is not an evaluations.json of a training run ({exc})") from None

@@ -56,6 +56,7 @@ from softpvtol_gym.baselines.training.policy import LearnedPolicy
 from softpvtol_gym.baselines.util.args import interrupted
 from softpvtol_gym.baselines.util.atomic import atomic_copy, atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout, check_slug, data_file, relative_to_root, under
+from softpvtol_gym.baselines.util.safe_load import loads_json
 from softpvtol_gym.control import LOOPS
 from softpvtol_gym.envs.actions import ACTION_MODES
 from softpvtol_gym.envs.tiers import registered_tiers
@@ -253,7 +254,7 @@ def load_jobs(spec_path: Path = SPEC_FILE) -> list[Job]:
 def read_eval(path: Path) -> dict:
     """A job's eval.json, checked enough to be used (ConfigError naming the file otherwise)."""
     try:
-        rec = json.loads(Path(path).read_text())
+        rec = loads_json(Path(path).read_text(), str(path))
     except (OSError, ValueError) as exc:
         raise ConfigError(f"{path} is not readable JSON ({exc}); delete it to re-run the job") from None
     if (not isinstance(rec, dict) or not isinstance(rec.get("job"), dict) or not isinstance(rec.get("eval"), dict)

@@ -4,7 +4,6 @@ the headline, and the JSON that holds them (built and validated)."""
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import math
 import subprocess
 import warnings
@@ -24,6 +23,7 @@ from softpvtol_gym.baselines.leaderboard.jobs import (
     missing_evaluations,
     read_eval,
 )
+from softpvtol_gym.baselines.util.safe_load import loads_json
 
 REFERENCE = "passivity-bounded"   # the strongest analytic loop, the env's default (docs/control.md)
 BOOTSTRAP_REPS = 2000
@@ -340,7 +340,7 @@ def read_data(path: Path) -> dict:
     if not path.is_file():
         raise ConfigError(f"no leaderboard JSON at {path}")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = loads_json(path.read_text(encoding="utf-8"), str(path))
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise ConfigError(f"leaderboard JSON {path} is not valid JSON ({exc}); re-create it with python "
                           f"baselines/leaderboard.py") from None

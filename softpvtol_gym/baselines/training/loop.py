@@ -45,6 +45,7 @@ from softpvtol_gym.baselines.training.models import (
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.locks import DirectoryLock
+from softpvtol_gym.baselines.util.safe_load import loads_json
 
 EVALUATIONS_FILE = "evaluations.json"
 #: what a command may change on --resume (everything else must match the run's saved config)
@@ -318,7 +319,7 @@ def _load_evaluations(run_dir: Path, max_step: int) -> list[dict]:
     if not path.is_file():
         return []
     try:
-        data = json.loads(path.read_text())
+        data = loads_json(path.read_text(), str(path))
         return [e for e in data if isinstance(e, dict) and isinstance(e.get("step"), int) and e["step"] <= max_step]
     except (OSError, ValueError, TypeError):
         warn(f"{path} is unreadable; the periodic evaluations start a new list")

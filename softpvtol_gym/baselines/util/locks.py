@@ -22,6 +22,7 @@ from filelock import FileLock, Timeout
 
 from softpvtol_gym.baselines.errors import LockedError
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
+from softpvtol_gym.baselines.util.safe_load import loads_json
 
 LOCK_FILE = ".softpvtol.lock"
 OWNER_FILE = ".softpvtol.lock.json"
@@ -33,7 +34,7 @@ _guard = threading.Lock()
 def holder(directory: Path) -> str:
     """The holder of ``directory``'s lock as recorded in its sidecar, in words."""
     try:
-        info = json.loads((Path(directory) / OWNER_FILE).read_text())
+        info = loads_json((Path(directory) / OWNER_FILE).read_text(), OWNER_FILE)
         return (f"pid {info['pid']} on host {info['host']} (since {info['since']}, "
                 f"command: {info['command']})")
     except (OSError, ValueError, KeyError, TypeError):
