@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import errno
-import json
 import math
 import os
 import signal
@@ -29,6 +28,7 @@ from pathlib import Path
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.util.extras import require
 from softpvtol_gym.baselines.util.paths import Layout
+from softpvtol_gym.baselines.util.safe_load import loads_json
 
 
 def one_line(message: str) -> str:
@@ -215,7 +215,7 @@ def read_json_report(path: Path, what: str) -> dict:
     if not path.is_file():
         raise ConfigError(f"no {what} at {path}")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = loads_json(path.read_text(encoding="utf-8"), str(path))  # bounded size and nesting
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise ConfigError(f"{what} {path} is not valid JSON ({exc})") from None
     if not isinstance(data, dict):
