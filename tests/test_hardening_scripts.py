@@ -452,3 +452,28 @@ def test_train_terminated_keeps_its_checkpoint_and_says_how_to_resume(tmp_path):
     line = err.strip().splitlines()[-1]
     assert line.startswith("softpvtol train: error: terminated (SIGTERM): the run in") and "--resume" in line, err
     assert "Traceback" not in err and not (out / "result.json").exists() and not _children(proc.pid)
+
+
+def test_an_interrupt_that_surfaces_as_another_error_is_still_an_interrupt(capsys):
+    """SIGTERM inside code that turns the exception into another one (numba's compiler does: it then fails to
+    cache the half-compiled kernel with a RuntimeError) still exits 143 with the one-line message."""
+
+    def body(argv, layout, prog):
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)  # the handler raises here
+        except KeyboardInterrupt:
+            raise RuntimeError("no compiled object yet") from None
+        return 0
+
+    main = command_main("train.py", body, "test")
+    with pytest.raises(SystemExit) as info:
+        main([])
+    assert info.value.code == EXIT_SIGTERM
+    assert "terminated (SIGTERM)" in capsys.readouterr().err
+
+    def crash(argv, layout, prog):  # without a signal, an unexpected error is not disguised
+        raise RuntimeError("a real bug")
+
+    with pytest.raises(RuntimeError, match="a real bug"):
+        command_main("train.py", crash, "test")([])

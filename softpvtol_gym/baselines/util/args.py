@@ -69,8 +69,18 @@ class Terminated(KeyboardInterrupt):
     that every ``finally`` and ``except KeyboardInterrupt`` that cleans up after Ctrl-C does so after SIGTERM too."""
 
 
+#: the signals received during the current :func:`run_main` call (an interrupt can surface as another error)
+_signals_received: list[int] = []
+
+
 def _raise_terminated(signum, frame):
+    _signals_received.append(signum)
     raise Terminated()
+
+
+def _raise_interrupt(signum, frame):
+    _signals_received.append(signum)
+    raise KeyboardInterrupt()
 
 
 def interrupted(exc: BaseException, kept: str) -> BaseException:
@@ -97,25 +107,42 @@ def run_main(main, argv=None, prog: str | None = None) -> int:
     call in the main thread) -> exit 143, each with one line saying what was kept (``exc.kept``, see
     :func:`interrupted`)."""
     name = prog or (sys.argv[0].rsplit("/", 1)[-1] if sys.argv and sys.argv[0] else "script")
-    previous = None
+    previous = {}
+    _signals_received.clear()
     if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGTERM, _raise_terminated)
+        previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, _raise_terminated)
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # Python's own Ctrl-C handler only
+            previous[signal.SIGINT] = signal.signal(signal.SIGINT, _raise_interrupt)
     try:
         return main(argv)
     except ConfigError as exc:
         fail(name, str(exc))
     except KeyboardInterrupt as exc:
-        code, what = (EXIT_SIGTERM, "terminated (SIGTERM)") if isinstance(exc, Terminated) else (
-            EXIT_SIGINT, "interrupted (Ctrl-C)")
-        kept = getattr(exc, "kept", None) or ("the run is incomplete and its result was not written; no file is left "
-                                              "half-written (each is written atomically: the old one or a complete "
-                                              "new one)")
-        fail(name, f"{what}: {kept}", code=code)
+        fail(name, _interrupt_message(exc, isinstance(exc, Terminated)), code=_interrupt_code(exc))
     except OSError as exc:
         fail(name, io_error_message(exc), code=EXIT_IO_ERROR)
+    except Exception as exc:
+        # an interrupt that surfaced as another error on its way out (e.g. SIGTERM inside numba's compiler,
+        # which then fails to cache the half-compiled kernel): still an interrupt, not a crash
+        if not _signals_received:
+            raise
+        terminated = _signals_received[0] == signal.SIGTERM
+        fail(name, _interrupt_message(exc, terminated), code=EXIT_SIGTERM if terminated else EXIT_SIGINT)
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _interrupt_code(exc: KeyboardInterrupt) -> int:
+    return EXIT_SIGTERM if isinstance(exc, Terminated) else EXIT_SIGINT
+
+
+def _interrupt_message(exc: BaseException, terminated: bool) -> str:
+    what = "terminated (SIGTERM)" if terminated else "interrupted (Ctrl-C)"
+    kept = getattr(exc, "kept", None) or ("the run is incomplete and its result was not written; no file is left "
+                                          "half-written (each is written atomically: the old one or a complete "
+                                          "new one)")
+    return f"{what}: {kept}"
 
 
 # ------------------------------------------------------------------------- argparse value types
