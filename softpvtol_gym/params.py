@@ -38,14 +38,15 @@ _NON_NEGATIVE = ("g", "epsilon")
 #: allows (|qdot| <= 100), far inside float64's 1e+-308, so no accepted value overflows or divides by
 #: an underflowed zero. It spans a milligram to a thousand tonnes, a micrometre to a thousand km.
 PARAM_MIN, PARAM_MAX = 1e-6, 1e6
-#: the smallest non-zero g [m/s^2]: below it g is free flight for any episode (1e-6 m/s^2 moves a body
-#: 0.8 mm in 40 s) while the hover thrust g M / 2 and the arm loads g m_i l_i / 2 the env normalises
-#: by go toward 0 (and underflow for subnormal g); pass g = 0 for free flight
+#: the smallest non-zero g [m/s^2] the env takes (:class:`~softpvtol_gym.envs.config.EnvConfig`; the
+#: dynamics take any g in [0, PARAM_MAX], they divide by no g): below it g is free flight for any
+#: episode (1e-6 m/s^2 moves a body 0.8 mm in 40 s) while the hover thrust g M / 2 and the arm loads
+#: g m_i l_i / 2 the env normalises by go toward 0 (and underflow for a subnormal g)
 G_MIN = PARAM_MIN
 #: unit of each field (for the messages)
 PARAM_UNITS = {"m": "kg", "m_l": "kg", "m_r": "kg", "I": "kg m^2", "I_l": "kg m^2", "I_r": "kg m^2",
                "l_l": "m", "l_r": "m", "g": "m/s^2", "epsilon": "m"}
-#: (lowest, highest) accepted value of each field (g: 0 or in [G_MIN, PARAM_MAX])
+#: (lowest, highest) accepted value of each field
 PARAM_BOUNDS: dict[str, tuple[float, float]] = {
     **{name: (PARAM_MIN, PARAM_MAX) for name in _POSITIVE}, "g": (0.0, PARAM_MAX), "epsilon": (0.0, PARAM_MAX)}
 _KIND = {"m": "a mass", "m_l": "a mass", "m_r": "a mass", "I": "an inertia", "I_l": "an inertia",
@@ -65,12 +66,6 @@ def check_param(name: str, value) -> float:
         if not (math.isfinite(v) and PARAM_MIN <= v <= PARAM_MAX):
             raise ValueError(f"SoftPVTOLParams.{name} must be finite and > 0, in [{PARAM_MIN:g}, {PARAM_MAX:g}] "
                              f"{unit} ({_KIND[name]}; {band}), got {v!r}")
-    elif name == "g":
-        if not (math.isfinite(v) and (v == 0.0 or G_MIN <= v <= PARAM_MAX)):
-            raise ValueError(f"SoftPVTOLParams.g must be finite and 0 (free flight) or in [{G_MIN:g}, "
-                             f"{PARAM_MAX:g}] m/s^2 (a non-zero g below {G_MIN:g} m/s^2 moves a body less than 1 mm "
-                             f"in 40 s, free flight in effect, while it drives the hover thrust g (m + m_l + m_r) / 2 "
-                             f"the env normalises by toward 0: pass g=0; {band}), got {v!r}")
     elif not (math.isfinite(v) and 0.0 <= v <= PARAM_MAX):
         raise ValueError(f"SoftPVTOLParams.{name} must be finite and in [0, {PARAM_MAX:g}] {unit} ({band}), "
                          f"got {v!r}")
@@ -96,10 +91,11 @@ class SoftPVTOLParams:
     ``epsilon`` m        0.0     half width of the rigid frame; arms start at x = -eps and x = +eps
     ========== ========= ======= ==================================================================
 
-    Masses, inertias and lengths must lie in [1e-6, 1e6] (SI units), ``epsilon`` in [0, 1e6] and ``g``
-    be 0 (free flight) or in [1e-6, 1e6] (:data:`PARAM_BOUNDS`: the band in which every term of the
-    model stays far inside float64's range). Invalid values raise :class:`ValueError` naming the field,
-    the value, the range and the reason.
+    Masses, inertias and lengths must lie in [1e-6, 1e6] (SI units), ``g`` and ``epsilon`` in
+    [0, 1e6] (:data:`PARAM_BOUNDS`: the band in which every term of the model stays far inside
+    float64's range; the env also needs g = 0 with explicit actuator limits, or g >= 1e-6,
+    :data:`G_MIN`). Invalid values raise :class:`ValueError` naming the field, the value, the range
+    and the reason.
     """
 
     m: float = 5.0

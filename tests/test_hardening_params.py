@@ -61,8 +61,10 @@ BAD = [
     *[(f"{f}_above", lambda f=f: SoftPVTOLParams(**{f: 2 * PARAM_MAX}), f"SoftPVTOLParams.{f}", "2000000.0", "float64")
       for f in PARAM_FIELDS],
     *[(f"{f}_below", lambda f=f: SoftPVTOLParams(**{f: PARAM_MIN / 2}), f"SoftPVTOLParams.{f}", "5e-07", "float64")
-      for f in PARAM_FIELDS if f != "epsilon"],
-    ("g_subnormal", lambda: SoftPVTOLParams(g=5e-324), "SoftPVTOLParams.g", "5e-324", "free flight"),
+      for f in PARAM_FIELDS if f not in ("g", "epsilon")],
+    ("g_subnormal_env", lambda: SoftPVTOLEnv(params=SoftPVTOLParams(g=5e-324), actuator_limits=(10.0, 1.0)),
+     "SoftPVTOLParams.g", "5e-324", "free flight"),
+    ("g_tiny_env", lambda: SoftPVTOLEnv(params=SoftPVTOLParams(g=1e-9)), "SoftPVTOLParams.g", "1e-09", "underflow"),
     ("from_array_huge", lambda: SoftPVTOLParams.from_array(np.full(len(PARAM_FIELDS), 1e300)), "SoftPVTOLParams.m",
      "1e+300", "float64"),
     ("mismatch_pushes_m_out", lambda: SoftPVTOLEnv(tier="mismatch", params=SoftPVTOLParams(m=PARAM_MAX)),

@@ -16,7 +16,7 @@ from .. import model as MK
 from ..control import _kernels as CK
 from ..control.closed_loop import LOOPS
 from ..control.passivity import PassivityGains
-from ..params import PARAM_BOUNDS, SoftPVTOLParams
+from ..params import G_MIN, PARAM_BOUNDS, SoftPVTOLParams
 from ..registry import EPISODE_SECONDS_REASON, MAX_EPISODE_SECONDS
 from ..tasks import TaskSpec, get_task
 from . import tiers as _tiers
@@ -85,9 +85,10 @@ class EnvConfig:
         "consistent model; the controllers keep the paper's).")
     params: SoftPVTOLParams | None = _argument(
         None, "SoftPVTOLParams | None",
-        "the nominal physical parameters (SI units; masses, inertias, lengths in [1e-6, 1e6], g 0 or in "
-        "[1e-6, 1e6], epsilon in [0, 1e6]): the plant's in the nominal tier and the model of the "
-        "controllers; None: the paper's values, `SoftPVTOLParams()`.", factory=SoftPVTOLParams, default_text="None")
+        "the nominal physical parameters (SI units; masses, inertias, lengths in [1e-6, 1e6], g 0 (with "
+        "`actuator_limits`) or in [1e-6, 1e6], epsilon in [0, 1e6]): the plant's in the nominal tier and the "
+        "model of the controllers; None: the paper's values, `SoftPVTOLParams()`.", factory=SoftPVTOLParams,
+        default_text="None")
     input_map: str = _argument(
         "paper", "str",
         '"paper" | "exact": the input map tau = B(q) a of the paper\'s model (as printed, or the virtual work '
@@ -201,6 +202,12 @@ class EnvConfig:
         """What the parameters must satisfy together with the other arguments: the default actuator
         limits need gravity, and the mismatch tiers' plant parameters stay within the parameter bounds."""
         p = self.params
+        if 0.0 < p.g < G_MIN:
+            raise ValueError(f"SoftPVTOLParams.g = {p.g!r} is below the env's smallest non-zero gravity "
+                             f"{G_MIN:g} m/s^2: it moves a body less than 1 mm in 40 s, free flight in effect, while "
+                             "the hover thrust g (m + m_l + m_r) / 2 and the arm loads the env scales actions and the "
+                             "reward by go toward 0 (and underflow); pass g=0 with actuator_limits for free flight, "
+                             f"or g >= {G_MIN:g}")
         if p.g == 0.0 and self.actuator_limits is None:
             raise ValueError("SoftPVTOLParams.g = 0.0 (free flight) needs actuator_limits=(T_max [N], tau_max [N m]): "
                              "the default limits are 3 x the hover thrust g (m + m_l + m_r) / 2 and 4 x the arm "

@@ -153,7 +153,7 @@ class SoftPVTOLEnv(gym.Env):
     | `action_mode` | `str` | `"actuators"` | "actuators" \| "virtual" \| "residual": what the action commands (see Action Space). |
     | `task` | `str` | `"hover"` | a registered task: "hover" \| "setpoint" \| "track_paper" \| "track_random" built in, or one registered with `softpvtol_gym.tasks.register_task` (a `TaskSpec`); sets the reference, the starting state and the episode length. |
     | `tier` | `str` | `"nominal"` | a registered robustness tier (`softpvtol_gym.envs.register_tier`); built in: "nominal" (no disturbance) \| "mismatch" (plant m, m_l, m_r, I, I_l, I_r, l_l, l_r each x U(0.8, 1.2) per episode; the controllers keep the nominal params) \| "wind" (Ornstein-Uhlenbeck force on x and z, std 3 N, correlation time 1 s) \| "noisy" (Gaussian measurement noise, std (0.02 m, 0.02 m, 0.01 rad, 0.02 rad, 0.02 rad) on q and (0.05 m/s, 0.05 m/s, 0.02 rad/s, 0.05 rad/s, 0.05 rad/s) on qdot, and a 0.05 s first-order lag of the applied command) \| "hard" (mismatch, wind and noisy together) \| "model_gap" (the plant is the consistent model; the controllers keep the paper's). |
-    | `params` | `SoftPVTOLParams \| None` | `None` | the nominal physical parameters (SI units; masses, inertias, lengths in [1e-6, 1e6], g 0 or in [1e-6, 1e6], epsilon in [0, 1e6]): the plant's in the nominal tier and the model of the controllers; None: the paper's values, `SoftPVTOLParams()`. |
+    | `params` | `SoftPVTOLParams \| None` | `None` | the nominal physical parameters (SI units; masses, inertias, lengths in [1e-6, 1e6], g 0 (with `actuator_limits`) or in [1e-6, 1e6], epsilon in [0, 1e6]): the plant's in the nominal tier and the model of the controllers; None: the paper's values, `SoftPVTOLParams()`. |
     | `input_map` | `str` | `"paper"` | "paper" \| "exact": the input map tau = B(q) a of the paper's model (as printed, or the virtual work of the thrusts at the tips): the plant's under `model="paper"` and the one the controllers assume. |
     | `allocation` | `str \| None` | `None` | virtual and residual modes: how body forces become thrusts, "exact" \| "paper" \| "ideal" (tau applied directly, virtual mode only, no saturation); None: "exact", or the `controller_loop`'s. |
     | `residual_space` | `str` | `"virtual"` | residual mode: "virtual" (the correction is added to the base controller's tau, 5 entries) \| "actuators" (added to its actuators, 4 entries). |
@@ -206,7 +206,7 @@ class SoftPVTOLEnv(gym.Env):
     * v0, closed validation (issue 22, behaviour change for values that gave NaN or never returned only):
       parameters, ``frame_skip``, ``max_episode_seconds``, ``residual_scale``, ``actuator_limits`` and the
       tier options have upper bounds (see Arguments and :data:`softpvtol_gym.params.PARAM_BOUNDS`), ``g = 0``
-      needs explicit ``actuator_limits``, a mismatch tier's scaled plant must stay within the parameter
+      needs explicit ``actuator_limits`` and a non-zero g must be >= 1e-6 m/s^2, a mismatch tier's scaled plant must stay within the parameter
       bounds, and a reward term whose measure is NaN (the residual base controller failing outside the model,
       the episode ending as "non_finite") counts as its cap instead of making the reward NaN.
     """
