@@ -47,7 +47,8 @@ def bounded_number(name: str, value: Any, low: float, high: float, why: str, *, 
     v = float(value)
     inside = (low < v if low_open else low <= v) and (v < high if high_open else v <= high)
     if not (math.isfinite(v) and inside):
-        raise ValueError(f"{name} must be in {interval_text(low, high, low_open, high_open)} ({why}), got {value!r}")
+        must = "must be finite and > 0, in" if low == 0 and low_open else "must be in"
+        raise ValueError(f"{name} {must} {interval_text(low, high, low_open, high_open)} ({why}), got {value!r}")
     return v
 
 
