@@ -32,6 +32,45 @@ if not (P_MR == P_ML + 1 and P_IR == P_IL + 1 and P_LR == P_LL + 1):  # pragma: 
 _POSITIVE = ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r")
 _NON_NEGATIVE = ("g", "epsilon")
 
+#: the band every mass [kg], inertia [kg m^2] and length [m] must lie in, and the largest g [m/s^2] and
+#: epsilon [m]: SI values between 1e-6 and 1e6 keep every term of the model (m l^2 qdot^2, g M z, the
+#: Schur complements and determinant of the mass matrix) within about 1e+-40 over the states the env
+#: allows (|qdot| <= 100), far inside float64's 1e+-308, so no accepted value overflows or divides by
+#: an underflowed zero. It spans a milligram to a thousand tonnes, a micrometre to a thousand km.
+PARAM_MIN, PARAM_MAX = 1e-6, 1e6
+#: the smallest non-zero g [m/s^2] the env takes (:class:`~softpvtol_gym.envs.config.EnvConfig`; the
+#: dynamics take any g in [0, PARAM_MAX], they divide by no g): below it g is free flight for any
+#: episode (1e-6 m/s^2 moves a body 0.8 mm in 40 s) while the hover thrust g M / 2 and the arm loads
+#: g m_i l_i / 2 the env normalises by go toward 0 (and underflow for a subnormal g)
+G_MIN = PARAM_MIN
+#: unit of each field (for the messages)
+PARAM_UNITS = {"m": "kg", "m_l": "kg", "m_r": "kg", "I": "kg m^2", "I_l": "kg m^2", "I_r": "kg m^2",
+               "l_l": "m", "l_r": "m", "g": "m/s^2", "epsilon": "m"}
+#: (lowest, highest) accepted value of each field
+PARAM_BOUNDS: dict[str, tuple[float, float]] = {
+    **{name: (PARAM_MIN, PARAM_MAX) for name in _POSITIVE}, "g": (0.0, PARAM_MAX), "epsilon": (0.0, PARAM_MAX)}
+_KIND = {"m": "a mass", "m_l": "a mass", "m_r": "a mass", "I": "an inertia", "I_l": "an inertia",
+         "I_r": "an inertia", "l_l": "a length", "l_r": "a length"}
+
+
+def check_param(name: str, value) -> float:
+    """``value`` of field ``name`` as a float, or a ValueError naming the field, the value, the accepted
+    range and why (see :data:`PARAM_BOUNDS`)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.floating, np.integer)):
+        raise ValueError(f"SoftPVTOLParams.{name} must be a real number, got {value!r} of type {type(value).__name__}")
+    v = float(value)
+    unit = PARAM_UNITS[name]
+    band = (f"SI values in [{PARAM_MIN:g}, {PARAM_MAX:g}] keep every term of the model, e.g. m l^2 qdot^2 and "
+            "the mass matrix's inverse, far inside float64's range")
+    if name in _POSITIVE:
+        if not (math.isfinite(v) and PARAM_MIN <= v <= PARAM_MAX):
+            raise ValueError(f"SoftPVTOLParams.{name} must be finite and > 0, in [{PARAM_MIN:g}, {PARAM_MAX:g}] "
+                             f"{unit} ({_KIND[name]}; {band}), got {v!r}")
+    elif not (math.isfinite(v) and 0.0 <= v <= PARAM_MAX):
+        raise ValueError(f"SoftPVTOLParams.{name} must be finite and in [0, {PARAM_MAX:g}] {unit} ({band}), "
+                         f"got {v!r}")
+    return v
+
 
 @dataclasses.dataclass(frozen=True)
 class SoftPVTOLParams:
@@ -48,12 +87,15 @@ class SoftPVTOLParams:
     ``I_r``    kg m^2    0.1     inertia of the right arm's bending mode
     ``l_l``    m         0.5     length of the left soft arm (constant curvature arc)
     ``l_r``    m         0.5     length of the right soft arm
-    ``g``      m/s^2     9.8     gravitational acceleration (0 allowed: free flight)
+    ``g``      m/s^2     9.8     gravitational acceleration (0: free flight)
     ``epsilon`` m        0.0     half width of the rigid frame; arms start at x = -eps and x = +eps
     ========== ========= ======= ==================================================================
 
-    Masses, inertias and lengths must be finite and > 0; ``g`` and ``epsilon`` finite and >= 0.
-    Invalid values raise :class:`ValueError` naming the field.
+    Masses, inertias and lengths must lie in [1e-6, 1e6] (SI units), ``g`` and ``epsilon`` in
+    [0, 1e6] (:data:`PARAM_BOUNDS`: the band in which every term of the model stays far inside
+    float64's range; the env also needs g = 0 with explicit actuator limits, or g >= 1e-6,
+    :data:`G_MIN`). Invalid values raise :class:`ValueError` naming the field, the value, the range
+    and the reason.
     """
 
     m: float = 5.0
@@ -69,21 +111,7 @@ class SoftPVTOLParams:
 
     def __post_init__(self) -> None:
         for name in PARAM_FIELDS:
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-                raise ValueError(
-                    f"SoftPVTOLParams.{name} must be a real number, got {value!r} "
-                    f"of type {type(value).__name__}"
-                )
-            value = float(value)
-            if name in _POSITIVE and not (math.isfinite(value) and value > 0.0):
-                raise ValueError(
-                    f"SoftPVTOLParams.{name} must be finite and > 0 (a mass, inertia or length), "
-                    f"got {value!r}"
-                )
-            if name in _NON_NEGATIVE and not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"SoftPVTOLParams.{name} must be finite and >= 0, got {value!r}")
-            object.__setattr__(self, name, value)
+            object.__setattr__(self, name, check_param(name, getattr(self, name)))
 
     @cached_property
     def array(self) -> np.ndarray:

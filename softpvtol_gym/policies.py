@@ -167,6 +167,12 @@ class PassivityPolicy:
                 "arm gains k[3:5] (the limit scales roughly with 1/k)")
         if config.action_mode == "virtual" and config.resolved_allocation == "ideal" and self.loop != "ideal":
             raise ValueError("with allocation='ideal' the policy must use loop='ideal'")
+        if self.loop == "ideal" and config.action_mode != "virtual":
+            valid = sorted(k for k in LOOPS if k != "ideal")
+            raise ValueError(
+                f"loop='ideal' is not valid for action_mode={config.action_mode!r}: the ideal loop outputs the "
+                f"generalized force tau with no allocation to thrusts and arm torques, which only "
+                f"action_mode='virtual' takes; valid loops for action_mode={config.action_mode!r}: {valid}")
         self.controller = PassivityController.from_loop(
             self.loop, params=config.params, gains=gains, input_map=config.input_map, dt=config.dt
         )

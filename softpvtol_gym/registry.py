@@ -24,6 +24,7 @@ from .references import REF_CUSTOM
 __all__ = [
     "Registry", "TaskSpec", "TierSpec", "EFFECT_OPTIONS", "TASK_REGISTRY", "TIER_REGISTRY",
     "register_task", "get_task", "registered_tasks", "register_tier", "get_tier", "registered_tiers",
+    "MAX_EPISODE_SECONDS",
 ]
 
 Spec = TypeVar("Spec")
@@ -83,6 +84,10 @@ class Registry(Generic[Spec]):
 
 
 # ------------------------------------------------------------------------------------------- tasks
+#: the longest episode [s] a task or ``max_episode_seconds`` may ask for (about 32 years)
+MAX_EPISODE_SECONDS = 1e9
+EPISODE_SECONDS_REASON = ("the episode clock t = steps x dt then keeps a resolution below 1e-6 s in float64 and the "
+                          "step count fits an int64 at any frame_skip")
 #: episode-sampling codes of the compiled sampler (``envs.episodes``); SAMPLE_CUSTOM: reference + perturbation
 SAMPLE_CUSTOM, SAMPLE_HOVER, SAMPLE_SETPOINT, SAMPLE_PAPER, SAMPLE_RANDOM = -1, 0, 1, 2, 3
 
@@ -122,9 +127,10 @@ class TaskSpec:
             raise ValueError(f"TaskSpec.reference must be callable as reference(t) -> (pos, vel, acc), "
                              f"got {self.reference!r}")
         e = self.episode_seconds
-        if isinstance(e, bool) or not isinstance(e, (int, float, np.integer, np.floating)) or not (
-                math.isfinite(e) and e > 0):
-            raise ValueError(f"TaskSpec.episode_seconds must be a finite number > 0 [s], got {e!r}")
+        if isinstance(e, (bool, np.bool_)) or not isinstance(e, (int, float, np.integer, np.floating)) or not (
+                math.isfinite(e) and 0 < e <= MAX_EPISODE_SECONDS):
+            raise ValueError(f"TaskSpec.episode_seconds must be a finite number in (0, {MAX_EPISODE_SECONDS:g}] [s] "
+                             f"({EPISODE_SECONDS_REASON}), got {e!r}")
         object.__setattr__(self, "episode_seconds", float(e))
         if self.initial_state is not None and not callable(self.initial_state):
             raise ValueError(f"TaskSpec.initial_state must be None or callable as initial_state(u) -> (q0, qdot0), "

@@ -120,8 +120,6 @@ def case(id_, exc, match):
 
 for _id, _kw, _exc, _match in CONSTRUCTOR:
     for _how in ("class", "gym.make", "vector"):
-        if _how == "gym.make" and _id == "render_mode_int":
-            continue  # gymnasium's make() itself fails on a non-str render_mode (AttributeError), before the env
         CASES.append(pytest.param(lambda how=_how, kw=_kw: _make_env(how, kw), _exc, _match, id=f"{_how}-{_id}"))
 
 # the vector env's own arguments

@@ -35,6 +35,28 @@ def positive_number(name: str, value: Any, allow_zero: bool = False) -> float:
     return v
 
 
+def bounded_number(name: str, value: Any, low: float, high: float, why: str, *, low_open: bool = False,
+                   high_open: bool = False) -> float:
+    """``value`` as a float in the interval from ``low`` to ``high`` (each end closed unless ``*_open``),
+    refusing what is not a real number, NaN, inf and what lies outside, with a message that names the
+    argument, the value, the interval and ``why`` (the physical or numerical reason for the bounds; NaN and
+    inf lie in no interval)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a real number in {interval_text(low, high, low_open, high_open)} ({why}), "
+                         f"got {short_repr(value)} of type {type(value).__name__}")
+    v = float(value)
+    inside = (low < v if low_open else low <= v) and (v < high if high_open else v <= high)
+    if not (math.isfinite(v) and inside):
+        must = "must be finite and > 0, in" if low == 0 and low_open else "must be in"
+        raise ValueError(f"{name} {must} {interval_text(low, high, low_open, high_open)} ({why}), got {value!r}")
+    return v
+
+
+def interval_text(low: float, high: float, low_open: bool = False, high_open: bool = False) -> str:
+    """e.g. "(0, 100]"."""
+    return f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+
+
 def real_array(name: str, value: Any, expected: str) -> np.ndarray:
     """``value`` as a new C-contiguous float64 array, refusing what is not an array of real numbers (strings, complex
     and bool values, None, ragged lists); shape and finiteness are the caller's. ``expected`` says what

@@ -16,10 +16,11 @@ from .. import model as MK
 from ..control import _kernels as CK
 from ..control.closed_loop import LOOPS
 from ..control.passivity import PassivityGains
-from ..params import SoftPVTOLParams
+from ..params import G_MIN, PARAM_BOUNDS, SoftPVTOLParams
+from ..registry import EPISODE_SECONDS_REASON, MAX_EPISODE_SECONDS
 from ..tasks import TaskSpec, get_task
 from . import tiers as _tiers
-from ._validation import choice, positive_number, short_repr
+from ._validation import bounded_number, choice, short_repr
 from .actions import ACTION_MODE_SPECS, ACTION_MODES
 from .layout import CODES, CONST, SC, SK
 
@@ -29,6 +30,24 @@ MODELS = (None, "paper", "consistent")
 ALLOCATIONS = ("paper", "exact", "ideal")
 RESIDUAL_SPACES = ("virtual", "actuators")
 RENDER_MODES = (None, "rgb_array", "human")
+
+#: the most RK4 steps per env step: a control period of 10 s, the length of the shortest built-in
+#: episode (hover, setpoint), and a step of about 15 ms of compute (13 us per RK4 step on the 2-core
+#: development machine); the analytic controllers need <= 0.012 s anyway
+MAX_FRAME_SKIP = 1000
+FRAME_SKIP_REASON = (f"RK4 steps of {PHYSICS_DT} s per env step; {MAX_FRAME_SKIP} is a control period of "
+                     f"{MAX_FRAME_SKIP * PHYSICS_DT:g} s, the shortest built-in episode, and keeps a step near 15 ms "
+                     "of compute")
+#: the largest residual_scale: at 100 x the virtual scales (2 M g on the body forces) an action of 0.02
+#: already asks for more than the default actuator range (3 M g / 2 per rotor); beyond, every action saturates
+MAX_RESIDUAL_SCALE = 100.0
+RESIDUAL_SCALE_REASON = ("the correction at action +-1 as a fraction of the virtual (or actuator) scales; at "
+                         f"{MAX_RESIDUAL_SCALE:g} an action of 0.02 already exceeds the default actuator range, so "
+                         "larger scales only saturate")
+#: the largest explicit actuator limit [N, N m] (the same bound as the wind force)
+ACTUATOR_LIMIT_MAX = _tiers.FORCE_MAX
+ACTUATOR_LIMIT_REASON = (f"> 0; {ACTUATOR_LIMIT_MAX:g} is 50 x the largest default limit the parameter bounds give "
+                         "(2e18 N m), far inside float64")
 
 
 def _argument(default, type_: str, description: str, *, factory=None, default_text: str | None = None):
@@ -66,8 +85,10 @@ class EnvConfig:
         "consistent model; the controllers keep the paper's).")
     params: SoftPVTOLParams | None = _argument(
         None, "SoftPVTOLParams | None",
-        "the nominal physical parameters (SI units): the plant's in the nominal tier and the model of the "
-        "controllers; None: the paper's values, `SoftPVTOLParams()`.", factory=SoftPVTOLParams, default_text="None")
+        "the nominal physical parameters (SI units; masses, inertias, lengths in [1e-6, 1e6], g 0 (with "
+        "`actuator_limits`) or in [1e-6, 1e6], epsilon in [0, 1e6]): the plant's in the nominal tier and the "
+        "model of the controllers; None: the paper's values, `SoftPVTOLParams()`.", factory=SoftPVTOLParams,
+        default_text="None")
     input_map: str = _argument(
         "paper", "str",
         '"paper" | "exact": the input map tau = B(q) a of the paper\'s model (as printed, or the virtual work '
@@ -82,27 +103,29 @@ class EnvConfig:
         '"actuators" (added to its actuators, 4 entries).')
     frame_skip: int = _argument(
         1, "int",
-        "RK4 steps of 0.01 s per env step, >= 1 (the control period is 0.01 s x frame_skip; the analytic "
-        "controllers need <= 0.012 s).")
+        "RK4 steps of 0.01 s per env step, in [1, 1000] (the control period is 0.01 s x frame_skip, at most 10 s, "
+        "the shortest built-in episode; the analytic controllers need <= 0.012 s).")
     max_episode_seconds: float | None = _argument(
         None, "float | None",
-        "episode length [s] (truncation), at least one control step; None: the task's (hover, setpoint 10 s, "
-        "track_paper 40 s, track_random 20 s).")
+        "episode length [s] (truncation), from one control step to 1e9 s (the clock t = steps x dt keeps a "
+        "resolution below 1e-6 s); None: the task's (hover, setpoint 10 s, track_paper 40 s, track_random 20 s).")
     tier_options: dict | None = _argument(
         None, "dict | None",
-        "overrides of the tier's numbers: `mismatch_scale` (in [0, 1), default 0.2), `wind_std` [N] (3), "
-        "`wind_correlation_time` [s] (1), `obs_noise_scale` (x the noise stds, 1), `actuator_time_constant` "
-        "[s] (0.05); an option given by hand switches its effect on.")
+        "overrides of the tier's numbers: `mismatch_scale` (in [0, 1), default 0.2; the scaled plant "
+        "parameters must stay within the `SoftPVTOLParams` bounds), `wind_std` [N] (in [0, 1e20], 3), "
+        "`wind_correlation_time` [s] (in (0, 1e9], 1), `obs_noise_scale` (x the noise stds, in [0, 1e8], 1), "
+        "`actuator_time_constant` [s] (in [0, 1e9], 0.05); an option given by hand switches its effect on.")
     residual_scale: float = _argument(
         0.2, "float",
         "residual mode: the correction at action +/-1 as a fraction of the virtual scales (or of "
-        "(T_max/2, T_max/2, tau_max, tau_max) with `residual_space=\"actuators\"`), > 0.")
+        "(T_max/2, T_max/2, tau_max, tau_max) with `residual_space=\"actuators\"`), in (0, 100] (at 100 an "
+        "action of 0.02 already exceeds the default actuator range).")
     actuator_limits: tuple | None = _argument(
         None, "tuple | None",
-        "(T_max [N], tau_max [N m]), two numbers > 0: each rotor's thrust range [0, T_max] and each arm's "
-        "torque range [-tau_max, tau_max], which scale the actions and saturate the applied commands; None: "
+        "(T_max [N], tau_max [N m]), two numbers in (0, 1e20]: each rotor's thrust range [0, T_max] and each "
+        "arm's torque range [-tau_max, tau_max], which scale the actions and saturate the applied commands; None: "
         "3 x the hover thrust per rotor and 4 x the larger arm gravity load g m_i l_i / 2 of `params` "
-        "(102.9 N, 9.8 N m with the defaults).")
+        "(102.9 N, 9.8 N m with the defaults; with g = 0, free flight, these are 0: give the limits).")
     controller_loop: str | None = _argument(
         None, "str | None",
         "residual mode's base controller and `PassivityPolicy`'s default: a loop of "
@@ -124,8 +147,10 @@ class EnvConfig:
                                  f"numbers > 0, e.g. (102.9, 9.8), or None (the defaults); got {short_repr(lim)}"
                                  + (" (pass tuple(limits))" if isinstance(lim, np.ndarray) and lim.shape == (2,)
                                     else ""))
-            positive_number("actuator_limits[0] (thrust_max)", lim[0])
-            positive_number("actuator_limits[1] (arm_torque_max)", lim[1])
+            bounded_number("actuator_limits[0] (thrust_max)", lim[0], 0.0, ACTUATOR_LIMIT_MAX, ACTUATOR_LIMIT_REASON,
+                           low_open=True)
+            bounded_number("actuator_limits[1] (arm_torque_max)", lim[1], 0.0, ACTUATOR_LIMIT_MAX,
+                           ACTUATOR_LIMIT_REASON, low_open=True)
         choice("action_mode", self.action_mode, ACTION_MODES)
         get_task(self.task)
         _tiers.get_tier(self.tier)
@@ -149,15 +174,17 @@ class EnvConfig:
                 )
         choice("residual_space", self.residual_space, RESIDUAL_SPACES)
         fs = self.frame_skip
-        if isinstance(fs, (bool, np.bool_)) or not isinstance(fs, (int, np.integer)) or fs < 1:
-            raise ValueError(f"frame_skip must be an int >= 1 (RK4 steps of 0.01 s per env step), got "
+        if isinstance(fs, (bool, np.bool_)) or not isinstance(fs, (int, np.integer)) or not 1 <= fs <= MAX_FRAME_SKIP:
+            raise ValueError(f"frame_skip must be an int >= 1 and <= {MAX_FRAME_SKIP} ({FRAME_SKIP_REASON}), got "
                              f"{short_repr(self.frame_skip)} of type {type(fs).__name__}")
         if self.max_episode_seconds is not None:
-            t = positive_number("max_episode_seconds", self.max_episode_seconds)
+            t = bounded_number("max_episode_seconds", self.max_episode_seconds, 0.0, MAX_EPISODE_SECONDS,
+                               f"[s]; {EPISODE_SECONDS_REASON}", low_open=True)
             if t < self.dt:
                 raise ValueError(f"max_episode_seconds must be at least one control step (dt = {self.dt:g} s with "
                                  f"frame_skip={fs}), got {self.max_episode_seconds!r}")
-        positive_number("residual_scale", self.residual_scale)
+        bounded_number("residual_scale", self.residual_scale, 0.0, MAX_RESIDUAL_SCALE, RESIDUAL_SCALE_REASON,
+                       low_open=True)
         if self.controller_loop is not None:
             choice("controller_loop", self.controller_loop, tuple(LOOPS))
             if self.controller_loop == "ideal" and self.action_mode != "virtual":
@@ -169,6 +196,34 @@ class EnvConfig:
                 raise ValueError(f"controller_loop={self.controller_loop!r} uses allocation={loop_alloc!r}, but "
                                  f"allocation={self.allocation!r} was given; pass one of them, or both consistent")
         _tiers.check_tier_options(self.tier_options)
+        self._check_physics()
+
+    def _check_physics(self) -> None:
+        """What the parameters must satisfy together with the other arguments: the default actuator
+        limits need gravity, and the mismatch tiers' plant parameters stay within the parameter bounds."""
+        p = self.params
+        if 0.0 < p.g < G_MIN:
+            raise ValueError(f"SoftPVTOLParams.g = {p.g!r} is below the env's smallest non-zero gravity "
+                             f"{G_MIN:g} m/s^2: it moves a body less than 1 mm in 40 s, free flight in effect, while "
+                             "the hover thrust g (m + m_l + m_r) / 2 and the arm loads the env scales actions and the "
+                             "reward by go toward 0 (and underflow); pass g=0 with actuator_limits for free flight, "
+                             f"or g >= {G_MIN:g}")
+        if p.g == 0.0 and self.actuator_limits is None:
+            raise ValueError("SoftPVTOLParams.g = 0.0 (free flight) needs actuator_limits=(T_max [N], tau_max [N m]): "
+                             "the default limits are 3 x the hover thrust g (m + m_l + m_r) / 2 and 4 x the arm "
+                             "gravity load g m_i l_i / 2, both 0 without gravity, and the actions and the reward's "
+                             "effort term are normalised by them; pass actuator_limits, or g > 0")
+        s = self.mismatch_scale
+        if s > 0.0:
+            for name in _tiers.MISMATCH_FIELDS:
+                lo, hi = PARAM_BOUNDS[name]
+                v = getattr(p, name)
+                if v * (1.0 - s) < lo or v * (1.0 + s) > hi:
+                    raise ValueError(
+                        f"tier {self.tier!r} with mismatch_scale={s:g} scales the plant's SoftPVTOLParams.{name}={v!r} "
+                        f"into [{v * (1.0 - s):g}, {v * (1.0 + s):g}], outside its bounds [{lo:g}, {hi:g}] (the band "
+                        "in which the model stays far inside float64); use a smaller mismatch_scale in tier_options "
+                        f"or a {name} nearer the band's middle")
 
     @classmethod
     def from_kwargs(cls, **kwargs) -> EnvConfig:

@@ -15,9 +15,10 @@ from ..references import N_REF_PARAMS, RP, RP_Z0
 from ..tasks import HOVER_SETPOINT, PAPER_Q0, SAMPLE_CUSTOM, SAMPLE_HOVER, SAMPLE_PAPER, SAMPLE_SETPOINT
 from ._validation import real_array, short_repr
 from .termination import BOX_X, BOX_Z, GROUND_Z, Q_LIMITS
+from .tiers import MISMATCH_FIELDS
 
 #: the plant parameters the mismatch tiers scale (their columns in the parameter vector)
-_MISMATCH_COLUMNS = tuple(PARAM_FIELDS.index(f) for f in ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r"))
+_MISMATCH_COLUMNS = tuple(PARAM_FIELDS.index(f) for f in MISMATCH_FIELDS)
 _N_MISMATCH = len(_MISMATCH_COLUMNS)
 #: the uniforms each env draws from its RNG at every reset (a fixed number, whatever the task): the
 #: initial-state perturbation (a registered task's ``initial_state`` gets them), the setpoint task's

@@ -17,16 +17,26 @@ CRASH_PENALTY = 10.0
 
 
 @MK.inline
+def capped(x):
+    """min(x, 1) for x >= 0, and 1 for NaN: a measure that could not be computed counts as the largest
+    (bit for bit min(x, 1.0) otherwise)."""
+    return x if x < 1.0 else 1.0
+
+
+@MK.inline
 def reward_terms(e_pos, e_theta, e_vel, effort, max_curvature, crashed):
     """The terms of :data:`REWARD_TERMS` from |position error| [m], wrapped attitude error [rad],
-    |velocity error|, effort mean(a_n^2), max(|q_l|, |q_r|) and the termination flag."""
-    cp = min(max((max_curvature - 0.5 * math.pi) / (0.5 * math.pi), 0.0), 1.0)
+    |velocity error|, effort mean(a_n^2), max(|q_l|, |q_r|) and the termination flag. Every term is
+    finite whatever its inputs: each normalised measure is capped at 1 and a NaN one counts as 1 (a
+    command that was not finite, e.g. the residual mode's base controller outside the model, ends the
+    episode as "non_finite"; its effort is then NaN)."""
+    cp = capped(max((max_curvature - 0.5 * math.pi) / (0.5 * math.pi), 0.0))
     return (
         1.0,
-        -W_POS * min(e_pos / POS_SCALE, 1.0),
-        -W_ATT * min(abs(e_theta) / math.pi, 1.0),
-        -W_VEL * min(e_vel / VEL_SCALE, 1.0),
-        -W_EFFORT * min(effort, 1.0),
+        -W_POS * capped(e_pos / POS_SCALE),
+        -W_ATT * capped(abs(e_theta) / math.pi),
+        -W_VEL * capped(e_vel / VEL_SCALE),
+        -W_EFFORT * capped(effort),
         -W_CURV * cp * cp,
         -CRASH_PENALTY if crashed else 0.0,
     )

@@ -24,6 +24,18 @@ def make_spaces(cfg: EnvConfig) -> tuple[spaces.Box, spaces.Box]:
     return obs, act
 
 
+class RenderModes(list):
+    """``metadata["render_modes"]``: a list whose membership test refuses a ``render_mode`` that is not
+    a str (nor None) with the env's own error. ``gym.make`` tests ``render_mode in render_modes`` and
+    then calls ``render_mode.endswith`` before the env's ``__init__`` runs, so without this
+    ``gym.make("SoftPVTOL-v0", render_mode=1)`` fails inside gymnasium with an AttributeError."""
+
+    def __contains__(self, mode) -> bool:
+        if mode is not None and not isinstance(mode, str):
+            choice("render_mode", mode, RENDER_MODES)  # raises: the message lists the valid modes
+        return super().__contains__(mode)
+
+
 class SoftPVTOLEnv(gym.Env):
     r"""
     ## Description
@@ -141,15 +153,15 @@ class SoftPVTOLEnv(gym.Env):
     | `action_mode` | `str` | `"actuators"` | "actuators" \| "virtual" \| "residual": what the action commands (see Action Space). |
     | `task` | `str` | `"hover"` | a registered task: "hover" \| "setpoint" \| "track_paper" \| "track_random" built in, or one registered with `softpvtol_gym.tasks.register_task` (a `TaskSpec`); sets the reference, the starting state and the episode length. |
     | `tier` | `str` | `"nominal"` | a registered robustness tier (`softpvtol_gym.envs.register_tier`); built in: "nominal" (no disturbance) \| "mismatch" (plant m, m_l, m_r, I, I_l, I_r, l_l, l_r each x U(0.8, 1.2) per episode; the controllers keep the nominal params) \| "wind" (Ornstein-Uhlenbeck force on x and z, std 3 N, correlation time 1 s) \| "noisy" (Gaussian measurement noise, std (0.02 m, 0.02 m, 0.01 rad, 0.02 rad, 0.02 rad) on q and (0.05 m/s, 0.05 m/s, 0.02 rad/s, 0.05 rad/s, 0.05 rad/s) on qdot, and a 0.05 s first-order lag of the applied command) \| "hard" (mismatch, wind and noisy together) \| "model_gap" (the plant is the consistent model; the controllers keep the paper's). |
-    | `params` | `SoftPVTOLParams \| None` | `None` | the nominal physical parameters (SI units): the plant's in the nominal tier and the model of the controllers; None: the paper's values, `SoftPVTOLParams()`. |
+    | `params` | `SoftPVTOLParams \| None` | `None` | the nominal physical parameters (SI units; masses, inertias, lengths in [1e-6, 1e6], g 0 (with `actuator_limits`) or in [1e-6, 1e6], epsilon in [0, 1e6]): the plant's in the nominal tier and the model of the controllers; None: the paper's values, `SoftPVTOLParams()`. |
     | `input_map` | `str` | `"paper"` | "paper" \| "exact": the input map tau = B(q) a of the paper's model (as printed, or the virtual work of the thrusts at the tips): the plant's under `model="paper"` and the one the controllers assume. |
     | `allocation` | `str \| None` | `None` | virtual and residual modes: how body forces become thrusts, "exact" \| "paper" \| "ideal" (tau applied directly, virtual mode only, no saturation); None: "exact", or the `controller_loop`'s. |
     | `residual_space` | `str` | `"virtual"` | residual mode: "virtual" (the correction is added to the base controller's tau, 5 entries) \| "actuators" (added to its actuators, 4 entries). |
-    | `frame_skip` | `int` | `1` | RK4 steps of 0.01 s per env step, >= 1 (the control period is 0.01 s x frame_skip; the analytic controllers need <= 0.012 s). |
-    | `max_episode_seconds` | `float \| None` | `None` | episode length [s] (truncation), at least one control step; None: the task's (hover, setpoint 10 s, track_paper 40 s, track_random 20 s). |
-    | `tier_options` | `dict \| None` | `None` | overrides of the tier's numbers: `mismatch_scale` (in [0, 1), default 0.2), `wind_std` [N] (3), `wind_correlation_time` [s] (1), `obs_noise_scale` (x the noise stds, 1), `actuator_time_constant` [s] (0.05); an option given by hand switches its effect on. |
-    | `residual_scale` | `float` | `0.2` | residual mode: the correction at action +/-1 as a fraction of the virtual scales (or of (T_max/2, T_max/2, tau_max, tau_max) with `residual_space="actuators"`), > 0. |
-    | `actuator_limits` | `tuple \| None` | `None` | (T_max [N], tau_max [N m]), two numbers > 0: each rotor's thrust range [0, T_max] and each arm's torque range [-tau_max, tau_max], which scale the actions and saturate the applied commands; None: 3 x the hover thrust per rotor and 4 x the larger arm gravity load g m_i l_i / 2 of `params` (102.9 N, 9.8 N m with the defaults). |
+    | `frame_skip` | `int` | `1` | RK4 steps of 0.01 s per env step, in [1, 1000] (the control period is 0.01 s x frame_skip, at most 10 s, the shortest built-in episode; the analytic controllers need <= 0.012 s). |
+    | `max_episode_seconds` | `float \| None` | `None` | episode length [s] (truncation), from one control step to 1e9 s (the clock t = steps x dt keeps a resolution below 1e-6 s); None: the task's (hover, setpoint 10 s, track_paper 40 s, track_random 20 s). |
+    | `tier_options` | `dict \| None` | `None` | overrides of the tier's numbers: `mismatch_scale` (in [0, 1), default 0.2; the scaled plant parameters must stay within the `SoftPVTOLParams` bounds), `wind_std` [N] (in [0, 1e20], 3), `wind_correlation_time` [s] (in (0, 1e9], 1), `obs_noise_scale` (x the noise stds, in [0, 1e8], 1), `actuator_time_constant` [s] (in [0, 1e9], 0.05); an option given by hand switches its effect on. |
+    | `residual_scale` | `float` | `0.2` | residual mode: the correction at action +/-1 as a fraction of the virtual scales (or of (T_max/2, T_max/2, tau_max, tau_max) with `residual_space="actuators"`), in (0, 100] (at 100 an action of 0.02 already exceeds the default actuator range). |
+    | `actuator_limits` | `tuple \| None` | `None` | (T_max [N], tau_max [N m]), two numbers in (0, 1e20]: each rotor's thrust range [0, T_max] and each arm's torque range [-tau_max, tau_max], which scale the actions and saturate the applied commands; None: 3 x the hover thrust per rotor and 4 x the larger arm gravity load g m_i l_i / 2 of `params` (102.9 N, 9.8 N m with the defaults; with g = 0, free flight, these are 0: give the limits). |
     | `controller_loop` | `str \| None` | `None` | residual mode's base controller and `PassivityPolicy`'s default: a loop of `softpvtol_gym.control.LOOPS` ("paper" \| "exact" \| "improved" \| "bounded" \| "ideal"); None: from the allocation, "bounded" for "exact" (the default), "paper" for "paper", "ideal" for "ideal". A loop whose allocation differs from a given `allocation` is refused. |
     | `model` | `str \| None` | `None` | "paper" \| "consistent": the plant's Lagrangian (docs/model.md): the paper's (rotor masses at tips that do not rotate with theta) or the consistent one (tips rotated by theta, virtual-work input map); None: "consistent" in a tier with the consistent plant ("model_gap"), else "paper". The controllers use the paper's model in every case. |
 
@@ -191,9 +203,16 @@ class SoftPVTOLEnv(gym.Env):
       figures regenerated): the base controller solves the algebraic loop to 1e-10 rad every step (it
       used the previous step's arm references), the paper allocation uses the quadrant-correct atan2,
       and the default base loop is "bounded" (was "exact"); ``controller_loop=`` selects it.
+    * v0, closed validation (issue 22, behaviour change for values that gave NaN or never returned only):
+      parameters, ``frame_skip``, ``max_episode_seconds``, ``residual_scale``, ``actuator_limits`` and the
+      tier options have upper bounds (see Arguments and :data:`softpvtol_gym.params.PARAM_BOUNDS`), ``g = 0``
+      needs explicit ``actuator_limits`` and a non-zero g must be >= 1e-6 m/s^2, a mismatch tier's scaled plant must stay within the parameter
+      bounds, and a reward term whose measure is NaN (the residual base controller failing outside the model,
+      the episode ending as "non_finite") counts as its cap instead of making the reward NaN.
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 100}  # per instance: 1 / control period
+    # per instance: render_fps = 1 / control period
+    metadata = {"render_modes": RenderModes(["human", "rgb_array"]), "render_fps": 100}
 
     def __init__(
         self,

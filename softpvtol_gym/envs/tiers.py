@@ -13,13 +13,14 @@ built-in ones.
 
 from __future__ import annotations
 
-from ..registry import EFFECT_OPTIONS, TierSpec, get_tier, register_tier, registered_tiers
-from ._validation import positive_number, short_repr
+from ..registry import EFFECT_OPTIONS, MAX_EPISODE_SECONDS, TierSpec, get_tier, register_tier, registered_tiers
+from ._validation import bounded_number, short_repr
 
 __all__ = [
     "TIERS",  # noqa: F822 (a live lookup: module __getattr__)
     "TierSpec", "register_tier", "get_tier", "registered_tiers", "BUILTIN_TIERS", "EFFECT_OPTIONS",
-    "DEFAULT_TIER_OPTIONS", "OBS_NOISE_Q", "OBS_NOISE_QD", "check_tier_options", "tier_values",
+    "DEFAULT_TIER_OPTIONS", "TIER_OPTION_BOUNDS", "MISMATCH_FIELDS", "FORCE_MAX", "OBS_NOISE_Q", "OBS_NOISE_QD",
+    "check_tier_options", "tier_values",
 ]
 
 #: default option values (every effect's options)
@@ -30,6 +31,8 @@ DEFAULT_TIER_OPTIONS = {
     "obs_noise_scale": 1.0,  # multiplies OBS_NOISE_Q / OBS_NOISE_QD
     "actuator_time_constant": 0.05,  # s, first-order lag of the applied command
 }
+#: the plant parameters the mismatch effect scales, each by its own U(1 - s, 1 + s) per episode
+MISMATCH_FIELDS = ("m", "m_l", "m_r", "I", "I_l", "I_r", "l_l", "l_r")
 _EFFECT_OF = {opt: eff for eff, opts in EFFECT_OPTIONS.items() for opt in opts}
 #: options whose "off" value is not 0 (kept as given when the effect is off)
 _KEPT_WHEN_OFF = ("wind_correlation_time",)
@@ -66,7 +69,30 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | {"TIERS"})
 
 
+#: the largest force [N] an option may ask for (``wind_std``; ``actuator_limits`` has the same bound):
+#: 50 x the largest default arm torque limit the parameter bounds allow (4 g m_l l_l / 2 = 2e18 N m
+#: at g, m_l, l_l = 1e6), so every force and the actions it scales stay far inside float64
+FORCE_MAX = 1e20
+
+#: (lowest, highest, why) of each tier option; the lowest is excluded where it is 0 for an option
+#: whose 0 is not "off" (wind_correlation_time)
+TIER_OPTION_BOUNDS = {
+    "mismatch_scale": (0.0, 1.0, "the plant's masses, inertias and lengths are scaled by U(1 - s, 1 + s), which "
+                                 "must stay > 0"),
+    "wind_std": (0.0, FORCE_MAX, f"a force [N]; {FORCE_MAX:g} N is 50 x the largest actuator limit the parameter "
+                                 "bounds give by default, far inside float64"),
+    "wind_correlation_time": (0.0, MAX_EPISODE_SECONDS, f"[s], > 0; beyond the longest episode "
+                                                        f"({MAX_EPISODE_SECONDS:g} s) the force is constant"),
+    "obs_noise_scale": (0.0, 1e8, "x the noise stds; at 1e8 the smallest std (0.01 rad) reaches the observation "
+                                  "clip of 1e6, every measured entry is clipped noise"),
+    "actuator_time_constant": (0.0, MAX_EPISODE_SECONDS, f"[s]; beyond the longest episode "
+                                                         f"({MAX_EPISODE_SECONDS:g} s) the command never moves"),
+}
+
+
 def check_tier_options(options) -> None:
+    """``tier_options`` (None or a dict of known options) within :data:`TIER_OPTION_BOUNDS`; a ValueError
+    naming the option, the value, the range and why otherwise."""
     if options is None:
         return
     if not isinstance(options, dict):
@@ -75,10 +101,9 @@ def check_tier_options(options) -> None:
     for k, v in options.items():
         if not isinstance(k, str) or k not in DEFAULT_TIER_OPTIONS:
             raise ValueError(f"unknown tier option {k!r}; valid ones are {sorted(DEFAULT_TIER_OPTIONS)}")
-        x = positive_number(f"tier_options[{k!r}]", v, allow_zero=k not in _KEPT_WHEN_OFF)
-        if k == "mismatch_scale" and x >= 1.0:
-            raise ValueError(f"tier_options['mismatch_scale'] must be in [0, 1) (the plant's masses, inertias and "
-                             f"lengths are scaled by U(1 - s, 1 + s), which must stay > 0), got {v!r}")
+        lo, hi, why = TIER_OPTION_BOUNDS[k]
+        bounded_number(f"tier_options[{k!r}]", v, lo, hi, why, low_open=k in _KEPT_WHEN_OFF,
+                       high_open=k == "mismatch_scale")
 
 
 def tier_values(tier: str, options: dict | None) -> dict:

@@ -86,9 +86,13 @@ class SoftPVTOLVectorEnv(VectorEnv):
         self.render_mode = render_mode
         self.num_envs = int(num_envs)
         self.single_observation_space, self.single_action_space = make_spaces(self.config)
-        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self._sim = BatchSim(self.config, self.num_envs)
+        try:  # num_envs has no bound but memory (about 2.3 kB of state per env)
+            self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+            self.action_space = batch_space(self.single_action_space, self.num_envs)
+            self._sim = BatchSim(self.config, self.num_envs)
+        except MemoryError as e:
+            raise MemoryError(f"num_envs={self.num_envs} does not fit in memory (about 2.3 kB of state per env): "
+                              f"{e}; use fewer envs") from None
         self._rngs: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(self.num_envs)]
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._all = np.arange(self.num_envs)
