@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from softpvtol_gym.baselines.cli import run_command
+from softpvtol_gym.baselines.cli import leave_now_after_a_ray_interrupt, run_command
 from softpvtol_gym.baselines.util.paths import Layout
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -20,4 +20,8 @@ LAYOUT = Layout(results=REPO_ROOT / "baselines" / "results", root=REPO_ROOT, rea
 
 def run(command: str, script: str) -> int:
     """``softpvtol COMMAND`` with this process's arguments and the checkout's layout; errors name ``script``."""
-    return run_command(command, sys.argv[1:], layout=LAYOUT, prog=script)
+    try:
+        return run_command(command, sys.argv[1:], layout=LAYOUT, prog=script)
+    except SystemExit as exc:
+        leave_now_after_a_ray_interrupt(exc.code)
+        raise

@@ -7,6 +7,9 @@ so that a missing optional dependency can still be reported.
 
 from __future__ import annotations
 
+#: the exit codes of every command (``--help`` lists them: :data:`~softpvtol_gym.baselines.util.args.EXIT_EPILOG`)
+EXIT_OK, EXIT_BAD_INPUT, EXIT_IO_ERROR, EXIT_SIGINT, EXIT_SIGTERM = 0, 2, 74, 130, 143
+
 
 class ConfigError(ValueError):
     """A bad configuration value or input: the message names what was received and what is expected."""

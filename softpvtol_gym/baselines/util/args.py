@@ -25,7 +25,14 @@ import tempfile
 import threading
 from pathlib import Path
 
-from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.errors import (  # noqa: F401  (the exit codes are re-exported)
+    EXIT_BAD_INPUT,
+    EXIT_IO_ERROR,
+    EXIT_OK,
+    EXIT_SIGINT,
+    EXIT_SIGTERM,
+    ConfigError,
+)
 from softpvtol_gym.baselines.util.extras import require
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.baselines.util.safe_load import loads_json
@@ -54,7 +61,6 @@ class Parser(argparse.ArgumentParser):
 
 
 #: exit codes of every command
-EXIT_OK, EXIT_BAD_INPUT, EXIT_IO_ERROR, EXIT_SIGINT, EXIT_SIGTERM = 0, 2, 74, 130, 143
 EXIT_CODES = {EXIT_OK: "done", EXIT_BAD_INPUT: "bad input (one line, nothing started) or failed jobs",
               EXIT_IO_ERROR: "input/output error: disk full, a read-only or unwritable path (one line naming it)",
               EXIT_SIGINT: "interrupted by Ctrl-C (SIGINT)", EXIT_SIGTERM: "terminated by SIGTERM"}
