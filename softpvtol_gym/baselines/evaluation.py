@@ -4,50 +4,105 @@ Episodes are fixed and seeded: evaluation episode i of a call with ``seed`` is s
 native vector env reset with ``seed`` (so it gets seed + i), the same for every policy. Training seeds
 live below :data:`EVAL_SEED_OFFSET`; evaluation seeds start at it, so the two never overlap.
 
-Per-episode metrics (all computed on the true, noise-free state until the episode ends):
+Per-episode metrics (all computed on the true, noise-free state until the episode ends). The position
+error of control step k (k = 0, 1, ...) is e_k = |(x, z) - (x_ref, z_ref)| after that step, at time
+t = (k + 1) dt:
 
 * ``return``: sum of rewards;
-* ``rms_position_error`` [m]: RMS over steps of |(x, z) - (x_ref, z_ref)|;
+* ``rms_position_error`` [m]: RMS of e_k over the steps the episode lived (the whole episode);
+* ``rms_position_error_transient`` [m]: RMS of e_k over the first quarter of the episode's full time limit
+  (steps k < L // 4, L = the time limit in control steps: hover 1,000, track_random 2,000, track_paper
+  4,000 at dt = 0.01 s; i.e. t in (0, T/4]);
+* ``rms_position_error_steady`` [m]: RMS of e_k over the last half (steps k >= L - L // 2: t in (T/2, T]);
+* ``max_position_error_final_5s`` [m]: max of e_k over the last 5 s (steps k >= L - round(5 s / dt); the
+  whole episode if it is shorter);
 * ``rms_attitude_error`` [rad]: RMS over steps of the wrapped theta - theta_ref;
 * ``control_effort``: mean over steps of mean(a_n^2), the env's effort measure (see the env's
   Rewards section: applied actuators normalised by their limits, relative to hover thrust), clipped at 1;
 * ``crashed``: the episode terminated (any termination reason) before its time limit;
-* ``length``: number of control steps.
+* ``length``: number of control steps;
+* ``compute_us_per_step`` [us] (only with ``timing=True``): the policy's own time per control step: the
+  wall time of each ``policy.predict`` call (``time.perf_counter`` around it), divided by the number of
+  envs it acted for (all the episodes of the call: they run as one batch); the median over the episode's
+  steps (the first call of a process can include one-off compilation). For a batched ``predict`` (the
+  learned networks, the vectorised passivity controller) it is the per-env share of one batch of
+  ``episodes`` envs, for a policy that loops over the envs (MPC: one solve per env) the time per env.
+  Wall time depends on the machine and its load; it is not a reproducible number and is left out of
+  the default (reproducible) output.
+
+Crashed windows: a window the episode did not live through to its end (it terminated before the window's
+last step) has the value ``None`` (JSON null) and the episode has ``crashed: True``; a window that ended
+before the crash keeps its measured value (a track_random episode that crashes at 12 s keeps its 0-5 s
+transient). The last-half and final-5 s windows end with the time limit, so every crashed episode has them
+``None``. Statistics rank a crashed window as worse than any finite value (:func:`window_scores`: +inf):
+a crashed episode never makes an entry look better, and never drops out of its sample.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
 EVAL_SEED_OFFSET = 1_000_000
-EPISODE_METRICS = ("return", "rms_position_error", "rms_attitude_error", "control_effort", "crashed", "length")
+#: the metrics of every episode (a crashed window is None; see the module docstring)
+WINDOW_METRICS = ("rms_position_error_transient", "rms_position_error_steady", "max_position_error_final_5s")
+EPISODE_METRICS = ("return", "rms_position_error", *WINDOW_METRICS, "rms_attitude_error", "control_effort",
+                   "crashed", "length")
+#: measured only with ``run_episodes(..., timing=True)``: wall time, not reproducible
+TIMING_METRICS = ("compute_us_per_step",)
+#: the length of the final window [s]
+FINAL_WINDOW_SECONDS = 5.0
 _EFFORT_WEIGHT = 0.1  # the env's effort reward term is -0.1 * min(mean(a_n^2), 1)
 
 
+def window_steps(max_steps: int, dt: float) -> dict[str, tuple[int, int]]:
+    """The control steps [start, end) of each window of an episode of ``max_steps`` steps of ``dt`` s:
+    ``transient`` (the first quarter), ``steady`` (the last half), ``final_5s`` (the last 5 s, the whole
+    episode if shorter). Each holds at least one step."""
+    if max_steps < 1 or not dt > 0:
+        raise ValueError(f"max_steps must be >= 1 and dt > 0, got {max_steps} and {dt}")
+    final = min(max_steps, max(1, round(FINAL_WINDOW_SECONDS / dt)))
+    return {"transient": (0, max(1, max_steps // 4)),
+            "steady": (max_steps - max(1, max_steps // 2), max_steps),
+            "final_5s": (max_steps - final, max_steps)}
+
+
 def run_episodes(policy, action_mode: str, task: str, tier: str, episodes: int, seed: int,
-                 env_kwargs: dict | None = None) -> list[dict]:
+                 env_kwargs: dict | None = None, timing: bool = False) -> list[dict]:
     """Run ``policy.predict`` (deterministic) on ``episodes`` seeded episodes in parallel; one dict of
-    :data:`EPISODE_METRICS` per episode."""
+    :data:`EPISODE_METRICS` per episode (and :data:`TIMING_METRICS` with ``timing=True``)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode=action_mode, task=task, tier=tier, **(env_kwargs or {}))
     sim = env.sim
+    windows = window_steps(int(sim.max_steps), float(sim.dt))
+    (t0, t1), (s0, s1), (f0, f1) = windows["transient"], windows["steady"], windows["final_5s"]
     obs, _ = env.reset(seed=seed)
     n = episodes
-    ret, sq_pos, sq_att, effort, length = (np.zeros(n) for _ in range(5))
+    ret, sq_pos, sq_att, effort, length, sq_tr, sq_st, max_fin = (np.zeros(n) for _ in range(8))
     done, crashed, start = np.zeros(n, bool), np.zeros(n, bool), np.ones(n, bool)
+    seconds = []  # wall time of each predict call
     while not done.all():
+        tic = time.perf_counter()
         action, _ = policy.predict(obs, episode_start=start, deterministic=True)
+        seconds.append(time.perf_counter() - tic)
         start[:] = False
         obs, reward, term, trunc, info = env.step(action)
         live = ~done
         q = sim.q
         e_pos = q[:, :2] - sim.qr[:, :2]
         e_att = np.arctan2(np.sin(q[:, 2] - sim.qr[:, 2]), np.cos(q[:, 2] - sim.qr[:, 2]))
+        sq = np.sum(e_pos ** 2, axis=1)
+        k = length.copy()  # the step index of each episode (before this step is counted)
         ret[live] += reward[live]
-        sq_pos[live] += np.sum(e_pos[live] ** 2, axis=1)
+        sq_pos[live] += sq[live]
+        sq_tr[live & (k >= t0) & (k < t1)] += sq[live & (k >= t0) & (k < t1)]
+        sq_st[live & (k >= s0) & (k < s1)] += sq[live & (k >= s0) & (k < s1)]
+        fin = live & (k >= f0) & (k < f1)
+        max_fin[fin] = np.maximum(max_fin[fin], np.sqrt(sq[fin]))
         sq_att[live] += e_att[live] ** 2
         effort[live] += -info["reward_terms"]["effort"][live] / _EFFORT_WEIGHT
         length[live] += 1
@@ -55,30 +110,63 @@ def run_episodes(policy, action_mode: str, task: str, tier: str, episodes: int, 
         done |= term | trunc
     env.close()
     steps = np.maximum(length, 1)
-    return [
-        {
+    per_env_us = np.asarray(seconds) / n * 1e6
+
+    def window(i: int, value: float, end: int):
+        return float(value) if length[i] >= end else None  # not lived through: crashed (module docstring)
+
+    out = []
+    for i in range(n):
+        ep = {
             "return": float(ret[i]),
             "rms_position_error": float(np.sqrt(sq_pos[i] / steps[i])),
+            "rms_position_error_transient": window(i, np.sqrt(sq_tr[i] / (t1 - t0)), t1),
+            "rms_position_error_steady": window(i, np.sqrt(sq_st[i] / (s1 - s0)), s1),
+            "max_position_error_final_5s": window(i, max_fin[i], f1),
             "rms_attitude_error": float(np.sqrt(sq_att[i] / steps[i])),
             "control_effort": float(effort[i] / steps[i]),
             "crashed": bool(crashed[i]),
             "length": int(length[i]),
         }
-        for i in range(n)
-    ]
-
-
-def summarize(episodes: list[dict]) -> dict:
-    """Means over episodes of :data:`EPISODE_METRICS` (``crash_rate`` for ``crashed``)."""
-    out = {"episodes": len(episodes)}
-    for key in EPISODE_METRICS:
-        vals = np.array([e[key] for e in episodes], dtype=float)
-        out["crash_rate" if key == "crashed" else f"mean_{key}"] = float(vals.mean())
+        if timing:
+            ep["compute_us_per_step"] = float(np.median(per_env_us[: int(steps[i])]))
+        out.append(ep)
     return out
 
 
+def window_scores(episodes: list[dict], key: str) -> np.ndarray:
+    """The values of ``key`` over ``episodes``, a crashed window (None) as +inf: worse than any value."""
+    return np.array([np.inf if e[key] is None else float(e[key]) for e in episodes], dtype=float)
+
+
+def summarize(episodes: list[dict]) -> dict:
+    """Means over episodes of :data:`EPISODE_METRICS` (``crash_rate`` for ``crashed``). A window's mean is
+    None where any episode crashed in it (a crashed window is worse than any value: the mean is unbounded);
+    ``crashed_<window>`` counts those episodes. With timing: ``median_compute_us_per_step`` over episodes."""
+    out = {"episodes": len(episodes)}
+    for key in EPISODE_METRICS:
+        if key in WINDOW_METRICS:
+            vals = window_scores(episodes, key)
+            out[f"mean_{key}"] = float(vals.mean()) if np.isfinite(vals).all() else None
+            out[f"crashed_{key}"] = int(np.sum(~np.isfinite(vals)))
+            continue
+        vals = np.array([e[key] for e in episodes], dtype=float)
+        out["crash_rate" if key == "crashed" else f"mean_{key}"] = float(vals.mean())
+    for key in TIMING_METRICS:
+        if all(key in e for e in episodes):
+            out[f"median_{key}"] = float(np.median([e[key] for e in episodes]))
+    return out
+
+
+def identical_episodes(episodes: list[dict]) -> bool:
+    """Whether every episode has the same metrics (all of :data:`EPISODE_METRICS`, exactly; the wall-time
+    :data:`TIMING_METRICS` aside): a deterministic task and tier gives the same episode whatever its seed."""
+    first = {k: episodes[0][k] for k in EPISODE_METRICS}
+    return all({k: e[k] for k in EPISODE_METRICS} == first for e in episodes[1:])
+
+
 def evaluate(policy, action_mode: str, task: str, tier: str, episodes: int, seed: int,
-             env_kwargs: dict | None = None) -> dict:
+             env_kwargs: dict | None = None, timing: bool = False) -> dict:
     """``{"episodes": [...], "summary": {...}}`` of :func:`run_episodes` and :func:`summarize`."""
-    eps = run_episodes(policy, action_mode, task, tier, episodes, seed, env_kwargs)
+    eps = run_episodes(policy, action_mode, task, tier, episodes, seed, env_kwargs, timing=timing)
     return {"episodes": eps, "summary": summarize(eps)}

@@ -17,9 +17,13 @@ Episode i uses seed ``--seed`` + i (default 1,000,000: evaluation seeds never ov
 which ``train.py`` keeps below 500,000). At most 10,000 episodes per call (they run together, as one
 vector env).
 
-The JSON holds ``episodes`` (each: return, rms_position_error [m], rms_attitude_error [rad],
-control_effort, crashed, length; see ``baselines/evaluation.py``), ``summary`` (their means, and the
-crash rate) and the settings. Exit codes: 0 done, 2 bad input (one line; nothing written).
+The JSON holds ``episodes`` (each: return, rms_position_error [m] over the whole episode,
+rms_position_error_transient [m] over its first quarter, rms_position_error_steady [m] over its last half,
+max_position_error_final_5s [m], rms_attitude_error [rad], control_effort, crashed, length and
+compute_us_per_step [us]: the policy's own predict time per control step, the per-env share of the batch of
+``--episodes`` envs; see ``softpvtol_gym/baselines/evaluation.py``; a window the episode crashed before
+reaching the end of is null), ``summary`` (their means, and the crash rate; a window's mean is null where an
+episode crashed in it) and the settings. Exit codes: 0 done, 2 bad input (one line; nothing written).
 """
 
 from __future__ import annotations
@@ -107,7 +111,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
         source = str(path)
         if args.controller_loop is None and args.allocation is None:
             env_kwargs = config.eval_env_kwargs()  # the base loop the checkpoint was trained on
-    result = evaluate(policy, mode, task, tier, args.episodes, args.seed, env_kwargs=env_kwargs)
+    result = evaluate(policy, mode, task, tier, args.episodes, args.seed, env_kwargs=env_kwargs, timing=True)
     s = result["summary"]
     cfg = EnvConfig(action_mode=mode, **env_kwargs)
     report = {"policy": source, "action_mode": mode, "task": task, "tier": tier, "allocation": cfg.resolved_allocation,
@@ -117,6 +121,9 @@ def _main(argv, layout: Layout, prog: str) -> int:
     print(f"  return {s['mean_return']:.1f}  rms position {s['mean_rms_position_error']:.3f} m  "
           f"rms attitude {s['mean_rms_attitude_error']:.3f} rad  effort {s['mean_control_effort']:.3f}  "
           f"crash rate {s['crash_rate']:.2f}")
+    steady = s["mean_rms_position_error_steady"]
+    print(f"  rms position last half {'crashed' if steady is None else f'{steady:.4f} m'}  "
+          f"compute {s['median_compute_us_per_step']:.1f} us/step (per env of {args.episodes})")
     if args.json is not None:
         atomic_write_text(args.json, json.dumps(report, indent=2))
     return 0

@@ -8,8 +8,14 @@ Run directories go under ``--root`` (default ``./results/leaderboard_runs``; in 
 ``python baselines/run_jobs.py`` uses ``baselines/results/leaderboard_runs``). Jobs already done (their
 ``eval.json`` under the root holds every task and
 tier they are evaluated on) are skipped, so an interrupted run is continued by running the command again;
-a task added to a cell's ``also_evaluated_on`` only runs the missing evaluations. ``--reevaluate``
-re-runs every evaluation with the committed models (after a change of env or controller code).
+a task added to a cell's ``also_evaluated_on`` (a tier added to the spec) only runs the missing evaluations.
+``--reevaluate`` re-runs every evaluation with the committed models (after a change of env or controller code).
+``--rescore`` re-runs only the stale evaluations of jobs that have a result: tiers or tasks they lack, and results
+recorded before the windowed metrics (episodes without ``rms_position_error_steady``, ``compute_us_per_step``,
+...), with the committed models; it never trains (a learned job without its model fails, naming it) and leaves
+the jobs that have no result to a run without it.
+
+    softpvtol run-jobs --rescore --workers 2      # the learned cells of leaderboard v2, re-scored (v3 metrics)
 Each worker process (each Ray task: one CPU) runs with one numba and one torch thread. The same jobs
 and seeds give the same result files with either executor; on a Ray cluster ``--root`` must be on a
 file system that every node mounts at the same path (each task checks it, see docs/baselines.md).
@@ -34,7 +40,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_jobs, pending, run_jobs
+from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_jobs, pending, run_jobs, stale_jobs
 from softpvtol_gym.baselines.leaderboard.process_executor import ProcessPerJobExecutor
 from softpvtol_gym.baselines.leaderboard.ray_executor import RayExecutor, start_ray
 from softpvtol_gym.baselines.util.args import Parser, check_output_dir, command_main, int_arg, interrupted
@@ -62,6 +68,9 @@ def _main(argv, layout: Layout, prog: str) -> int:
     ap.add_argument("--list", action="store_true", help="print the pending jobs and exit")
     ap.add_argument("--reevaluate", action="store_true",
                     help="re-run the evaluation of finished jobs with their committed models (no training)")
+    ap.add_argument("--rescore", action="store_true",
+                    help="re-run only the stale evaluations (missing tiers, results without the windowed metrics) of "
+                         "jobs that have a result, with their committed models; never trains")
     ap.add_argument("--no-progress-bar", action="store_true", help="no progress bar (one line per job stays)")
     args = ap.parse_args(argv)
     given = sys.argv[1:] if argv is None else list(argv)
@@ -93,7 +102,15 @@ def _checked(ap: Parser, args, layout: Layout, prog: str, rerun: str) -> int:
         every = [j for j in every if args.only in j.name]
         if not every:
             ap.error(f"--only {args.only!r} matches no job of {args.spec}")
-    jobs = every if args.reevaluate else pending(every, args.root)
+    if args.rescore and args.reevaluate:
+        ap.error("--rescore runs the stale evaluations only, --reevaluate all of them; pass one")
+    if args.rescore:
+        jobs, unrun = stale_jobs(every, args.root)
+        if unrun:
+            print(f"--rescore: {len(unrun)} jobs have no result under {args.root} and are left to a run without "
+                  f"--rescore (first: {unrun[0].name})")
+    else:
+        jobs = every if args.reevaluate else pending(every, args.root)
     jobs.sort(key=lambda j: j.learned)  # analytic jobs first (fast), then the spec's order
     if args.list or not jobs:
         for j in jobs:
@@ -114,7 +131,7 @@ def _run(args, jobs, layout: Layout, rerun: str, progress: bool) -> None:
             with start_ray(address=args.address, num_cpus=args.workers) as resources:
                 print(f"Ray: {len(jobs)} jobs on {resources.get('CPU', 0):g} CPUs", flush=True)
                 run_jobs(jobs, RayExecutor(num_cpus=1), args.root, reevaluate=args.reevaluate, check_root=True,
-                         progress=progress, base=layout.root, rerun=rerun)
+                         progress=progress, base=layout.root, rerun=rerun, rescore=args.rescore)
         else:
             # numba's threading layer per worker would oversubscribe the cores: one thread per worker process
             os.environ.setdefault("NUMBA_NUM_THREADS", "1")
@@ -123,7 +140,7 @@ def _run(args, jobs, layout: Layout, rerun: str, progress: bool) -> None:
             # terminates the running ones
             with ProcessPerJobExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
                 run_jobs(jobs, ex, args.root, reevaluate=args.reevaluate, progress=progress,
-                         base=layout.root, rerun=rerun)
+                         base=layout.root, rerun=rerun, rescore=args.rescore)
 
 
 main = command_main("run_jobs.py", _main,

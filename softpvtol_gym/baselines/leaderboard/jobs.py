@@ -18,9 +18,22 @@ in the safe checkpoint format: ``model.safetensors``, ``model.json``, ``vecnorma
 ``eval.json`` holds every (task, tier) it is evaluated on is done and skipped, so an interrupted list
 can simply be re-run, and a task added to ``also_evaluated_on`` only evaluates what is missing.
 
+Analytic entries (the spec's ``analytic`` list, or the older ``passivity`` list whose entries are all of kind
+``passivity``) have a ``kind``: ``passivity`` (:class:`softpvtol_gym.PassivityPolicy` with the entry's
+``allocation`` and ``loop``) or ``mpc`` (``softpvtol_gym.MPCPolicy.from_env(env, **options)``, imported only
+when such a job runs); an entry's ``episodes`` overrides ``evaluation.episodes`` for it (the MPC is slow:
+its episodes are the first ``episodes`` of the shared, seeded ones).
+
+A result is *stale* for a (task, tier) when it lacks it, when its episodes lack a metric the evaluator now
+records (:data:`~softpvtol_gym.baselines.evaluation.EPISODE_METRICS`, the timing of
+:data:`~softpvtol_gym.baselines.evaluation.TIMING_METRICS`: results from before the windowed metrics), or when
+it holds another number of episodes than the job asks for. Stale evaluations are run again (with the committed
+model: a learned job with a model is never trained again); ``rescore=True`` (``run-jobs --rescore``) runs
+only those, of jobs that have a result, and refuses to train.
+
 The spec is validated before any job runs (:func:`load_spec`: unknown keys, wrong types, unknown tasks,
-tiers or action modes are errors naming the key); job names are safe slugs and every output path is
-checked to stay under the root.
+tiers, kinds or action modes, episode counts out of range are errors naming the key); job names are safe
+slugs and every output path is checked to stay under the root.
 """
 
 from __future__ import annotations
@@ -28,6 +41,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import math
 import shutil
 import socket
 import sys
@@ -50,7 +64,7 @@ from softpvtol_gym.baselines.config.hyperparams import (
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.config.validation import validate_hyperparams
 from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes
+from softpvtol_gym.baselines.evaluation import EPISODE_METRICS, EVAL_SEED_OFFSET, TIMING_METRICS, run_episodes
 from softpvtol_gym.baselines.training.loop import EVALUATIONS_FILE, train
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
 from softpvtol_gym.baselines.util.args import interrupted
@@ -72,16 +86,22 @@ EVAL_FILE = "eval.json"
 #: written into the job root while run_jobs(check_root=True) runs (see check_shared_root)
 ROOT_TOKEN_FILE = ".run_jobs.token"
 #: the spec's keys, and those of its entries (anything else is an error, not ignored)
-SPEC_KEYS = ("evaluation", "passivity", "tasks", "trained", "seeds")
+SPEC_KEYS = ("evaluation", "passivity", "analytic", "tasks", "trained", "seeds")
+REQUIRED_SPEC_KEYS = ("evaluation", "tasks", "trained", "seeds")  # passivity, analytic: optional (default [])
 EVALUATION_KEYS = ("episodes", "seed", "tiers")
-PASSIVITY_KEYS = ("name", "allocation", "loop")  # loop: optional, default the loop named as the allocation
+# loop: optional, default the loop named as the allocation; episodes: optional, default evaluation.episodes
+PASSIVITY_KEYS = ("name", "allocation", "loop", "episodes")
+#: the kinds of analytic entries, and the keys each takes (name and kind required; see validate_spec)
+ANALYTIC_KINDS = {"passivity": ("name", "kind", "allocation", "loop", "episodes"),
+                  "mpc": ("name", "kind", "episodes", "options")}
+ANALYTIC_KEYS = ("name", "kind", "allocation", "loop", "episodes", "options")
 TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps", "also_evaluated_on", "hp")  # the last two optional
 ALLOCATIONS = ("paper", "exact")
 
 
 @dataclasses.dataclass(frozen=True)
 class Job:
-    """One leaderboard job. ``policy``: "ppo" or a passivity variant name ("passivity-paper", ...)."""
+    """One leaderboard job. ``policy``: "ppo" or an analytic entry's name ("passivity-paper", "mpc", ...)."""
 
     policy: str
     action_mode: str
@@ -96,6 +116,8 @@ class Job:
     loop: str | None = None         # passivity variants: their PassivityController loop (control.LOOPS)
     other_eval_tasks: tuple = ()    # tasks it is evaluated on besides its own (learned cells: also_evaluated_on)
     hp: tuple = ()                  # learned cells: "key=value" overrides of the mode's PPO entry (train.py --hp)
+    kind: str = "passivity"         # analytic entries: "passivity" or "mpc" (ANALYTIC_KINDS); ignored for "ppo"
+    options: tuple = ()             # mpc entries: (name, value) pairs passed to MPCPolicy.from_env
 
     @property
     def eval_tasks(self) -> tuple:
@@ -156,7 +178,7 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
 
     if spec is None:
         raise ConfigError(f"{source} is empty; expected a mapping with the keys {list(SPEC_KEYS)}")
-    _mapping(spec, SPEC_KEYS, source)
+    _mapping(spec, SPEC_KEYS, source, required=REQUIRED_SPEC_KEYS)
     ev = _mapping(spec["evaluation"], EVALUATION_KEYS, f"{source}: evaluation")
     if not is_int(ev["episodes"]) or not 1 <= ev["episodes"] <= MAX_EPISODES:
         raise ConfigError(f"{source}: evaluation.episodes must be an integer in [1, {MAX_EPISODES:,}], "
@@ -175,16 +197,9 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
     if len(set(tasks)) != len(tasks):
         raise ConfigError(f"{source}: tasks lists a task twice: {tasks}")
     names = set()
-    for i, p in enumerate(_list(spec["passivity"], f"{source}: passivity")):
-        _mapping(p, PASSIVITY_KEYS, f"{source}: passivity[{i}]", required=("name", "allocation"))
-        check_slug(p["name"], f"{source}: passivity[{i}].name")
-        if p["name"] == "ppo" or p["name"] in names:
-            raise ConfigError(f"{source}: passivity[{i}].name {p['name']!r} is taken (names must be unique, not 'ppo')")
-        names.add(p["name"])
-        _choice(p["allocation"], ALLOCATIONS, f"{source}: passivity[{i}].allocation")
-        if "loop" in p:
-            _choice(p["loop"], [k for k in LOOPS if LOOPS[k]["allocation"] == p["allocation"]],
-                    f"{source}: passivity[{i}].loop (a loop with the {p['allocation']} allocation)")
+    for section in ("passivity", "analytic"):
+        for i, p in enumerate(_list(spec.get(section, []), f"{source}: {section}")):
+            _analytic_entry(p, section, f"{source}: {section}[{i}]", names)
     cells = set()
     for i, c in enumerate(_list(spec["trained"], f"{source}: trained")):
         _mapping(c, TRAINED_KEYS, f"{source}: trained[{i}]", required=TRAINED_KEYS[:4])
@@ -221,6 +236,54 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
     return spec
 
 
+def _analytic_entry(p, section: str, where: str, names: set) -> None:
+    """Check one entry of the spec's ``passivity`` (kind passivity only) or ``analytic`` list (ConfigError)."""
+    if section == "passivity":
+        _mapping(p, PASSIVITY_KEYS, where, required=("name", "allocation"))
+        kind = "passivity"
+    else:
+        _mapping(p, ANALYTIC_KEYS, where, required=("name", "kind"))
+        kind = _choice(p["kind"], ANALYTIC_KINDS, f"{where}.kind")
+        wrong = [k for k in p if k not in ANALYTIC_KINDS[kind]]
+        if wrong:
+            raise ConfigError(f"{where} (kind {kind}) has keys {wrong} that only other kinds take; a {kind} entry "
+                              f"takes {list(ANALYTIC_KINDS[kind])}")
+    check_slug(p["name"], f"{where}.name")
+    if p["name"] == "ppo" or p["name"] in names:
+        raise ConfigError(f"{where}.name {p['name']!r} is taken (names must be unique, not 'ppo')")
+    names.add(p["name"])
+    if kind == "passivity":
+        if "allocation" not in p:
+            raise ConfigError(f"{where} (kind passivity) lacks the keys ['allocation']")
+        _choice(p["allocation"], ALLOCATIONS, f"{where}.allocation")
+        if "loop" in p:
+            _choice(p["loop"], [k for k in LOOPS if LOOPS[k]["allocation"] == p["allocation"]],
+                    f"{where}.loop (a loop with the {p['allocation']} allocation)")
+    if "episodes" in p and (not is_int(p["episodes"]) or not 1 <= p["episodes"] <= MAX_EPISODES):
+        raise ConfigError(f"{where}.episodes must be an integer in [1, {MAX_EPISODES:,}] (this entry's evaluation "
+                          f"episodes per task and tier; default evaluation.episodes), got {p['episodes']!r}")
+    options = p.get("options", {})
+    if not isinstance(options, dict) or not all(isinstance(k, str) and k.isidentifier() for k in options):
+        raise ConfigError(f"{where}.options must be a mapping of option names to values (passed to "
+                          f"MPCPolicy.from_env), got {options!r}")
+    for k, v in options.items():
+        if not _option_value(v):
+            raise ConfigError(f"{where}.options.{k} must be a number, a string, a boolean or a list of numbers, "
+                              f"got {v!r}")
+
+
+def _option_value(v) -> bool:
+    if isinstance(v, (bool, str)) or (isinstance(v, (int, float)) and math.isfinite(v)):
+        return True
+    return isinstance(v, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+                                       for x in v)
+
+
+def analytic_entries(spec: dict) -> list[dict]:
+    """The analytic entries of a validated spec (``passivity`` then ``analytic``), each with its ``kind``."""
+    return [{"kind": "passivity", **p} for p in spec.get("passivity", [])] + list(spec.get("analytic", []))
+
+
 def load_spec(spec_path: Path = SPEC_FILE) -> dict:
     """The validated leaderboard spec at ``spec_path`` (ConfigError naming the problem otherwise)."""
 
@@ -234,9 +297,16 @@ def load_jobs(spec_path: Path = SPEC_FILE) -> list[Job]:
     common = dict(eval_tiers=tuple(ev["tiers"]), eval_episodes=int(ev["episodes"]), eval_seed=int(ev["seed"]))
     jobs = []
     for task in spec["tasks"]:
-        for p in spec["passivity"]:
-            jobs.append(Job(policy=p["name"], action_mode="actuators", task=task, train_tier=None, seed=0,
-                            allocation=p["allocation"], loop=p.get("loop", p["allocation"]), **common))
+        for p in analytic_entries(spec):
+            own = {**common, "eval_episodes": int(p.get("episodes", ev["episodes"]))}
+            if p["kind"] == "passivity":
+                jobs.append(Job(policy=p["name"], action_mode="actuators", task=task, train_tier=None, seed=0,
+                                allocation=p["allocation"], loop=p.get("loop", p["allocation"]), **own))
+            else:
+                jobs.append(Job(policy=p["name"], action_mode="actuators", task=task, train_tier=None, seed=0,
+                                kind=p["kind"], options=tuple(sorted((k, _hashable(v))
+                                                                     for k, v in p.get("options", {}).items())),
+                                **own))
     for cell in spec["trained"]:
         for seed in spec["seeds"]:
             jobs.append(Job(policy="ppo", action_mode=cell["action_mode"], task=cell["task"], train_tier=cell["tier"],
@@ -248,6 +318,10 @@ def load_jobs(spec_path: Path = SPEC_FILE) -> list[Job]:
         dup = sorted({n for n in names if names.count(n) > 1})
         raise ConfigError(f"leaderboard spec {spec_path}: two jobs would share the folders {dup}")
     return jobs
+
+
+def _hashable(v):
+    return tuple(v) if isinstance(v, list) else v
 
 
 # ----------------------------------------------------------------------------------------- jobs
@@ -270,18 +344,20 @@ def _checkpoint_field(out: Path, base: Path | None) -> str:
     return relative_to_root(out / MODEL_FILE, Path.cwd() if base is None else base)
 
 
-def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Path | None = None) -> dict:
+def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Path | None = None,
+            train_missing: bool = True) -> dict:
     """Train (learned policies) and evaluate one job; writes ``<root>/<job.name>/eval.json``.
 
     A learned job whose final model exists (a checkpoint folder that verifies) is not trained again, only
     evaluated; ``reevaluate=True`` re-runs the evaluation of a finished job (after a change of the env or
-    controller code). Training happens in ``<job>.run/`` (resumed if a run was interrupted, started over if
+    controller code); otherwise only its stale evaluations run (:func:`stale_evaluations`).
+    ``train_missing=False`` (re-scoring): a learned job without a final model is a ConfigError, not trained. Training happens in ``<job>.run/`` (resumed if a run was interrupted, started over if
     it never reached a checkpoint); the final model is copied into the job's folder (manifest last) and
     the training folder removed."""
 
     out = job.folder(root)
     previous = read_eval(out / EVAL_FILE) if (out / EVAL_FILE).is_file() else None
-    if previous is not None and not reevaluate and not missing_evaluations(job, previous):
+    if previous is not None and not reevaluate and not stale_evaluations(job, previous):
         return previous
     t0 = time.perf_counter()
     env_kwargs = {}
@@ -291,6 +367,9 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
         env_kwargs = run_config.eval_env_kwargs()  # the base loop the policy was trained on
         train_seconds = None if previous is None else previous["train_seconds"]
     elif job.learned:
+        if not train_missing:
+            raise ConfigError(f"{out} holds no trained model ({MANIFEST_FILE} is missing); re-scoring never trains: "
+                              f"run the job without --rescore to train it")
         if legacy_files(out):
             raise ConfigError(f"{out} holds a model in the earlier pickle-based format ({legacy_files(out)}); convert "
                               f"it once with python baselines/export.py from-sb3 --trust-pickle {out} if you trust it")
@@ -312,18 +391,20 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
                 atomic_copy(run_dir / fname, out / fname)
         shutil.rmtree(run_dir, ignore_errors=True)  # checkpoints and TensorBoard logs are not kept
     else:
-        env_kwargs = {"allocation": job.allocation, "controller_loop": job.loop or job.allocation}
-        probe = SoftPVTOLVectorEnv(num_envs=1, action_mode=job.action_mode, task=job.task, **env_kwargs)
-        policy = PassivityPolicy.from_env(probe)
+        policy, env_kwargs = analytic_policy(job)
     # per evaluated task and tier; a finished job that is only missing some (a task added to its
-    # also_evaluated_on) keeps the episodes it has unless reevaluate
-    kept = {} if previous is None or reevaluate else evaluations_of(previous)
+    # also_evaluated_on, a tier added to the spec) keeps the episodes that are not stale unless reevaluate
+    stale = set() if previous is None else set(stale_evaluations(job, previous))
+    kept = {} if previous is None or reevaluate else {
+        task: {tier: eps for tier, eps in tiers.items() if (task, tier) not in stale}
+        for task, tiers in evaluations_of(previous).items()}
     evaluations = {}
     for task in job.eval_tasks:
         for tier in job.eval_tiers:
             done = kept.get(task, {}).get(tier)
             evaluations.setdefault(task, {})[tier] = done if done is not None else run_episodes(
-                policy, job.action_mode, task, tier, job.eval_episodes, job.eval_seed, env_kwargs=env_kwargs)
+                policy, job.action_mode, task, tier, job.eval_episodes, job.eval_seed, env_kwargs=env_kwargs,
+                timing=True)
     record = {
         "job": dataclasses.asdict(job),
         "checkpoint": _checkpoint_field(out, base) if job.learned else None,
@@ -337,6 +418,25 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
     return record
 
 
+def analytic_policy(job: Job) -> tuple:
+    """(policy, env_kwargs) of an analytic job: a PassivityPolicy with the job's allocation and loop, or
+    ``softpvtol_gym.MPCPolicy.from_env(env, **options)`` (imported here: the MPC needs the ``mpc`` extra)."""
+    if job.kind == "passivity":
+        env_kwargs = {"allocation": job.allocation, "controller_loop": job.loop or job.allocation}
+        probe = SoftPVTOLVectorEnv(num_envs=1, action_mode=job.action_mode, task=job.task, **env_kwargs)
+        return PassivityPolicy.from_env(probe), env_kwargs
+    if job.kind == "mpc":
+        import softpvtol_gym
+
+        mpc = getattr(softpvtol_gym, "MPCPolicy", None)
+        if mpc is None:
+            raise ConfigError(f"job {job.name}: softpvtol_gym.MPCPolicy is not available in this version of the "
+                              f"package; remove the mpc entry from the spec or install a version that has it")
+        probe = SoftPVTOLVectorEnv(num_envs=1, action_mode=job.action_mode, task=job.task)
+        return mpc.from_env(probe, **{k: list(v) if isinstance(v, tuple) else v for k, v in job.options}), {}
+    raise ConfigError(f"job {job.name}: unknown analytic kind {job.kind!r}; expected one of {list(ANALYTIC_KINDS)}")
+
+
 def evaluations_of(record: dict) -> dict:
     """task -> tier -> episodes of a job record (its own task's ``eval`` and ``eval_other_tasks``)."""
     own = record["job"]["task"]
@@ -347,6 +447,21 @@ def missing_evaluations(job: Job, record: dict) -> list[tuple[str, str]]:
     """The (task, tier) pairs that ``job`` is evaluated on and its result ``record`` lacks."""
     have = evaluations_of(record)
     return [(task, tier) for task in job.eval_tasks for tier in job.eval_tiers if tier not in have.get(task, {})]
+
+
+def stale_evaluations(job: Job, record: dict) -> list[tuple[str, str]]:
+    """The (task, tier) pairs that ``job`` is evaluated on and its result ``record`` lacks, or holds with
+    episodes that lack a metric of :data:`EPISODE_METRICS` / :data:`TIMING_METRICS` (recorded before the
+    windowed metrics) or in another number than ``job.eval_episodes``: what re-scoring runs again."""
+    have = evaluations_of(record)
+    keys = (*EPISODE_METRICS, *TIMING_METRICS)
+
+    def fresh(episodes) -> bool:
+        return (isinstance(episodes, list) and len(episodes) == job.eval_episodes
+                and all(isinstance(e, dict) and all(k in e for k in keys) for e in episodes))
+
+    return [(task, tier) for task in job.eval_tasks for tier in job.eval_tiers
+            if not fresh(have.get(task, {}).get(tier))]
 
 
 def reevaluate_job(job: Job, root: Path = RUNS_DIR) -> dict:
@@ -365,6 +480,19 @@ def _run_job_entry(job: Job, root: str, reevaluate: bool = False, root_token: st
     torch.set_num_threads(1)
     t0 = time.perf_counter()
     run_job(job, Path(root), reevaluate=reevaluate, base=None if base is None else Path(base))
+    return job.name, time.perf_counter() - t0
+
+
+def _rescore_job_entry(job: Job, root: str, reevaluate: bool = False, root_token: str | None = None,
+                       base: str | None = None) -> tuple[str, float]:
+    """:func:`_run_job_entry` that never trains (``run_jobs(rescore=True)``): a learned job without a model fails."""
+    import torch
+
+    if root_token is not None:
+        check_shared_root(Path(root), root_token)
+    torch.set_num_threads(1)
+    t0 = time.perf_counter()
+    run_job(job, Path(root), reevaluate=reevaluate, base=None if base is None else Path(base), train_missing=False)
     return job.name, time.perf_counter() - t0
 
 
@@ -416,7 +544,7 @@ def _failure_line(exc: BaseException) -> str:
 
 def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevaluate: bool = False,
              check_root: bool = False, progress: bool = True, base: Path | None = None,
-             rerun: str | None = None, entry=None) -> list[str]:
+             rerun: str | None = None, entry=None, rescore: bool = False) -> list[str]:
     """Submit every job to ``executor`` (anything with ``submit`` returning futures: a
     :class:`~softpvtol_gym.baselines.leaderboard.process_executor.ProcessPerJobExecutor`, a process pool, a
     :class:`softpvtol_gym.baselines.leaderboard.ray_executor.RayExecutor`); returns the names of the jobs that
@@ -429,7 +557,8 @@ def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevalu
     ``check_root``: every job first checks that it sees the same ``root`` as this process (for executors
     on other machines). ``base``: the checkpoint paths in ``eval.json`` are recorded relative to it (default:
     the current directory). ``entry``: the function each job runs in its worker (default :func:`_run_job_entry`;
-    another, with the same arguments and ``(name, seconds)`` result, for tests of the executors)."""
+    another, with the same arguments and ``(name, seconds)`` result, for tests of the executors). ``rescore``: the
+    default entry never trains (a learned job without its model fails; :func:`stale_jobs` selects the jobs)."""
     from tqdm import tqdm
 
     for job in jobs:
@@ -440,7 +569,7 @@ def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevalu
         with contextlib.ExitStack() as stack:
             token = stack.enter_context(shared_root_token(root)) if check_root else None
             base = str((Path.cwd() if base is None else Path(base)).resolve())  # paths in eval.json relative to it
-            entry = entry or _run_job_entry
+            entry = entry or (_rescore_job_entry if rescore else _run_job_entry)
             futures = {executor.submit(entry, job, str(root), reevaluate, token, base): job for job in jobs}
             # disable=None: a bar on a terminal only (logs get the one line per job below)
             bar = stack.enter_context(tqdm(total=len(jobs), unit="job", file=sys.stderr,
@@ -464,10 +593,24 @@ def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevalu
 
 
 def pending(jobs: list[Job], root: Path = RUNS_DIR) -> list[Job]:
-    """The jobs without a result, or whose result lacks a (task, tier) they are now evaluated on."""
+    """The jobs without a result, or whose result is stale (:func:`stale_evaluations`: it lacks a (task, tier) they
+    are now evaluated on, or a metric the evaluator now records)."""
     def done(job: Job) -> bool:
         path = job.folder(root) / EVAL_FILE
-        return path.is_file() and not missing_evaluations(job, read_eval(path))
+        return path.is_file() and not stale_evaluations(job, read_eval(path))
 
     return [j for j in jobs if not done(j)]
+
+
+def stale_jobs(jobs: list[Job], root: Path = RUNS_DIR) -> tuple[list[Job], list[Job]]:
+    """(the jobs with a result that is stale: :func:`stale_evaluations`; the jobs with no result at all): what
+    re-scoring runs, and what it leaves to a plain run."""
+    stale, unrun = [], []
+    for job in jobs:
+        path = job.folder(root) / EVAL_FILE
+        if not path.is_file():
+            unrun.append(job)
+        elif stale_evaluations(job, read_eval(path)):
+            stale.append(job)
+    return stale, unrun
 
