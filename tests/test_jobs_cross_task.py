@@ -72,8 +72,10 @@ def test_added_task_evaluates_only_what_is_missing_and_reaches_the_leaderboard(t
     from softpvtol_gym.baselines.training.policy import LearnedPolicy
 
     policy, config = LearnedPolicy.load(job.folder(root))
-    assert run_episodes(policy, "actuators", "hover", "wind", 2, 1000000,
-                        env_kwargs=config.eval_env_kwargs()) == second["eval_other_tasks"]["hover"]["wind"]
+    from softpvtol_gym.baselines.evaluation import without_timing
+
+    assert run_episodes(policy, "actuators", "hover", "wind", 2, 1000000, env_kwargs=config.eval_env_kwargs()) == [
+        without_timing(e) for e in second["eval_other_tasks"]["hover"]["wind"]]
 
     cells, missing = collect(root, spec)
     assert missing == []

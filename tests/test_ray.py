@@ -14,6 +14,7 @@ import pytest
 
 from softpvtol_gym.baselines.commands.run_jobs import main as run_jobs_main
 from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.evaluation import without_timing
 from softpvtol_gym.baselines.leaderboard.jobs import EVAL_FILE, ROOT_TOKEN_FILE, check_shared_root, load_jobs, run_jobs
 
 # one analytic job and one learned job (a single PPO rollout), two evaluation tiers of 2 episodes
@@ -46,7 +47,7 @@ def _spec(tmp_path: Path) -> Path:
 def _result(root: Path, job) -> dict:
     """What must not depend on the executor: the job and its per-episode evaluation."""
     rec = json.loads((job.folder(root) / EVAL_FILE).read_text())
-    return {"job": rec["job"], "eval": rec["eval"]}
+    return {"job": rec["job"], "eval": {tier: [without_timing(e) for e in eps] for tier, eps in rec["eval"].items()}}
 
 
 @pytest.mark.slow  # trains and evaluates with the pool and three times on Ray: ~20 s on an idle 2-core machine

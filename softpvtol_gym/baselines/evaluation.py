@@ -134,6 +134,11 @@ def run_episodes(policy, action_mode: str, task: str, tier: str, episodes: int, 
     return out
 
 
+def without_timing(episode: dict) -> dict:
+    """``episode`` without its wall-time metrics (:data:`TIMING_METRICS`): what a re-run reproduces exactly."""
+    return {k: v for k, v in episode.items() if k not in TIMING_METRICS}
+
+
 def window_scores(episodes: list[dict], key: str) -> np.ndarray:
     """The values of ``key`` over ``episodes``, a crashed window (None) as +inf: worse than any value."""
     return np.array([np.inf if e[key] is None else float(e[key]) for e in episodes], dtype=float)

@@ -351,7 +351,8 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
     A learned job whose final model exists (a checkpoint folder that verifies) is not trained again, only
     evaluated; ``reevaluate=True`` re-runs the evaluation of a finished job (after a change of the env or
     controller code); otherwise only its stale evaluations run (:func:`stale_evaluations`).
-    ``train_missing=False`` (re-scoring): a learned job without a final model is a ConfigError, not trained. Training happens in ``<job>.run/`` (resumed if a run was interrupted, started over if
+    ``train_missing=False`` (re-scoring): a learned job without a final model is a ConfigError, not trained.
+    Training happens in ``<job>.run/`` (resumed if a run was interrupted, started over if
     it never reached a checkpoint); the final model is copied into the job's folder (manifest last) and
     the training folder removed."""
 

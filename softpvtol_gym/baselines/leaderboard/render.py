@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from softpvtol_gym.baselines.leaderboard.stats import REFERENCE, headline
+from softpvtol_gym.baselines.evaluation import WINDOW_METRICS
+from softpvtol_gym.baselines.leaderboard.stats import REFERENCE, WINDOWS, headline, window_headline
 from softpvtol_gym.baselines.util.atomic import atomic_path
 from softpvtol_gym.baselines.util.blocks import markers
 
@@ -19,21 +20,83 @@ HEADLINE_BLOCK = ("leaderboard.py headline", SOURCE)
 SUMMARY_BLOCK = ("leaderboard.py summary", SOURCE)
 
 
+def num(v: float | None) -> str:
+    """A statistic for the tables: None is a crashed window (an IQM) or an unbounded bound (a CI)."""
+    if v is None:
+        return "crash"
+    if v != 0 and abs(v) < 0.01:
+        return f"{v:.1e}"
+    return f"{v:.3f}"
+
+
+def fmt_window(row: dict, metric: str) -> str:
+    """``IQM [lo, hi]`` of one metric of a row (crashed windows: "crash"); "—" where the row lacks it."""
+    if f"{metric}_iqm" not in row:
+        return "—"
+    ci = row[f"{metric}_ci"]
+    return f"{num(row[f'{metric}_iqm'])} [{num(ci[0])}, {num(ci[1])}]" + (" ‡" if row.get("deterministic") else "")
+
+
+def fmt_us(row: dict) -> str:
+    v = row.get("compute_us_per_step_median")
+    return "—" if v is None else f"{v:.0f}" if v >= 10 else f"{v:.1f}"
+
+
+WINNER = {"learned": "**learned**", "model-based": "**model-based**",
+          "neither": "neither (CIs overlap or more crashes)"}
+
+
 def headline_markdown(data: dict, heading: bool = True) -> list[str]:
-    """The headline section of the leaderboard page (``heading=False``: its body only, the generated block)."""
+    """The headline section of the leaderboard page (``heading=False``: its body only, the generated block):
+    learned against model-based control per (task, tier, window) (:func:`~.stats.window_headline`)."""
+    rows = window_headline(data)
+    if not rows:
+        return []
+    counts = {w: sum(r["winner"] == w for r in rows) for w in ("model-based", "learned", "neither")}
+    mb = [f"{r['task']}/{r['tier']}/{r['window']}" for r in rows if r["winner"] == "model-based"]
+    lines = [
+        *(["## Headline: learned vs model-based control, per time window", ""] if heading else []),
+        "Per task, tier and time window: the strongest learned entry against the strongest model-based controller "
+        "(each the entry with the lowest IQM there; `window_headline()` in "
+        "`softpvtol_gym/baselines/leaderboard/stats.py`). A side wins where its 95 % CI lies entirely below the "
+        "other's and its crash rate is no higher. Windows: whole episode, first quarter (transient), last half "
+        "(steady), and the max error over the last 5 s; a window an episode crashed in counts as worse than any "
+        "value. ‡: identical episodes (a deterministic task and tier): one value per run, the CI over training seeds "
+        "only (zero width for an analytic entry). Compute: median µs of the policy's own `predict` per control "
+        "step and env (wall time, machine- and load-dependent).",
+        "",
+        f"**Model-based control wins {counts['model-based']} of {len(rows)} (task, tier, window) cells, learned "
+        f"control {counts['learned']}, neither {counts['neither']}.**"
+        + (f" Model-based wins: {', '.join(mb)}." if mb else " Model-based control wins nowhere."),
+        "",
+        "| task | tier | window | strongest model-based | its error [m] | µs/step | strongest learned | its error "
+        "[m] | µs/step | winner |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        a, b = r["model_based"], r["learned"]
+        lines.append(f"| {r['task']} | {r['tier']} | {r['what']} | {a['entry']} | {fmt_window(a, r['metric'])} | "
+                     f"{fmt_us(a)} | {b['entry']} | {fmt_window(b, r['metric'])} | {fmt_us(b)} | "
+                     f"{WINNER[r['winner']]} |")
+    return lines + [""]
+
+
+def policy_headline_markdown(data: dict) -> list[str]:
+    """One learned policy against the strongest analytic controller on every (tracking task, tier) (v2's
+    headline, :func:`~.stats.headline`), whole-episode RMS."""
     h = headline(data)
     if h is None:
         return []
     n = len(h["rows"])
     counts = [sum(r[k] for r in h["rows"]) for k in ("lower", "disjoint", "crash_no_higher")]
     lines = [
-        *(["## Headline: learned vs analytic control on the tracking tasks", ""] if heading else []),
+        "## One learned policy on every tracking task and tier", "",
         f"One learned policy, **{h['policy']}**, against the strongest analytic controller of each task and tier "
-        "(the passivity entry with the lowest IQM RMS position error there). The policy is the learned entry "
+        "(the analytic entry with the lowest IQM RMS position error there). The policy is the learned entry "
         "evaluated on every tier of both tracking tasks with the smallest sum of its error relative to that "
         "controller's (`headline()` in `softpvtol_gym/baselines/leaderboard/stats.py`). "
-        f"Its IQM RMS position error is lower in {counts[0]} of {n} (task, tier) pairs, with disjoint 95 % CIs "
-        f"in {counts[1]} of {n}; its crash rate is no higher in {counts[2]} of {n}.", "",
+        f"Its whole-episode IQM RMS position error is lower in {counts[0]} of {n} (task, tier) pairs, with disjoint "
+        f"95 % CIs in {counts[1]} of {n}; its crash rate is no higher in {counts[2]} of {n}.", "",
         "| task | tier | strongest analytic | its RMS position error [m] | its crash rate | learned RMS position "
         "error [m] | learned crash rate | learned lower? | CIs disjoint? |",
         "|---|---|---|---|---|---|---|---|---|",
@@ -48,32 +111,42 @@ def headline_markdown(data: dict, heading: bool = True) -> list[str]:
     return lines + [""]
 
 
-
 # ------------------------------------------------------------------------------------- render
 def fmt_ci(v: float, ci: list[float], digits: int) -> str:
     return f"{v:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
 
 
 def summary_markdown(data: dict, page: str = "docs/leaderboard.md") -> str:
-    """The README's short summary of the headline (at most 8 lines): one sentence, and the learned policy's
-    IQM RMS position error against the strongest analytic controller's per (tracking task, tier)."""
-    h = headline(data)
-    if h is None:
-        return f"No learned policy is evaluated on every tier of the tracking tasks yet; see [the leaderboard]({page})."
-    n = len(h["rows"])
-    counts = [sum(r[k] for r in h["rows"]) for k in ("lower", "disjoint")]
-    tiers = list(dict.fromkeys(r["tier"] for r in h["rows"]))
-    tasks = list(dict.fromkeys(r["task"] for r in h["rows"]))
-    cell = {(r["task"], r["tier"]): r for r in h["rows"]}
-    lines = [f"**{h['policy']}** against the strongest analytic controller per task and tier: IQM RMS position error "
-             f"[m], learned / analytic, lower in {counts[0]} of {n} (task, tier) pairs with disjoint 95 % CIs in "
-             f"{counts[1]} of {n} ([full leaderboard]({page})).", "",
-             "| task | " + " | ".join(tiers) + " |", "|---" * (len(tiers) + 1) + "|"]
+    """The README's short summary of the headline (at most 8 lines): who wins per (task, tier, window), learned
+    or the strongest model-based controller, and the compute per step."""
+    rows = window_headline(data)
+    if not rows:
+        return f"No learned and model-based entries share a task and tier yet; see [the leaderboard]({page})."
+    counts = {w: sum(r["winner"] == w for r in rows) for w in ("model-based", "learned", "neither")}
+    windows = [w for w in WINDOWS if any(r["window"] == w[0] for r in rows)]
+    tasks = list(dict.fromkeys(r["task"] for r in rows))
+    by = {(r["task"], r["window"]): [] for r in rows}
+    for r in rows:
+        by[(r["task"], r["window"])].append(r)
+    us = {side: [x[side].get("compute_us_per_step_median") for x in rows] for side in ("model_based", "learned")}
+    us = {k: [v for v in vs if v is not None] for k, vs in us.items()}
+    compute = (" Compute per step and env (median µs of `predict`): strongest model-based "
+               f"{min(us['model_based']):.0f}-{max(us['model_based']):.0f}, strongest learned "
+               f"{min(us['learned']):.0f}-{max(us['learned']):.0f}." if us["model_based"] and us["learned"] else "")
+    lines = [f"Learned vs the strongest model-based controller per task, tier and time window (95 % CIs disjoint and "
+             f"no more crashes to win): **model-based wins {counts['model-based']} of {len(rows)} cells, learned "
+             f"{counts['learned']}, neither {counts['neither']}**.{compute} Per task and window, the tiers each side "
+             f"wins ([full leaderboard]({page})):", "",
+             "| task | " + " | ".join(what for _, _, what in windows) + " |", "|---" * (len(windows) + 1) + "|"]
+
+    def cell(items):
+        mb = [r["tier"] for r in items if r["winner"] == "model-based"]
+        le = [r["tier"] for r in items if r["winner"] == "learned"]
+        return "; ".join([f"model-based: {', '.join(mb)}"] * bool(mb) + [f"learned: {', '.join(le)}"] * bool(le)) \
+            or "neither"
+
     for task in tasks:
-        vals = [cell[(task, tier)] for tier in tiers]
-        lines.append(f"| {task} | " + " | ".join(
-            f"{r['learned']['rms_position_error_iqm']:.3f} / {r['analytic']['rms_position_error_iqm']:.3f}"
-            for r in vals) + " |")
+        lines.append(f"| {task} | " + " | ".join(cell(by.get((task, w), [])) for w, _, _ in windows) + " |")
     return "\n".join(lines)
 
 
@@ -91,22 +164,29 @@ def render_markdown(data: dict, chart: str = "../baselines/results/leaderboard.p
         f"`{SOURCE}`.",
         "",
         f"Each entry is evaluated on the same {meta['episodes']} seeded episodes per task and tier (seeds "
-        f"{meta['eval_seed']} + i; training seeds are below 500,000). PPO entries have {meta['seeds']} training seeds "
-        "each. Point estimates: IQM (interquartile mean) over runs x episodes of the RMS position error [m] and of "
-        "the return, and the mean crash rate. Brackets: 95 % stratified-bootstrap CIs over runs and episodes "
+        f"{meta['eval_seed']} + i; training seeds are below 500,000; an entry with fewer, such as the MPC, gets the "
+        f"first ones: the `episodes` column). PPO entries have {meta['seeds']} training seeds "
+        "each. Point estimates: IQM (interquartile mean) over runs x episodes of the RMS position error [m] (whole "
+        "episode, first quarter, last half) and of the max position error over the last 5 s [m], IQM of the return, "
+        "and the mean crash rate. Brackets: 95 % stratified-bootstrap CIs over runs and episodes "
         f"(rliable, {meta['bootstrap_reps']} replications; {meta['poi_bootstrap_reps']} for P(better)). "
-        "P(better): rliable's probability that the entry has a "
+        "A window that an episode crashed in counts as worse than any value (\"crash\": the IQM or the CI bound "
+        "reaches crashed windows). ‡: every run's episodes are identical (a deterministic task and tier): each run "
+        "counts once, so the CI is over training seeds only, and an analytic entry has one value (a CI of zero "
+        "width). P(better): rliable's probability that the entry has a "
         f"lower RMS position error than `{REFERENCE}` on an episode, with a CI over training seeds only "
-        "(rliable's pair bootstrap does not resample episodes). Lower error, higher return, lower "
-        "crash rate are better.",
+        "(rliable's pair bootstrap does not resample episodes). µs/step: the median wall time of the policy's own "
+        "`predict` per control step and env (the per-env share of a batch of all the episodes), on the machine and "
+        "at the load the jobs ran. Lower error, higher return, lower crash rate are better.",
         "",
     ]
     if meta.get("missing_jobs"):
-        lines += [f"Missing jobs (not yet run): {len(meta['missing_jobs'])}.", ""]
+        lines += [f"Missing or stale jobs (not yet run or re-scored): {len(meta['missing_jobs'])}.", ""]
     body = headline_markdown(data, heading=False)
     if body:
         start, end = markers(*HEADLINE_BLOCK)
         lines += headline_markdown(data)[:2] + [start] + body[:-1] + [end, ""]
+    lines += policy_headline_markdown(data)
     by_task: dict[str, list[dict]] = {}
     for r in data["aggregates"]:
         by_task.setdefault(r["task"], []).append(r)
@@ -114,14 +194,18 @@ def render_markdown(data: dict, chart: str = "../baselines/results/leaderboard.p
     for task in meta["tasks"]:
         rows = by_task.get(task, [])
         lines += [f"## {task}", "",
-                  "| tier | policy | runs | RMS position error [m] | crash rate | return | P(better than "
-                  f"{REFERENCE}) |", "|---|---|---|---|---|---|---|"]
+                  "| tier | policy | runs x episodes | RMS position error [m] | RMS, first quarter [m] | RMS, last "
+                  "half [m] | max, last 5 s [m] | crash rate | return | µs/step | P(better than "
+                  f"{REFERENCE}) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in sorted(rows, key=lambda r: (tier_order.index(r["tier"]), _entry_order(r["entry"]))):
             p = fmt_ci(r["prob_improvement"], r["prob_improvement_ci"], 2) if "prob_improvement" in r else "—"
-            err = fmt_ci(r["rms_position_error_iqm"], r["rms_position_error_ci"], 3)
+            err = fmt_ci(r["rms_position_error_iqm"], r["rms_position_error_ci"], 3) + (
+                " ‡" if r.get("deterministic") else "")
+            windows = " | ".join(fmt_window(r, m) for m in WINDOW_METRICS)
             crash = fmt_ci(r["crash_rate"], r["crash_rate_ci"], 2)
             ret = fmt_ci(r["return_iqm"], r["return_ci"], 0)
-            lines.append(f"| {r['tier']} | {r['entry']} | {r['runs']} | {err} | {crash} | {ret} | {p} |")
+            lines.append(f"| {r['tier']} | {r['entry']} | {r['runs']} x {r.get('episodes', '?')} | {err} | {windows} | "
+                         f"{crash} | {ret} | {fmt_us(r)} | {p} |")
         lines.append("")
     lines += _budget_markdown(data)
     lines += [f"![IQM RMS position error per tier]({chart})", ""]
@@ -170,7 +254,8 @@ def _budget_markdown(data: dict) -> list[str]:
 
 
 def _entry_order(entry: str) -> tuple:
-    order = ["passivity-paper", "passivity-exact", "passivity-bounded", "PPO-actuators", "PPO-virtual", "PPO-residual"]
+    order = ["passivity-paper", "passivity-exact", "passivity-bounded", "passivity-integral", "mpc", "PPO-actuators",
+             "PPO-virtual", "PPO-residual"]
     for i, prefix in enumerate(order):
         if entry.startswith(prefix):
             return (i, entry)

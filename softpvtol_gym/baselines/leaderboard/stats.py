@@ -1,5 +1,20 @@
 """Leaderboard statistics (rliable): the job results collected into cells, IQMs with stratified-bootstrap CIs,
-the headline, and the JSON that holds them (built and validated)."""
+the headline, and the JSON that holds them (built and validated).
+
+Per (task, tier, entry) row: the IQM and 95 % CI of the whole-episode RMS position error, of the return and of
+the crash rate (as in v2), and of each window of :data:`~softpvtol_gym.baselines.evaluation.WINDOW_METRICS`
+(``<metric>_iqm``, ``<metric>_ci``), plus ``compute_us_per_step_median``. Two rules keep the CIs honest:
+
+* Crashed windows (None in an episode) are scored +inf: worse than any value, never dropped. The IQM trims
+  the worst quarter, so it stays finite while at most a quarter of a sample's windows crashed; beyond that it
+  is None ("crashed": the interquartile range reaches crashed windows). A CI bound is None where the
+  bootstrap's percentile reaches crashed replicates (upper: unbounded). Percentiles of window metrics use
+  the nearest replicate outward (numpy's "lower" / "higher"), never an interpolation towards +inf.
+* Identical episodes: where every run of a row has all its episodes identical (a deterministic task and
+  tier: detected from the data, :func:`~softpvtol_gym.baselines.evaluation.identical_episodes`), the episodes
+  are one observation per run, not many: each run counts once (``deterministic: true``), the CI comes from
+  the training seeds only, and an analytic entry (one run) has a single value with a CI of zero width.
+"""
 
 from __future__ import annotations
 
@@ -12,7 +27,14 @@ from pathlib import Path
 import numpy as np
 
 from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.baselines.evaluation import EPISODE_METRICS, summarize
+from softpvtol_gym.baselines.evaluation import (
+    EPISODE_METRICS,
+    TIMING_METRICS,
+    WINDOW_METRICS,
+    identical_episodes,
+    summarize,
+    window_scores,
+)
 from softpvtol_gym.baselines.leaderboard.jobs import (
     EVAL_FILE,
     RUNS_DIR,
@@ -20,8 +42,8 @@ from softpvtol_gym.baselines.leaderboard.jobs import (
     evaluations_of,
     load_jobs,
     load_spec,
-    missing_evaluations,
     read_eval,
+    stale_evaluations,
 )
 from softpvtol_gym.baselines.util.safe_load import loads_json
 
@@ -30,6 +52,14 @@ BOOTSTRAP_REPS = 2000
 POI_BOOTSTRAP_REPS = 300  # rliable's probability of improvement runs scipy per episode: slow
 BOOTSTRAP_SEED = 0
 COMMAND = "python baselines/run_jobs.py && python baselines/leaderboard.py"
+#: the per-episode metrics every result must hold (the windows and the timing came with v3: results without
+#: them are stale, re-scored by ``run-jobs --rescore``)
+BASE_METRICS = tuple(k for k in EPISODE_METRICS if k not in WINDOW_METRICS)
+#: the windows of the headline: (name, per-episode metric, what it is)
+WINDOWS = (("whole", "rms_position_error", "RMS, whole episode"),
+           ("transient", "rms_position_error_transient", "RMS, first quarter"),
+           ("steady", "rms_position_error_steady", "RMS, last half"),
+           ("final_5s", "max_position_error_final_5s", "max, last 5 s"))
 
 
 def entry_label(job: dict, task: str | None = None) -> str:
@@ -57,12 +87,18 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> tuple[list[dict], 
                               f"{j.get('seed')}); expected {job.name}")
         check_result(rec, path)
         evaluations = evaluations_of(rec)
-        lost = missing_evaluations(job, rec)
+        lost = stale_evaluations(job, rec)  # missing, or recorded before the windowed metrics
         if lost:
-            missing.append(f"{job.name} on {', '.join(f'{t}/{tier}' for t, tier in lost)}")
+            have = {(t, tier) for t, tiers in evaluations.items() for tier in tiers}
+            lacking = [f"{t}/{tier}" for t, tier in lost if (t, tier) not in have]
+            stale = [f"{t}/{tier}" for t, tier in lost if (t, tier) in have]
+            missing.append(f"{job.name} on {', '.join(lacking)}" if lacking and not stale else
+                           f"{job.name}: " + "; ".join(
+                               ([f"missing {', '.join(lacking)}"] if lacking else [])
+                               + ([f"stale (re-score: run-jobs --rescore) {', '.join(stale)}"] if stale else [])))
         for task in job.eval_tasks:  # what the spec lists now (a result may hold more)
             for tier, episodes in evaluations.get(task, {}).items():
-                if tier not in job.eval_tiers:
+                if tier not in job.eval_tiers or (task, tier) in lost:
                     continue
                 cells.append({
                     "entry": entry_label(j, task), "policy": j["policy"], "action_mode": j["action_mode"],
@@ -113,11 +149,20 @@ def check_result(rec: dict, path: Path) -> dict:
             for i, e in enumerate(episodes):
                 if not isinstance(e, dict):
                     bad(f"{where}.{tier}[{i}] must be an object")
-                for key in EPISODE_METRICS:
+                for key in BASE_METRICS:
                     if key not in e:
                         bad(f"{where}.{tier}[{i}].{key} is missing")
                     if not _number(e[key], allow_bool=key == "crashed"):
                         bad(f"{where}.{tier}[{i}].{key} must be a finite number, got {e[key]!r}")
+                for key in WINDOW_METRICS:  # absent: stale (collect reports it); null: a crashed window
+                    if key in e and e[key] is None and not e["crashed"]:
+                        bad(f"{where}.{tier}[{i}].{key} is null (a crashed window) in an episode that did not crash")
+                    if key in e and e[key] is not None and not (_number(e[key]) and e[key] >= 0):
+                        bad(f"{where}.{tier}[{i}].{key} must be a finite number >= 0 or null (crashed), "
+                            f"got {e[key]!r}")
+                for key in TIMING_METRICS:
+                    if key in e and not (_number(e[key]) and e[key] >= 0):
+                        bad(f"{where}.{tier}[{i}].{key} must be a finite number >= 0, got {e[key]!r}")
     return rec
 
 
@@ -126,9 +171,14 @@ def _summary(episodes: list[dict]) -> dict:
 
 
 # ----------------------------------------------------------------------------------- statistics
-def _matrix(cells: list[dict], key: str, sign: float = 1.0) -> np.ndarray:
-    """(runs x episodes) scores of one entry, runs sorted by seed."""
-    rows = [[sign * float(e[key]) for e in c["episodes"]] for c in sorted(cells, key=lambda c: c["seed"])]
+def _matrix(cells: list[dict], key: str, sign: float = 1.0, first_only: bool = False) -> np.ndarray:
+    """(runs x episodes) scores of one entry, runs sorted by seed (a crashed window: +inf); ``first_only``: one
+    episode per run (identical episodes)."""
+    rows = []
+    for c in sorted(cells, key=lambda c: c["seed"]):
+        eps = c["episodes"][:1] if first_only else c["episodes"]
+        rows.append(sign * window_scores(eps, key) if key in WINDOW_METRICS else
+                    [sign * float(e[key]) for e in eps])
     return np.asarray(rows, dtype=float)
 
 
@@ -140,24 +190,59 @@ def _three_metrics(scores: np.ndarray) -> np.ndarray:
                      metrics.aggregate_mean(scores[..., 2])])
 
 
-def _seeded_interval_estimates(score_dict, func, reps):
-    """rliable's get_interval_estimates, reproducible: its StratifiedBootstrap draws its indices from
-    numpy's global RNG (np.random.choice), not from the random_state it is given, so the global RNG is
-    seeded for the call and restored afterwards."""
-    from rliable import library as rly
+def _iqms(scores: np.ndarray) -> np.ndarray:
+    """The IQM of each metric of a (runs x episodes x k) score array (+inf where crashed windows reach the
+    interquartile range)."""
+    from scipy import stats
 
+    with np.errstate(invalid="ignore"):
+        return np.array([stats.trim_mean(scores[..., j], 0.25, axis=None) for j in range(scores.shape[-1])])
+
+
+def _seeded(call):
+    """``call()`` with numpy's global RNG seeded (rliable's StratifiedBootstrap draws its indices from it, not
+    from the random_state it is given) and restored afterwards."""
     saved = np.random.get_state()
     np.random.seed(BOOTSTRAP_SEED)
     try:
-        return rly.get_interval_estimates(score_dict, func, task_bootstrap=True, reps=reps,
-                                          random_state=np.random.RandomState(BOOTSTRAP_SEED))
+        return call()
     finally:
         np.random.set_state(saved)
 
 
+def _seeded_interval_estimates(score_dict, func, reps):
+    """rliable's get_interval_estimates, reproducible (:func:`_seeded`)."""
+    from rliable import library as rly
+
+    return _seeded(lambda: rly.get_interval_estimates(score_dict, func, task_bootstrap=True, reps=reps,
+                                                      random_state=np.random.RandomState(BOOTSTRAP_SEED)))
+
+
+def window_intervals(scores: np.ndarray, reps: int = BOOTSTRAP_REPS) -> tuple[np.ndarray, np.ndarray]:
+    """(IQMs, 95 % CIs (2 x k)) of a (runs x episodes x k) array of window scores (+inf: crashed), from rliable's
+    stratified bootstrap over runs and episodes; the percentiles take the nearest replicate outward, so a bound
+    is +inf only where the replicates at that percentile are."""
+    from rliable import library as rly
+
+    def replicates():
+        bs = rly.StratifiedBootstrap(scores, task_bootstrap=True, random_state=np.random.RandomState(BOOTSTRAP_SEED))
+        return bs.apply(_iqms, reps)
+
+    reps_out = np.asarray(_seeded(replicates), dtype=float).reshape(reps, -1)
+    lo = np.percentile(reps_out, 2.5, axis=0, method="lower")
+    hi = np.percentile(reps_out, 97.5, axis=0, method="higher")
+    return _iqms(scores), np.stack([lo, hi])
+
+
+def _finite_or_none(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
+
+
 def aggregate(cells: list[dict]) -> list[dict]:
     """Per (task, tier, entry): IQM RMS position error, IQM return, mean crash rate, P(improvement)
-    over the reference passivity controller; each with a 95 % stratified-bootstrap CI."""
+    over the reference passivity controller, each with a 95 % stratified-bootstrap CI; the IQM and CI of each
+    window metric (where the cells hold them) and the median compute per step. Rows whose every run has
+    identical episodes count each run once (``deterministic``; module docstring)."""
     from rliable import metrics
 
     warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
@@ -166,21 +251,36 @@ def aggregate(cells: list[dict]) -> list[dict]:
         groups.setdefault((c["task"], c["tier"], c["entry"]), []).append(c)
     rows = []
     for (task, tier, entry), group in sorted(groups.items()):
+        det = all(len(c["episodes"]) > 1 and identical_episodes(c["episodes"]) for c in group)
         row = {"task": task, "tier": tier, "entry": entry, "policy": group[0]["policy"],
                "action_mode": group[0]["action_mode"], "train_task": group[0].get("train_task", task),
                "train_tier": group[0]["train_tier"],
-               "runs": len(group), "episodes": len(group[0]["episodes"])}
+               "runs": len(group), "episodes": len(group[0]["episodes"]), "deterministic": det,
+               "ci_over": ("none (one run of identical episodes)" if det and len(group) == 1 else
+                           "training seeds only (identical episodes)" if det else
+                           "runs and episodes" if len(group) > 1 else "episodes")}
         # one bootstrap for the three metrics: scores (runs x episodes x 3)
-        scores = np.stack([_matrix(group, "rms_position_error"), _matrix(group, "return"),
-                           _matrix(group, "crashed")], axis=-1)
+        scores = np.stack([_matrix(group, "rms_position_error", first_only=det),
+                           _matrix(group, "return", first_only=det),
+                           _matrix(group, "crashed", first_only=det)], axis=-1)
         point, ci = _seeded_interval_estimates({"x": scores}, _three_metrics, BOOTSTRAP_REPS)
         for k, name in enumerate(("rms_position_error_iqm", "return_iqm", "crash_rate")):
             row[name] = float(point["x"][k])
             row[name.replace("_iqm", "") + "_ci"] = [float(ci["x"][0, k]), float(ci["x"][1, k])]
+        windows = [k for k in WINDOW_METRICS if all(k in e for c in group for e in c["episodes"])]
+        if windows:
+            w_point, w_ci = window_intervals(np.stack([_matrix(group, k, first_only=det) for k in windows], axis=-1))
+            for j, key in enumerate(windows):
+                row[f"{key}_iqm"] = _finite_or_none(w_point[j])
+                row[f"{key}_ci"] = [_finite_or_none(w_ci[0, j]), _finite_or_none(w_ci[1, j])]
+        timing = [e[TIMING_METRICS[0]] for c in group for e in c["episodes"] if TIMING_METRICS[0] in e]
+        row["compute_us_per_step_median"] = float(np.median(timing)) if timing else None
         ref = groups.get((task, tier, REFERENCE))
         if ref is not None and entry != REFERENCE:
             x = _matrix(group, "rms_position_error", -1.0)  # higher is better for rliable
             y = _matrix(ref, "rms_position_error", -1.0)
+            n = min(x.shape[1], y.shape[1])  # an entry with fewer episodes (MPC): the first n, the same seeds
+            x, y = x[:, :n], y[:, :n]
             point, ci = _seeded_interval_estimates({"p": (x, y)}, metrics.probability_of_improvement,
                                                    POI_BOOTSTRAP_REPS)
             row["prob_improvement"] = float(np.asarray(point["p"]).reshape(-1)[0])
@@ -241,6 +341,48 @@ def headline(data: dict) -> dict | None:
     return {"policy": f"PPO-{mode} trained on {train_task} ({train_tier} tier)", "rows": out}
 
 
+def _key(v: float | None) -> float:
+    """A window statistic for comparisons: None (crashed) is worse than any value."""
+    return np.inf if v is None else float(v)
+
+
+def window_headline(data: dict) -> list[dict]:
+    """Learned against model-based control per (task, tier, window) of :data:`WINDOWS`: the strongest learned
+    entry (the PPO entry with the lowest IQM of the window's metric there) against the strongest model-based one
+    (the analytic entry, passivity or MPC, with the lowest), both chosen per (task, tier, window), so each side
+    gets its best. ``winner``: "learned" or "model-based" where that side's 95 % CI lies entirely below the
+    other's and its crash rate is no higher; "neither" otherwise (overlapping CIs, or a lower error bought
+    with more crashes). Windows the rows do not hold (a leaderboard from before v3) are left out."""
+    meta, rows = data["meta"], data["aggregates"]
+    out = []
+    for task in meta["tasks"]:
+        for tier in meta["tiers"]:
+            here = [r for r in rows if r["task"] == task and r["tier"] == tier]
+            for window, metric, what in WINDOWS:
+                have = [r for r in here if f"{metric}_iqm" in r or (metric == "rms_position_error" and
+                                                                      "rms_position_error_iqm" in r)]
+                learned = [r for r in have if r["policy"] == "ppo"]
+                model = [r for r in have if r["policy"] != "ppo"]
+                if not learned or not model:
+                    continue
+
+                def best(side, metric=metric):
+                    return min(sorted(side, key=lambda x: x["entry"]), key=lambda x: _key(x[f"{metric}_iqm"]))
+
+                a, b = best(model), best(learned)
+                ci_a = [_key(v) for v in a[f"{metric}_ci"]]
+                ci_b = [_key(v) for v in b[f"{metric}_ci"]]
+                if ci_b[1] < ci_a[0] and b["crash_rate"] <= a["crash_rate"]:
+                    winner = "learned"
+                elif ci_a[1] < ci_b[0] and a["crash_rate"] <= b["crash_rate"]:
+                    winner = "model-based"
+                else:
+                    winner = "neither"
+                out.append({"task": task, "tier": tier, "window": window, "metric": metric, "what": what,
+                            "model_based": a, "learned": b, "winner": winner})
+    return out
+
+
 # ------------------------------------------------------------------------------------------ main
 def _commit(base: Path) -> str:
     """The commit of the git checkout at ``base`` ("unknown" outside one)."""
@@ -262,7 +404,7 @@ def build(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, base: Path = Path("."))
             "episodes": int(s["evaluation"]["episodes"]), "eval_seed": int(s["evaluation"]["seed"]),
             "seeds": len(s["seeds"]), "bootstrap_reps": BOOTSTRAP_REPS, "poi_bootstrap_reps": POI_BOOTSTRAP_REPS,
             "bootstrap_seed": BOOTSTRAP_SEED,
-            "reference": REFERENCE, "missing_jobs": missing}
+            "reference": REFERENCE, "missing_jobs": missing, "version": 3}
     return {"meta": meta, "aggregates": aggregate(cells), "cells": cells}
 
 
@@ -296,6 +438,9 @@ def validate_data(data, source: str) -> dict:
     non_finite = _first_non_finite(data)
     if non_finite is not None:
         bad(f"{non_finite} is not a finite number")
+    def number_or_none(v) -> bool:
+        return v is None or number(v)
+
     for i, r in enumerate(data["aggregates"]):
         where = f"aggregates[{i}]"
         if not isinstance(r, dict):
@@ -314,6 +459,18 @@ def validate_data(data, source: str) -> dict:
             ci = r.get(key)
             if not (isinstance(ci, list) and len(ci) == 2 and all(number(v) for v in ci)):
                 bad(f"{where}.{key} must be a list of two finite numbers, got {ci!r}")
+        for metric in WINDOW_METRICS:  # v3 rows; null: crashed (an IQM) or unbounded (a CI bound)
+            if f"{metric}_iqm" not in r:
+                continue
+            ci = r.get(f"{metric}_ci")
+            if not number_or_none(r[f"{metric}_iqm"]) or not (
+                    isinstance(ci, list) and len(ci) == 2 and all(number_or_none(v) for v in ci)):
+                bad(f"{where}.{metric}_iqm must be a finite number or null and {metric}_ci a list of two, got "
+                    f"{r[f'{metric}_iqm']!r} and {ci!r}")
+        if not number_or_none(r.get("compute_us_per_step_median")):
+            bad(f"{where}.compute_us_per_step_median must be a finite number or null")
+        if not isinstance(r.get("deterministic", False), bool):
+            bad(f"{where}.deterministic must be true or false")
     return data
 
 
