@@ -166,8 +166,8 @@ def summarize(episodes: list[dict]) -> dict:
 def identical_episodes(episodes: list[dict]) -> bool:
     """Whether every episode has the same metrics (all of :data:`EPISODE_METRICS`, exactly; the wall-time
     :data:`TIMING_METRICS` aside): a deterministic task and tier gives the same episode whatever its seed."""
-    first = {k: episodes[0][k] for k in EPISODE_METRICS}
-    return all({k: e[k] for k in EPISODE_METRICS} == first for e in episodes[1:])
+    first = {k: episodes[0].get(k) for k in EPISODE_METRICS}  # (.get: results from before the windows lack them)
+    return all({k: e.get(k) for k in EPISODE_METRICS} == first for e in episodes[1:])
 
 
 def evaluate(policy, action_mode: str, task: str, tier: str, episodes: int, seed: int,
