@@ -93,7 +93,10 @@ def test_residual_mode_over_the_integral_loop_matches_the_policy_in_actuators_mo
         policy = None if action_mode == "residual" else PassivityPolicy.from_env(env, loop=loop)
         start = np.ones(3, bool)
         for _ in range(100):
-            action = np.zeros((3, env.single_action_space.shape[0])) if policy is None else policy.predict(obs, episode_start=start)[0]
+            if policy is None:
+                action = np.zeros((3, env.single_action_space.shape[0]))
+            else:
+                action = policy.predict(obs, episode_start=start)[0]
             obs, *_ = env.step(action)
             start[:] = False
         q = env.sim.q[:, :3].copy()

@@ -239,7 +239,8 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg, integ):
     cfg: (method, input map, algebraic pass limit and tolerance, arm feedforward, dt, vmax, amax, curvature
     limit)
     (see ``CC_*``); p, lam, kg: params and gains (tuples); integ: the integral action (Lambda_I (3),
-    int_max (3), err_max (3), 1.0 if on else 0.0, pos_max (3); see :func:`_integral_refs`); the tau residual is added when ``has_res``;
+    int_max (3), err_max (3), 1.0 if on else 0.0, pos_max (3); see :func:`_integral_refs`); the tau
+    residual is added when ``has_res``;
     the memory after the step (into CB_STN) is the one before unless ``commit``. Outputs per lane:
     the error code (CB_ERR: ERR_NONE, or the row's outputs are zeros and its memory unchanged), tau (5:
     the commanded generalized force, arm rows: the arm torques asked for), actuators (T_l, T_r,
