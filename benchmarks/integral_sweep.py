@@ -66,11 +66,9 @@ def run_variant(name: str) -> dict:
         for tier in TIERS:
             eps = run_episodes(policy, "actuators", task, tier, EPISODES, SEED)
             ok = [e for e in eps if not e["crashed"]]
-
-            def mean(key):
-                return float(np.mean([e[key] for e in ok])) if ok else None
-            cells[f"{task}/{tier}"] = {"transient": mean("rms_position_error_transient"),
-                                       "steady": mean("rms_position_error_steady"),
+            transient, steady = (float(np.mean([e[key] for e in ok])) if ok else None
+                                 for key in ("rms_position_error_transient", "rms_position_error_steady"))
+            cells[f"{task}/{tier}"] = {"transient": transient, "steady": steady,
                                        "crash_rate": float(np.mean([e["crashed"] for e in eps]))}
             print(f"{name:48s} {task:12s} {tier:9s} {cells[f'{task}/{tier}']}", flush=True)
     return cells
