@@ -129,7 +129,7 @@ class EnvConfig:
     controller_loop: str | None = _argument(
         None, "str | None",
         "residual mode's base controller and `PassivityPolicy`'s default: a loop of "
-        '`softpvtol_gym.control.LOOPS` ("paper" | "exact" | "improved" | "bounded" | "ideal"); None: '
+        '`softpvtol_gym.control.LOOPS` ("paper" | "exact" | "improved" | "bounded" | "integral" | "ideal"); None: '
         'from the allocation, "bounded" for "exact" (the default), "paper" for "paper", "ideal" for "ideal". '
         "A loop whose allocation differs from a given `allocation` is refused.")
     model: str | None = _argument(
