@@ -60,9 +60,9 @@ def test_a_learned_entry_with_identical_episodes_gets_its_ci_from_the_training_s
     values = [1.30, 1.35, 1.40, 1.50, 1.60]
     cells = [cell("PPO", s, [ep(v)] * 20) for s, v in enumerate(values)]
     (row,) = aggregate(cells)
-    assert row["deterministic"] and row["ci_over"] == "training seeds only (identical episodes)"
+    assert row["deterministic"] and row["ci_over"] == "training seeds only (a deterministic task and tier)"
     assert row["rms_position_error_iqm"] == pytest.approx(stats.trim_mean(values, 0.25))  # 1.35, 1.40, 1.50
-    seeds_only = np.stack([_matrix(cells, k, first_only=True) for k in ("rms_position_error", "return", "crashed")],
+    seeds_only = np.stack([_matrix(cells, k, per_run=True) for k in ("rms_position_error", "return", "crashed")],
                           axis=-1)
     _, ci = _seeded_interval_estimates({"x": seeds_only}, _three_metrics, 2000)
     assert row["rms_position_error_ci"] == pytest.approx(list(ci["x"][:, 0]))
@@ -72,10 +72,16 @@ def test_a_learned_entry_with_identical_episodes_gets_its_ci_from_the_training_s
     assert narrow["x"][1, 0] - narrow["x"][0, 0] < row["rms_position_error_ci"][1] - row["rms_position_error_ci"][0]
     lo, hi = row[f"{STEADY}_ci"]
     assert min(values) <= lo <= row[f"{STEADY}_iqm"] <= hi <= max(values)
-    # one run whose episodes differ: no longer deterministic, every episode counts
+    # one run whose episodes differ: no longer deterministic on its own, every episode counts
     cells[2] = cell("PPO", 2, [ep(1.40), ep(1.41)] * 10)
     (row,) = aggregate(cells)
     assert not row["deterministic"] and row["ci_over"] == "runs and episodes"
+    # unless an analytic entry shows the task and tier are deterministic: the episodes of that run differ by
+    # numerical noise only, and count once, as their mean
+    rows = aggregate(cells + [cell("passivity-bounded", 0, [ep(1.868)] * 20, policy="passivity-bounded")])
+    row = next(r for r in rows if r["entry"] == "PPO")
+    assert row["deterministic"] and row["rms_position_error_iqm"] == pytest.approx(
+        stats.trim_mean([1.30, 1.35, 1.405, 1.50, 1.60], 0.25))
 
 
 def test_crashed_windows_count_as_worse_than_any_value_not_as_missing():

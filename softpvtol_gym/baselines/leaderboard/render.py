@@ -61,9 +61,9 @@ def headline_markdown(data: dict, heading: bool = True) -> list[str]:
         "`softpvtol_gym/baselines/leaderboard/stats.py`). A side wins where its 95 % CI lies entirely below the "
         "other's and its crash rate is no higher. Windows: whole episode, first quarter (transient), last half "
         "(steady), and the max error over the last 5 s; a window an episode crashed in counts as worse than any "
-        "value. ‡: identical episodes (a deterministic task and tier): one value per run, the CI over training seeds "
-        "only (zero width for an analytic entry). Compute: median µs of the policy's own `predict` per control "
-        "step and env (wall time, machine- and load-dependent).",
+        "value. ‡: a deterministic task and tier (identical episodes): one value per run (its mean), the CI over "
+        "training seeds only (zero width for an analytic entry). Compute: median µs of the policy's own `predict` "
+        "per control step and env (wall time, machine- and load-dependent).",
         "",
         f"**Model-based control wins {counts['model-based']} of {len(rows)} (task, tier, window) cells, learned "
         f"control {counts['learned']}, neither {counts['neither']}.**"
@@ -171,9 +171,10 @@ def render_markdown(data: dict, chart: str = "../baselines/results/leaderboard.p
         "and the mean crash rate. Brackets: 95 % stratified-bootstrap CIs over runs and episodes "
         f"(rliable, {meta['bootstrap_reps']} replications; {meta['poi_bootstrap_reps']} for P(better)). "
         "A window that an episode crashed in counts as worse than any value (\"crash\": the IQM or the CI bound "
-        "reaches crashed windows). ‡: every run's episodes are identical (a deterministic task and tier): each run "
-        "counts once, so the CI is over training seeds only, and an analytic entry has one value (a CI of zero "
-        "width). P(better): rliable's probability that the entry has a "
+        "reaches crashed windows). ‡: a deterministic task and tier (an entry there has identical episodes: one "
+        "reference, one initial state): each run counts once, as the mean of its episodes, so the CI is over "
+        "training seeds only, and an analytic entry has one value (a CI of zero width). P(better): rliable's "
+        "probability that the entry has a "
         f"lower RMS position error than `{REFERENCE}` on an episode, with a CI over training seeds only "
         "(rliable's pair bootstrap does not resample episodes). µs/step: the median wall time of the policy's own "
         "`predict` per control step and env (the per-env share of a batch of all the episodes), on the machine and "

@@ -10,10 +10,11 @@ the crash rate (as in v2), and of each window of :data:`~softpvtol_gym.baselines
   is None ("crashed": the interquartile range reaches crashed windows). A CI bound is None where the
   bootstrap's percentile reaches crashed replicates (upper: unbounded). Percentiles of window metrics use
   the nearest replicate outward (numpy's "lower" / "higher"), never an interpolation towards +inf.
-* Identical episodes: where every run of a row has all its episodes identical (a deterministic task and
-  tier: detected from the data, :func:`~softpvtol_gym.baselines.evaluation.identical_episodes`), the episodes
-  are one observation per run, not many: each run counts once (``deterministic: true``), the CI comes from
-  the training seeds only, and an analytic entry (one run) has a single value with a CI of zero width.
+* Deterministic tasks and tiers: where the episodes are all the same in what the policies get (detected from
+  the data, :func:`deterministic_pairs`: some entry's runs have identical episodes), a run's episodes are one
+  observation, not many: every row of that (task, tier) counts each run once, as the mean over its episodes
+  (``deterministic: true``), so the CI comes from the training seeds only, and an analytic entry (one run) has
+  a single value with a CI of zero width.
 """
 
 from __future__ import annotations
@@ -171,15 +172,29 @@ def _summary(episodes: list[dict]) -> dict:
 
 
 # ----------------------------------------------------------------------------------- statistics
-def _matrix(cells: list[dict], key: str, sign: float = 1.0, first_only: bool = False) -> np.ndarray:
-    """(runs x episodes) scores of one entry, runs sorted by seed (a crashed window: +inf); ``first_only``: one
-    episode per run (identical episodes)."""
+def _matrix(cells: list[dict], key: str, sign: float = 1.0, per_run: bool = False) -> np.ndarray:
+    """(runs x episodes) scores of one entry, runs sorted by seed (a crashed window: +inf); ``per_run``: (runs x
+    1), each run's mean over its episodes (a deterministic task and tier: the episodes are one observation)."""
     rows = []
     for c in sorted(cells, key=lambda c: c["seed"]):
-        eps = c["episodes"][:1] if first_only else c["episodes"]
-        rows.append(sign * window_scores(eps, key) if key in WINDOW_METRICS else
-                    [sign * float(e[key]) for e in eps])
+        x = sign * (window_scores(c["episodes"], key) if key in WINDOW_METRICS else
+                    np.array([float(e[key]) for e in c["episodes"]]))
+        rows.append([x.mean()] if per_run else x)
     return np.asarray(rows, dtype=float)
+
+
+def deterministic_pairs(cells: list[dict]) -> set[tuple[str, str]]:
+    """The (task, tier) pairs whose episodes are all the same in what the policies get (one reference, one
+    initial state, no random effect), detected from the data: some entry there has more than one episode per
+    run and every one of its runs has identical episodes (:func:`identical_episodes`, exactly). The analytic
+    controllers, exact functions of their inputs, show it; a learned entry's episodes there can still differ
+    by floating-point noise (a batched network sums in a batch-position dependent order and the closed loop
+    carries 1e-16 along), which is not sampling variation."""
+    groups: dict[tuple, list[dict]] = {}
+    for c in cells:
+        groups.setdefault((c["task"], c["tier"], c["entry"]), []).append(c)
+    return {(task, tier) for (task, tier, _), group in groups.items()
+            if all(len(c["episodes"]) > 1 and identical_episodes(c["episodes"]) for c in group)}
 
 
 def _three_metrics(scores: np.ndarray) -> np.ndarray:
@@ -250,26 +265,27 @@ def aggregate(cells: list[dict]) -> list[dict]:
     for c in cells:
         groups.setdefault((c["task"], c["tier"], c["entry"]), []).append(c)
     rows = []
+    fixed = deterministic_pairs(cells)
     for (task, tier, entry), group in sorted(groups.items()):
-        det = all(len(c["episodes"]) > 1 and identical_episodes(c["episodes"]) for c in group)
+        det = (task, tier) in fixed
         row = {"task": task, "tier": tier, "entry": entry, "policy": group[0]["policy"],
                "action_mode": group[0]["action_mode"], "train_task": group[0].get("train_task", task),
                "train_tier": group[0]["train_tier"],
                "runs": len(group), "episodes": len(group[0]["episodes"]), "deterministic": det,
-               "ci_over": ("none (one run of identical episodes)" if det and len(group) == 1 else
-                           "training seeds only (identical episodes)" if det else
+               "ci_over": ("none (one run of a deterministic task and tier)" if det and len(group) == 1 else
+                           "training seeds only (a deterministic task and tier)" if det else
                            "runs and episodes" if len(group) > 1 else "episodes")}
         # one bootstrap for the three metrics: scores (runs x episodes x 3)
-        scores = np.stack([_matrix(group, "rms_position_error", first_only=det),
-                           _matrix(group, "return", first_only=det),
-                           _matrix(group, "crashed", first_only=det)], axis=-1)
+        scores = np.stack([_matrix(group, "rms_position_error", per_run=det),
+                           _matrix(group, "return", per_run=det),
+                           _matrix(group, "crashed", per_run=det)], axis=-1)
         point, ci = _seeded_interval_estimates({"x": scores}, _three_metrics, BOOTSTRAP_REPS)
         for k, name in enumerate(("rms_position_error_iqm", "return_iqm", "crash_rate")):
             row[name] = float(point["x"][k])
             row[name.replace("_iqm", "") + "_ci"] = [float(ci["x"][0, k]), float(ci["x"][1, k])]
         windows = [k for k in WINDOW_METRICS if all(k in e for c in group for e in c["episodes"])]
         if windows:
-            w_point, w_ci = window_intervals(np.stack([_matrix(group, k, first_only=det) for k in windows], axis=-1))
+            w_point, w_ci = window_intervals(np.stack([_matrix(group, k, per_run=det) for k in windows], axis=-1))
             for j, key in enumerate(windows):
                 row[f"{key}_iqm"] = _finite_or_none(w_point[j])
                 row[f"{key}_ci"] = [_finite_or_none(w_ci[0, j]), _finite_or_none(w_ci[1, j])]
