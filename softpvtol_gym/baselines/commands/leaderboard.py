@@ -23,6 +23,13 @@ bootstrap for pairs does not support resampling episodes), so for the passivity-
 is a point. The bootstrap is seeded: the JSON, and
 therefore docs/leaderboard.md, are reproducible.
 
+Leaderboard v3 adds, per row, the IQM and CI of each time window (first quarter, last half, max over the last
+5 s; a crashed window counts as worse than any value: "crash" where it reaches the IQM or a CI bound) and the
+median compute per step; a deterministic task and tier (an entry there has identical episodes) counts each run
+once, so its CIs come from the training seeds only. The headline compares, per (task, tier, window), the
+strongest learned entry with the strongest model-based controller (docs/baselines.md, "The leaderboard"). Results
+recorded before the windowed metrics are listed as stale and left out: ``softpvtol run-jobs --rescore`` first.
+
 The output paths are checked, and the spec, every job result (required keys and types, finite numbers: a NaN
 in an ``eval.json`` is refused naming the file) or the JSON validated, before any work; then every output (JSON,
 Markdown, PNG, the README block) is rendered in memory and written together: each to a temporary file first,
