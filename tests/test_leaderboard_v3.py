@@ -38,7 +38,7 @@ def ep(v: float, crashed: bool = False, steady: float | None = "same", ret: floa
     e = {k: v for k in EPISODE_METRICS} | {"return": ret, "crashed": crashed, "length": 100,
                                            STEADY: None if crashed else steady,
                                            "max_position_error_final_5s": None if crashed else v}
-    return e | {"compute_us_per_step": 12.0}
+    return e | {"compute_us_per_step": 12.0, "compute_us_per_step_p99": 20.0, "compute_us_per_step_max": 900.0}
 
 
 def cell(entry: str, seed: int, episodes: list[dict], policy: str = "ppo") -> dict:
@@ -54,6 +54,7 @@ def test_an_analytic_entry_with_identical_episodes_has_one_value_and_a_ci_of_zer
     for key in ("rms_position_error", STEADY, "rms_position_error_transient", "max_position_error_final_5s"):
         assert row[f"{key}_iqm"] == pytest.approx(1.868) and row[f"{key}_ci"] == [pytest.approx(1.868)] * 2, key
     assert row["crash_rate"] == 0.0 and row["compute_us_per_step_median"] == 12.0
+    assert (row["compute_us_per_step_p99"], row["compute_us_per_step_max"]) == (20.0, 900.0)
 
 
 def test_a_learned_entry_with_identical_episodes_gets_its_ci_from_the_training_seeds_only():

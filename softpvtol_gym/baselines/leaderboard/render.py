@@ -37,9 +37,16 @@ def fmt_window(row: dict, metric: str) -> str:
     return f"{num(row[f'{metric}_iqm'])} [{num(ci[0])}, {num(ci[1])}]" + (" ‡" if row.get("deterministic") else "")
 
 
-def fmt_us(row: dict) -> str:
-    v = row.get("compute_us_per_step_median")
+def _us(v: float | None) -> str:
     return "—" if v is None else f"{v:.0f}" if v >= 10 else f"{v:.1f}"
+
+
+def fmt_us(row: dict, spread: bool = False) -> str:
+    """The median µs per step of a row; ``spread``: with the worst episode's p99 and max."""
+    text = _us(row.get("compute_us_per_step_median"))
+    if spread and row.get("compute_us_per_step_p99") is not None:
+        text += f" (p99 {_us(row['compute_us_per_step_p99'])}, max {_us(row.get('compute_us_per_step_max'))})"
+    return text
 
 
 WINNER = {"learned": "**learned**", "model-based": "**model-based**",
@@ -178,7 +185,8 @@ def render_markdown(data: dict, chart: str = "../baselines/results/leaderboard.p
         f"lower RMS position error than `{REFERENCE}` on an episode, with a CI over training seeds only "
         "(rliable's pair bootstrap does not resample episodes). µs/step: the median wall time of the policy's own "
         "`predict` per control step and env (the per-env share of a batch of all the episodes), on the machine and "
-        "at the load the jobs ran. Lower error, higher return, lower crash rate are better.",
+        "at the load the jobs ran; in brackets the worst episode's 99th percentile and maximum (which includes "
+        "one-off costs such as compiling on the first call). Lower error, higher return, lower crash rate are better.",
         "",
     ]
     if meta.get("missing_jobs"):
@@ -206,7 +214,7 @@ def render_markdown(data: dict, chart: str = "../baselines/results/leaderboard.p
             crash = fmt_ci(r["crash_rate"], r["crash_rate_ci"], 2)
             ret = fmt_ci(r["return_iqm"], r["return_ci"], 0)
             lines.append(f"| {r['tier']} | {r['entry']} | {r['runs']} x {r.get('episodes', '?')} | {err} | {windows} | "
-                         f"{crash} | {ret} | {fmt_us(r)} | {p} |")
+                         f"{crash} | {ret} | {fmt_us(r, spread=True)} | {p} |")
         lines.append("")
     lines += _budget_markdown(data)
     lines += [f"![IQM RMS position error per tier]({chart})", ""]

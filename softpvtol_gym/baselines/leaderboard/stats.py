@@ -3,7 +3,9 @@ the headline, and the JSON that holds them (built and validated).
 
 Per (task, tier, entry) row: the IQM and 95 % CI of the whole-episode RMS position error, of the return and of
 the crash rate (as in v2), and of each window of :data:`~softpvtol_gym.baselines.evaluation.WINDOW_METRICS`
-(``<metric>_iqm``, ``<metric>_ci``), plus ``compute_us_per_step_median``. Two rules keep the CIs honest:
+(``<metric>_iqm``, ``<metric>_ci``), plus ``compute_us_per_step_median`` (the median over the row's episodes
+of their median per-step time) and ``compute_us_per_step_p99`` / ``_max`` (the worst episode's). Two rules keep
+the CIs honest:
 
 * Crashed windows (None in an episode) are scored +inf: worse than any value, never dropped. The IQM trims
   the worst quarter, so it stays finite while at most a quarter of a sample's windows crashed; beyond that it
@@ -301,8 +303,11 @@ def aggregate(cells: list[dict]) -> list[dict]:
             for j, key in enumerate(windows):
                 row[f"{key}_iqm"] = _finite_or_none(w_point[j])
                 row[f"{key}_ci"] = [_finite_or_none(w_ci[0, j]), _finite_or_none(w_ci[1, j])]
-        timing = [e[TIMING_METRICS[0]] for c in group for e in c["episodes"] if TIMING_METRICS[0] in e]
-        row["compute_us_per_step_median"] = float(np.median(timing)) if timing else None
+        timing = {k: [e[k] for c in group for e in c["episodes"] if k in e] for k in TIMING_METRICS}
+        row["compute_us_per_step_median"] = float(np.median(timing[TIMING_METRICS[0]])) if timing[
+            TIMING_METRICS[0]] else None
+        for k in TIMING_METRICS[1:]:  # the worst episode's p99 and max
+            row[k] = float(np.max(timing[k])) if timing[k] else None
         ref = groups.get((task, tier, REFERENCE))
         if ref is not None and entry != REFERENCE:
             x = _matrix(group, "rms_position_error", -1.0)  # higher is better for rliable
@@ -495,8 +500,9 @@ def validate_data(data, source: str) -> dict:
                     isinstance(ci, list) and len(ci) == 2 and all(number_or_none(v) for v in ci)):
                 bad(f"{where}.{metric}_iqm must be a finite number or null and {metric}_ci a list of two, got "
                     f"{r[f'{metric}_iqm']!r} and {ci!r}")
-        if not number_or_none(r.get("compute_us_per_step_median")):
-            bad(f"{where}.compute_us_per_step_median must be a finite number or null")
+        for key in ("compute_us_per_step_median", *TIMING_METRICS[1:]):
+            if not number_or_none(r.get(key)):
+                bad(f"{where}.{key} must be a finite number or null")
         if not isinstance(r.get("deterministic", False), bool):
             bad(f"{where}.deterministic must be true or false")
     return data
