@@ -171,7 +171,9 @@ def test_evaluate_cli_writes_episode_json(tmp_path, capsys):
     data = json.loads(out.read_text())
     assert data["seed"] == 1_000_000 and len(data["episodes"]) == 2
     assert set(data["episodes"][0]) == {"return", "rms_position_error", "rms_attitude_error", "control_effort",
-                                        "crashed", "length"}
+                                        "crashed", "length", "rms_position_error_transient",
+                                        "rms_position_error_steady", "max_position_error_final_5s",
+                                        "compute_us_per_step", "compute_us_per_step_p99", "compute_us_per_step_max"}
     assert data["summary"]["episodes"] == 2 and 0 <= data["summary"]["crash_rate"] <= 1
     assert_exit_2(evaluate_main, ["--policy", "passivity", "--episodes", "2", "--json", str(out)], "exists", capsys)
 

@@ -15,7 +15,7 @@ from softpvtol_gym import PassivityPolicy
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes
-from softpvtol_gym.baselines.leaderboard.jobs import load_spec
+from softpvtol_gym.baselines.leaderboard.spec import analytic_entries, load_spec
 from softpvtol_gym.baselines.training.loop import EVALUATIONS_FILE
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
 from softpvtol_gym.baselines.util.atomic import atomic_path
@@ -114,8 +114,8 @@ def _shown(path: Path) -> str:
 def reference_env_kwargs(spec_path: Path) -> dict:
     """Env arguments of passivity-bounded as the leaderboard's jobs pass them (allocation, loop)."""
 
-    for p in load_spec(spec_path)["passivity"]:
-        if p["name"] == REFERENCE:
+    for p in analytic_entries(load_spec(spec_path)):
+        if p["name"] == REFERENCE and p["kind"] == "passivity":
             return {"allocation": p["allocation"], "controller_loop": p.get("loop", p["allocation"])}
     raise ConfigError(f"leaderboard spec {spec_path} has no passivity entry named {REFERENCE!r}")
 

@@ -1,0 +1,190 @@
+"""The leaderboard spec (``softpvtol_gym/baselines/data/leaderboard.yml``): its keys and entries, validated before
+any job runs (:func:`load_spec`: unknown keys, wrong types, unknown tasks, tiers, kinds or action modes, episode
+counts out of range are errors naming the key). :mod:`softpvtol_gym.baselines.leaderboard.jobs` turns it into jobs.
+
+Analytic entries (the spec's ``analytic`` list, or the older ``passivity`` list whose entries are all of kind
+``passivity``) have a ``kind``: ``passivity`` (``allocation``, optional ``loop``) or ``mpc`` (optional
+``options``, passed to ``softpvtol_gym.MPCPolicy.from_env``); either may set its own ``episodes``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from softpvtol_gym.baselines.config.hyperparams import (
+    MAX_EPISODES,
+    MAX_TIMESTEPS,
+    TRAIN_SEED_LIMIT,
+    apply_overrides,
+    load_hyperparams,
+    read_yaml,
+)
+from softpvtol_gym.baselines.config.validation import validate_hyperparams
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET
+from softpvtol_gym.baselines.util.paths import check_slug, data_file
+from softpvtol_gym.control import LOOPS
+from softpvtol_gym.envs.actions import ACTION_MODES
+from softpvtol_gym.envs.tiers import registered_tiers
+from softpvtol_gym.tasks import registered_tasks
+
+#: the leaderboard spec shipped with the package (``--spec`` passes another)
+SPEC_FILE = data_file("leaderboard.yml")
+#: the spec's keys, and those of its entries (anything else is an error, not ignored)
+SPEC_KEYS = ("evaluation", "passivity", "analytic", "tasks", "trained", "seeds")
+REQUIRED_SPEC_KEYS = ("evaluation", "tasks", "trained", "seeds")  # passivity, analytic: optional (default [])
+EVALUATION_KEYS = ("episodes", "seed", "tiers")
+# loop: optional, default the loop named as the allocation; episodes: optional, default evaluation.episodes
+PASSIVITY_KEYS = ("name", "allocation", "loop", "episodes")
+#: the kinds of analytic entries, and the keys each takes (name and kind required; see validate_spec)
+ANALYTIC_KINDS = {"passivity": ("name", "kind", "allocation", "loop", "episodes"),
+                  "mpc": ("name", "kind", "episodes", "options")}
+ANALYTIC_KEYS = ("name", "kind", "allocation", "loop", "episodes", "options")
+TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps", "also_evaluated_on", "hp")  # the last two optional
+ALLOCATIONS = ("paper", "exact")
+
+
+def is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _mapping(value, keys: tuple, where: str, required: tuple | None = None) -> dict:
+    if not isinstance(value, dict):
+        raise ConfigError(f"{where} must be a mapping with the keys {list(keys)}, got {value!r}")
+    unknown = [k for k in value if k not in keys]
+    if unknown:
+        raise ConfigError(f"{where} has unknown keys {unknown}; valid ones are {list(keys)}")
+    lost = [k for k in (keys if required is None else required) if k not in value]
+    if lost:
+        raise ConfigError(f"{where} lacks the keys {lost}")
+    return value
+
+
+def _list(value, where: str, allow_empty: bool = True) -> list:
+    if not isinstance(value, list) or (not allow_empty and not value):
+        raise ConfigError(f"{where} must be a{'' if allow_empty else ' non-empty'} list, got {value!r}")
+    return value
+
+
+def _choice(value, valid, where: str):
+    if not isinstance(value, str) or value not in valid:
+        raise ConfigError(f"{where} must be one of {list(valid)}, got {value!r}")
+    return value
+
+
+def validate_spec(spec, source: str = "leaderboard spec") -> dict:
+    """``spec`` if it is a valid leaderboard spec, else ConfigError naming the key and what is expected."""
+
+    if spec is None:
+        raise ConfigError(f"{source} is empty; expected a mapping with the keys {list(SPEC_KEYS)}")
+    _mapping(spec, SPEC_KEYS, source, required=REQUIRED_SPEC_KEYS)
+    ev = _mapping(spec["evaluation"], EVALUATION_KEYS, f"{source}: evaluation")
+    if not is_int(ev["episodes"]) or not 1 <= ev["episodes"] <= MAX_EPISODES:
+        raise ConfigError(f"{source}: evaluation.episodes must be an integer in [1, {MAX_EPISODES:,}], "
+                          f"got {ev['episodes']!r}")
+    if not is_int(ev["seed"]) or ev["seed"] < EVAL_SEED_OFFSET:
+        raise ConfigError(f"{source}: evaluation.seed must be an integer >= {EVAL_SEED_OFFSET:,} (evaluation seeds "
+                          f"never overlap training seeds), got {ev['seed']!r}")
+    tiers = _list(ev["tiers"], f"{source}: evaluation.tiers", allow_empty=False)
+    for t in tiers:
+        _choice(t, registered_tiers(), f"{source}: each of evaluation.tiers")
+    if len(set(tiers)) != len(tiers):
+        raise ConfigError(f"{source}: evaluation.tiers lists a tier twice: {tiers}")
+    tasks = _list(spec["tasks"], f"{source}: tasks", allow_empty=False)
+    for t in tasks:
+        _choice(t, registered_tasks(), f"{source}: each of tasks")
+    if len(set(tasks)) != len(tasks):
+        raise ConfigError(f"{source}: tasks lists a task twice: {tasks}")
+    names = set()
+    for section in ("passivity", "analytic"):
+        for i, p in enumerate(_list(spec.get(section, []), f"{source}: {section}")):
+            _analytic_entry(p, section, f"{source}: {section}[{i}]", names)
+    cells = set()
+    for i, c in enumerate(_list(spec["trained"], f"{source}: trained")):
+        _mapping(c, TRAINED_KEYS, f"{source}: trained[{i}]", required=TRAINED_KEYS[:4])
+        _choice(c["action_mode"], ACTION_MODES, f"{source}: trained[{i}].action_mode")
+        _choice(c["task"], registered_tasks(), f"{source}: trained[{i}].task")
+        _choice(c["tier"], registered_tiers(), f"{source}: trained[{i}].tier")
+        if not is_int(c["timesteps"]) or not 1 <= c["timesteps"] <= MAX_TIMESTEPS:
+            raise ConfigError(f"{source}: trained[{i}].timesteps must be an integer in [1, {MAX_TIMESTEPS:,}], "
+                              f"got {c['timesteps']!r}")
+        also = _list(c.get("also_evaluated_on", []), f"{source}: trained[{i}].also_evaluated_on")
+        for t in also:
+            _choice(t, tasks, f"{source}: each of trained[{i}].also_evaluated_on (a task of the spec's tasks)")
+        if c["task"] in also or len(set(also)) != len(also):
+            raise ConfigError(f"{source}: trained[{i}].also_evaluated_on must list other tasks than the cell's own "
+                              f"({c['task']!r}), each once; got {also}")
+        hp = _list(c.get("hp", []), f"{source}: trained[{i}].hp")
+        if not all(isinstance(h, str) for h in hp):
+            raise ConfigError(f"{source}: trained[{i}].hp must be a list of 'key=value' strings, got {hp!r}")
+        if hp:
+            try:  # validated as train.py --hp would be, before anything runs
+                validate_hyperparams("ppo", apply_overrides(load_hyperparams("ppo", c["action_mode"]), hp))
+            except ConfigError as exc:
+                raise ConfigError(f"{source}: trained[{i}].hp: {exc}") from None
+        key = (c["action_mode"], c["task"], c["tier"])
+        if key in cells:
+            raise ConfigError(f"{source}: trained[{i}] repeats the cell {key}")
+        cells.add(key)
+    seeds = _list(spec["seeds"], f"{source}: seeds", allow_empty=not spec["trained"])
+    for s in seeds:
+        if not is_int(s) or not 0 <= s < TRAIN_SEED_LIMIT:
+            raise ConfigError(f"{source}: seeds must be integers in [0, {TRAIN_SEED_LIMIT:,}), got {s!r}")
+    if len(set(seeds)) != len(seeds):
+        raise ConfigError(f"{source}: seeds lists a seed twice: {seeds}")
+    return spec
+
+
+def _analytic_entry(p, section: str, where: str, names: set) -> None:
+    """Check one entry of the spec's ``passivity`` (kind passivity only) or ``analytic`` list (ConfigError)."""
+    if section == "passivity":
+        _mapping(p, PASSIVITY_KEYS, where, required=("name", "allocation"))
+        kind = "passivity"
+    else:
+        _mapping(p, ANALYTIC_KEYS, where, required=("name", "kind"))
+        kind = _choice(p["kind"], ANALYTIC_KINDS, f"{where}.kind")
+        wrong = [k for k in p if k not in ANALYTIC_KINDS[kind]]
+        if wrong:
+            raise ConfigError(f"{where} (kind {kind}) has keys {wrong} that only other kinds take; a {kind} entry "
+                              f"takes {list(ANALYTIC_KINDS[kind])}")
+    check_slug(p["name"], f"{where}.name")
+    if p["name"] == "ppo" or p["name"] in names:
+        raise ConfigError(f"{where}.name {p['name']!r} is taken (names must be unique, not 'ppo')")
+    names.add(p["name"])
+    if kind == "passivity":
+        if "allocation" not in p:
+            raise ConfigError(f"{where} (kind passivity) lacks the keys ['allocation']")
+        _choice(p["allocation"], ALLOCATIONS, f"{where}.allocation")
+        if "loop" in p:
+            _choice(p["loop"], [k for k in LOOPS if LOOPS[k]["allocation"] == p["allocation"]],
+                    f"{where}.loop (a loop with the {p['allocation']} allocation)")
+    if "episodes" in p and (not is_int(p["episodes"]) or not 1 <= p["episodes"] <= MAX_EPISODES):
+        raise ConfigError(f"{where}.episodes must be an integer in [1, {MAX_EPISODES:,}] (this entry's evaluation "
+                          f"episodes per task and tier; default evaluation.episodes), got {p['episodes']!r}")
+    options = p.get("options", {})
+    if not isinstance(options, dict) or not all(isinstance(k, str) and k.isidentifier() for k in options):
+        raise ConfigError(f"{where}.options must be a mapping of option names to values (passed to "
+                          f"MPCPolicy.from_env), got {options!r}")
+    for k, v in options.items():
+        if not _option_value(v):
+            raise ConfigError(f"{where}.options.{k} must be a number, a string, a boolean or a list of numbers, "
+                              f"got {v!r}")
+
+
+def _option_value(v) -> bool:
+    if isinstance(v, (bool, str)) or (isinstance(v, (int, float)) and math.isfinite(v)):
+        return True
+    return isinstance(v, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+                                       for x in v)
+
+
+def analytic_entries(spec: dict) -> list[dict]:
+    """The analytic entries of a validated spec (``passivity`` then ``analytic``), each with its ``kind``."""
+    return [{"kind": "passivity", **p} for p in spec.get("passivity", [])] + list(spec.get("analytic", []))
+
+
+def load_spec(spec_path: Path = SPEC_FILE) -> dict:
+    """The validated leaderboard spec at ``spec_path`` (ConfigError naming the problem otherwise)."""
+
+    return validate_spec(read_yaml(spec_path, "leaderboard spec"), f"leaderboard spec {spec_path}")
