@@ -254,17 +254,21 @@ class PassivityPolicy:
         return out
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        """(action, state) for observations (18,) or (N, 18) of the env; ``episode_start``: None, a bool
+        """(action, state) for observations (18,) or (N, 18) of the env (21 entries with the env's
+        ``observe_error_integral``: the policy reads entries 0-17); ``episode_start``: None, a bool
         or a bool array of N entries (the entries whose controller memory is reset). Observations must be
         finite and inside the model's validity (arm curvatures |q_l|, |q_r| <= 2 pi); ValueError otherwise."""
         obs = observation
         if not (type(obs) is np.ndarray and obs.dtype is _F64 and obs.flags.c_contiguous and obs.flags.writeable):
             obs = real_array("observation", observation, _OBS_EXPECTED)
         single = obs.ndim == 1
-        if obs.ndim not in (1, 2) or obs.shape[-1] != OBS_DIM or obs.shape[0] == 0:
-            raise ValueError(f"observation must have shape ({OBS_DIM},) or (N, {OBS_DIM}) with N >= 1, got shape "
-                             f"{obs.shape}")
-        obs = obs.reshape(-1, OBS_DIM)
+        dim = self.config.obs_dim  # 18, or 21 with the error integrals (observe_error_integral)
+        if obs.ndim not in (1, 2) or obs.shape[-1] != dim or obs.shape[0] == 0:
+            raise ValueError(f"observation must have shape ({dim},) or (N, {dim}) with N >= 1 (the observation of "
+                             f"the policy's env), got shape {obs.shape}")
+        obs = obs.reshape(-1, dim)
+        if dim != OBS_DIM:  # the controller reads entries 0-17; the error integrals are the env's, not its memory
+            obs = np.ascontiguousarray(obs[:, :OBS_DIM])
         n = obs.shape[0]
         _check_observation(obs)
         mask = None if episode_start is None else _episode_start_mask(episode_start, n)

@@ -13,13 +13,13 @@ from .batch_sim import BatchSim
 from .config import RENDER_MODES, EnvConfig
 from .episodes import N_UNIFORMS, check_reset_options
 from .info import single_info
-from .observation import OBS_CLIP, OBS_DIM
+from .observation import OBS_CLIP
 from .termination import R_NONE, REASONS
 
 
 def make_spaces(cfg: EnvConfig) -> tuple[spaces.Box, spaces.Box]:
     """(observation_space, action_space) of one env."""
-    obs = spaces.Box(-OBS_CLIP, OBS_CLIP, shape=(OBS_DIM,), dtype=np.float32)
+    obs = spaces.Box(-OBS_CLIP, OBS_CLIP, shape=(cfg.obs_dim,), dtype=np.float32)
     act = spaces.Box(-1.0, 1.0, shape=(cfg.action_dim,), dtype=np.float32)
     return obs, act
 
@@ -232,6 +232,14 @@ class SoftPVTOLEnv(gym.Env):
         actuator_limits: tuple | None = None,
         controller_loop: str | None = None,
         model: str | None = None,
+        observe_error_integral: bool = False,
+        error_integral_limit: float = 10.0,
+        precision_reward_weight: float = 0.0,
+        precision_reward_scale: float = 0.01,
+        action_rate_penalty: float = 0.0,
+        residual_gate: float | None = None,
+        start_error_scale: float = 1.0,
+        start_distribution: str = "task",
         **unknown,
     ) -> None:
         """The arguments are :class:`EnvConfig`'s fields (see Arguments), validated there; ``unknown``
@@ -240,7 +248,11 @@ class SoftPVTOLEnv(gym.Env):
             action_mode=action_mode, task=task, tier=tier, params=params, input_map=input_map,
             allocation=allocation, residual_space=residual_space, frame_skip=frame_skip,
             max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
-            actuator_limits=actuator_limits, controller_loop=controller_loop, model=model, **unknown)
+            actuator_limits=actuator_limits, controller_loop=controller_loop, model=model,
+            observe_error_integral=observe_error_integral, error_integral_limit=error_integral_limit,
+            precision_reward_weight=precision_reward_weight, precision_reward_scale=precision_reward_scale,
+            action_rate_penalty=action_rate_penalty, residual_gate=residual_gate, start_error_scale=start_error_scale,
+            start_distribution=start_distribution, **unknown)
         choice("render_mode", render_mode, RENDER_MODES)
         self.render_mode = render_mode
         self.observation_space, self.action_space = make_spaces(self.config)

@@ -63,6 +63,14 @@ class SoftPVTOLVectorEnv(VectorEnv):
         actuator_limits: tuple | None = None,
         controller_loop: str | None = None,
         model: str | None = None,
+        observe_error_integral: bool = False,
+        error_integral_limit: float = 10.0,
+        precision_reward_weight: float = 0.0,
+        precision_reward_scale: float = 0.01,
+        action_rate_penalty: float = 0.0,
+        residual_gate: float | None = None,
+        start_error_scale: float = 1.0,
+        start_distribution: str = "task",
         **unknown,
     ) -> None:
         if isinstance(num_envs, (bool, np.bool_)) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
@@ -73,7 +81,11 @@ class SoftPVTOLVectorEnv(VectorEnv):
             action_mode=action_mode, task=task, tier=tier, params=params, input_map=input_map,
             allocation=allocation, residual_space=residual_space, frame_skip=frame_skip,
             max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
-            actuator_limits=actuator_limits, controller_loop=controller_loop, model=model, **unknown)
+            actuator_limits=actuator_limits, controller_loop=controller_loop, model=model,
+            observe_error_integral=observe_error_integral, error_integral_limit=error_integral_limit,
+            precision_reward_weight=precision_reward_weight, precision_reward_scale=precision_reward_scale,
+            action_rate_penalty=action_rate_penalty, residual_gate=residual_gate, start_error_scale=start_error_scale,
+            start_distribution=start_distribution, **unknown)
         choice("render_mode", render_mode, (None, "rgb_array"))
         try:
             self.autoreset_mode = AutoresetMode(autoreset_mode)
