@@ -32,7 +32,8 @@ class BatchSim:
     """State of N envs as arrays and their step/reset.
 
     The state is ``F`` (N, STATE.size) float64, ``I`` (N, ISTATE.size) int64, ``key`` (N,) uint64 and
-    ``obs`` (N, cfg.obs_dim) float32 (18 entries, 21 with ``observe_error_integral``; layouts: :mod:`softpvtol_gym.envs.layout`); every field of STATE and
+    ``obs`` (N, cfg.obs_dim) float32 (18 entries, 21 with ``observe_error_integral``; layouts:
+    :mod:`softpvtol_gym.envs.layout`); every field of STATE and
     ISTATE is also an attribute, a view into them (``q``, ``qd``, ``qm``, ``qdm``, ``qr``, ``qdr``,
     ``qddr``, ``refp``, ``lag``, ``applied``, ``wind``, ``u`` (the clipped action), ``reward``,
     ``terms``, ``P``, ``t``, the diagnostics, ``counter``, ``steps``, ``reason``, ``clipped``, ...).

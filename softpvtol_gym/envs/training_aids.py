@@ -126,8 +126,8 @@ class TrainingAids:
         self.has_prev = np.zeros(n, dtype=np.int64)
         self.terms = np.zeros((n, 2))
         self.gate = np.zeros(n)
-        self._gated = np.empty((n, action_dim))
-        self._new_gate = np.empty(n)
+        self._gated = np.zeros((n, action_dim))  # (scratch of the gate; zeros: a checkpoint compares them)
+        self._new_gate = np.zeros(n)
         self._clipped = np.zeros(n, dtype=np.int64)
 
     def reset(self, rows: np.ndarray, obs: np.ndarray) -> None:

@@ -47,6 +47,8 @@ def _env_parts(vector_env) -> list[tuple[str, object]]:
     parts = [("venv", vector_env), ("sim", sim)]
     if getattr(sim, "controller", None) is not None:
         parts.append(("controller", sim.controller))
+    if getattr(sim, "aids", None) is not None:  # the opt-in training aids' memory (error integrals, last action)
+        parts.append(("aids", sim.aids))
     return parts
 
 
@@ -108,6 +110,7 @@ _DYNAMIC = {
     "venv": ("_autoreset", "_fresh", "_over", "_warned", "_needs_reset", "_np_random_seed", "_rngs", "_np_random"),
     "sim": ("F", "I", "key", "obs", "_ctl_in", "_ctl", "_ctl_err"),
     "controller": ("_state", "_spare"),
+    "aids": ("integrals", "prev_action", "has_prev", "terms", "gate", "_gated", "_new_gate", "_clipped"),
 }
 _ENTRY_KEYS = {"arrays": list, "views": list, "numpy_scalars": list, "scalars": dict, "generators": dict}
 
@@ -246,8 +249,10 @@ def _validated_part(part: str, obj, entry, arrays: dict, num_envs: int) -> dict:
                 raise _Mismatch("controller has no memory to restore into")
             out[n] = _array(f"controller.{n}", value, ref).copy()
             _check_controller_memory(obj, n, out[n])
-        else:  # the simulator's and the vector env's arrays: this env's layout
+        else:  # the simulator's, the vector env's and the training aids' arrays: this env's layout
             out[n] = _array(f"{part}.{n}", value, current).copy()
+            if part == "aids" and not np.isfinite(out[n]).all():
+                raise _Mismatch(f"aids.{n} holds non-finite values; the training aids' memory is finite")
     if part == "sim":
         _check_sim_state(obj, out["F"], out["I"], out["obs"])
         views = {**STATE.views(out["F"]), **ISTATE.views(out["I"]), "u": out["F"][:, S.u:S.u + obj.action_dim]}
