@@ -34,7 +34,8 @@ class SoftPVTOLVectorEnv(VectorEnv):
     Infos are a dict of arrays (gymnasium's vector convention, each with its ``_name`` mask):
     ``reward_terms`` (a dict of arrays), ``total_energy``, ``storage_function``,
     ``curvature_violation``, ``allocation_residual``, ``thrust_saturated``, ``arm_torque_saturated``,
-    ``action_clipped``, ``termination_reason`` (object array, None where not done), ``time``.
+    ``action_clipped``, ``termination_reason`` (object array, None where not done), ``time`` (and, with
+    ``residual_gate``, ``residual_gate``; the opt-in reward terms are in ``reward_terms``).
     With SameStep autoreset, ``final_obs``/``final_info`` as in gymnasium. With Disabled autoreset,
     ``reset(options={"reset_mask": mask})`` (a bool array of num_envs) resets the sub-envs where mask
     (gymnasium's convention), and stepping a sub-env that has ended warns once per episode.
