@@ -318,6 +318,7 @@ def test_checkpoint_resume_restores_the_aids_memory():
     a = SoftPVTOLVectorEnv(**kw)
     a.reset(seed=0)
     rng = np.random.default_rng(6)
+    a.set_start_error_scale(0.25)
     for act in _actions(rng, 20, 5):
         a.step(np.tile(act, (2, 1)))
     meta, arrays = env_state(a)
@@ -325,6 +326,7 @@ def test_checkpoint_resume_restores_the_aids_memory():
     b = SoftPVTOLVectorEnv(**kw)
     restore_env_state(b, meta, arrays, "test")
     np.testing.assert_array_equal(b.sim.aids.integrals, a.sim.aids.integrals)
+    assert float(b.sim.start_error_scale) == 0.25
     for act in _actions(rng, 5, 5):
         oa, ra, *_ = a.step(np.tile(act, (2, 1)))
         ob, rb, *_ = b.step(np.tile(act, (2, 1)))
@@ -373,3 +375,23 @@ def test_bad_start_error_scale_reset_options_are_refused_before_anything_changes
     venv = SoftPVTOLVectorEnv(num_envs=2)
     with pytest.raises(ValueError, match=match):
         venv.reset(seed=1, options={"start_error_scale": value})
+
+
+def test_set_start_error_scale_is_a_curriculum_knob_for_every_later_reset():
+    venv = SoftPVTOLVectorEnv(num_envs=2, task="track_paper", max_episode_seconds=0.02)
+    venv.reset(seed=0)
+    np.testing.assert_array_equal(venv.sim.q[:, 0], 5.0)
+    venv.set_start_error_scale(0.2)
+    for _ in range(3):  # the episode ends after 2 steps; the next-step autoreset uses the new scale
+        venv.step(np.zeros((2, 4)))
+    np.testing.assert_allclose(venv.sim.q[:, :2], [[1.0, 5.6], [1.0, 5.6]], atol=1e-12)
+    venv.reset(seed=0, options={"start_error_scale": 1.0})  # the option wins for its reset
+    np.testing.assert_array_equal(venv.sim.q[:, 0], 5.0)
+    env = SoftPVTOLEnv(task="track_paper")
+    env.set_start_error_scale(0.0)
+    env.reset(seed=0)
+    np.testing.assert_allclose(env.state[0], [0.0, 7.0, 0.0, 0.0, 0.0], atol=1e-15)
+    for bad in (-0.1, math.nan, "1", 10.5):
+        with pytest.raises(ValueError, match="start_error_scale"):
+            env.set_start_error_scale(bad)
+    assert float(env.sim.start_error_scale) == 0.0

@@ -10,9 +10,9 @@ from .. import model as MK
 from .._parallel import row_ranges, run_split
 from ..control import _kernels as CK
 from ..control.closed_loop import MAX_HELD_CONTROL_PERIOD, PassivityController
-from ._validation import real_array, short_repr
+from ._validation import bounded_number, real_array, short_repr
 from .config import EnvConfig
-from .episodes import apply_options, sample_episodes
+from .episodes import MAX_START_ERROR_SCALE, START_SCALE_REASON, apply_options, sample_episodes
 from .layout import CONST, ISTATE, STATE, S
 from .reset import reset_rows
 from .step import (
@@ -55,6 +55,8 @@ class BatchSim:
         self.key = np.zeros(n, dtype=np.uint64)
         self.obs = np.zeros((n, cfg.obs_dim), dtype=np.float32)
         self.aids = TrainingAids(cfg, n, self.action_dim) if cfg.uses_training_aids else None
+        # the start-error scale of the resets without the reset option (set_start_error_scale: a curriculum)
+        self.start_error_scale = np.array(float(cfg.start_error_scale))
         self._make_views()
         self.P[:] = cfg.params.array
         self.lag_init[:] = 1
@@ -99,11 +101,18 @@ class BatchSim:
         # (state saved before the constants' layout was recorded has the constants' version 1)
         CONST.check(layouts[2] if len(layouts) > 2 else ("env_constants", 1, None))
         state.setdefault("aids", None)  # (state saved before the training aids)
+        state.setdefault("start_error_scale", np.array(float(state["cfg"].start_error_scale)))
         self.__dict__.update(state)
         self._make_views()
         self._step_serial = serial_step_kernel(self.n, self.cfg.action_mode == "residual")
 
     # -------------------------------------------------------------------------------- reset
+    def set_start_error_scale(self, scale: float) -> None:
+        """The start-error scale of the next resets that do not give the ``start_error_scale`` option (the
+        autoresets included), in [0, 10]; the config's ``start_error_scale`` until set."""
+        self.start_error_scale[()] = bounded_number("start_error_scale", scale, 0.0, MAX_START_ERROR_SCALE,
+                                                    START_SCALE_REASON)
+
     def reset_entries(self, idx: np.ndarray, u: np.ndarray, options: dict | None = None) -> None:
         """Start new episodes in entries ``idx`` from uniforms ``u`` (len(idx), N_UNIFORMS)."""
         self.apply_reset(idx, self.prepare_reset(u, options))
@@ -111,7 +120,7 @@ class BatchSim:
     def prepare_reset(self, u: np.ndarray, options: dict | None = None) -> dict:
         """The new episodes of :meth:`reset_entries` (changes nothing yet)."""
         scale = options.get("start_error_scale") if options else None
-        ep = sample_episodes(self.cfg, u, start_error_scale=scale)
+        ep = sample_episodes(self.cfg, u, start_error_scale=float(self.start_error_scale) if scale is None else scale)
         if options:
             ep = apply_options(self.cfg, ep, options)
         ep["ref"] = np.ascontiguousarray(np.concatenate(self.task.evaluate(np.zeros(u.shape[0]), ep["refp"]), axis=1))

@@ -178,7 +178,8 @@ class EnvConfig:
         1.0, "float",
         "scales the starting state's deviation from the reference at t = 0 (q0 - q_ref(0), qdot0 - qdot_ref(0); "
         "arm references 0), in [0, 10]; 0: starts on the reference; positions are then clipped into |x| <= 19 m, "
-        "0 <= z <= 19 m, arms into +/-0.9 pi. Also a reset option (a curriculum).")
+        "0 <= z <= 19 m, arms into +/-0.9 pi. A curriculum sets it per reset (reset option `start_error_scale`) "
+        "or for every later reset, autoresets included (`env.set_start_error_scale(s)`).")
     start_distribution: str = _argument(
         "task", "str",
         '"task" (the task\'s starting states, see Starting State) | "wide": deviations from the reference at '

@@ -146,7 +146,8 @@ class SoftPVTOLEnv(gym.Env):
     ``start_distribution="wide"`` draws the deviations uniformly in ±(6 m, 8 m, 0.7 rad, 0.5 rad, 0.5 rad)
     and ±(1 m/s, 1 m/s, 0.5 rad/s x 3) (x the scale; x, z uniform on the part inside that box), around any
     task's reference: starts like track_paper's. Both use the episode's own uniforms (no extra draws).
-    ``reset(options={"start_error_scale": s})`` sets the scale for that reset (a curriculum).
+    ``reset(options={"start_error_scale": s})`` sets the scale for that reset,
+    ``env.set_start_error_scale(s)`` for every later one (a curriculum).
 
     ``reset(options={"q0": ..., "qdot0": ..., "setpoint": (x, z, theta)})`` overrides them; q0 must lie
     inside the position limits below (|q_l|, |q_r| <= pi: the model's validity; the box) and the
@@ -192,7 +193,7 @@ class SoftPVTOLEnv(gym.Env):
     | `precision_reward_scale` | `float` | `0.01` | the precision term's length scale [m], in [1e-6, 100]: the term is w/e (37 %) at this error, 0.9 w at a tenth of it. |
     | `action_rate_penalty` | `float` | `0.0` | w >= 0 (at most 100): adds the reward term action_rate = -w mean((a_t - a_(t-1))^2) of the clipped actions (0 at an episode's first step; in [-4 w, 0]); 0: no term. |
     | `residual_gate` | `float \| None` | `None` | residual mode: sigma > 0 (at most 1e6): the residual action is multiplied by the gate g = 1 - exp(-rho^2 / sigma^2) of the measured tracking error rho^2 = e_x^2 + e_z^2 + e_theta^2 + edot_x^2 + edot_z^2 + edot_theta^2 (SI units: m, rad, m/s, rad/s) at the start of the step, so the correction is exactly 0 at zero error and its slope there is 0 (the base loop alone near the reference); None: no gate. |
-    | `start_error_scale` | `float` | `1.0` | scales the starting state's deviation from the reference at t = 0 (q0 - q_ref(0), qdot0 - qdot_ref(0); arm references 0), in [0, 10]; 0: starts on the reference; positions are then clipped into \|x\| <= 19 m, 0 <= z <= 19 m, arms into +/-0.9 pi. Also a reset option (a curriculum). |
+    | `start_error_scale` | `float` | `1.0` | scales the starting state's deviation from the reference at t = 0 (q0 - q_ref(0), qdot0 - qdot_ref(0); arm references 0), in [0, 10]; 0: starts on the reference; positions are then clipped into \|x\| <= 19 m, 0 <= z <= 19 m, arms into +/-0.9 pi. A curriculum sets it per reset (reset option `start_error_scale`) or for every later reset, autoresets included (`env.set_start_error_scale(s)`). |
     | `start_distribution` | `str` | `"task"` | "task" (the task's starting states, see Starting State) \| "wide": deviations from the reference at t = 0 uniform in +/-(6 m, 8 m, 0.7 rad, 0.5 rad, 0.5 rad) on q and +/-(1 m/s, 1 m/s, 0.5, 0.5, 0.5 rad/s) on qdot (x `start_error_scale`), positions truncated to \|x\| <= 19 m, 0 <= z <= 19 m: starts like track_paper's (5 m beside, 7 m below, tilted 0.63 rad) around any task's reference. |
 
     An unknown argument is a TypeError naming the valid ones.
@@ -335,6 +336,12 @@ class SoftPVTOLEnv(gym.Env):
         if self.render_mode == "human":
             self.render()
         return sim.obs[0].copy(), float(sim.reward[0]), terminated, truncated, info
+
+    def set_start_error_scale(self, scale: float) -> None:
+        """Scale the starting deviations of the next resets (``start_error_scale``, in [0, 10]) that do not
+        pass the ``start_error_scale`` reset option, the autoresets included: a curriculum's knob (e.g. from a
+        training callback, ``vec_env.env_method("set_start_error_scale", 0.5)``). ValueError outside [0, 10]."""
+        self._sim.set_start_error_scale(scale)
 
     # --------------------------------------------------------------------------------- access
     @property

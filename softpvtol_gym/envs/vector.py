@@ -254,6 +254,12 @@ class SoftPVTOLVectorEnv(VectorEnv):
                 self._over |= done
         return obs, rewards, terminated, truncated, infos
 
+    def set_start_error_scale(self, scale: float) -> None:
+        """Scale the starting deviations of the next resets (``start_error_scale``, in [0, 10]) that do not
+        pass the ``start_error_scale`` reset option, the autoresets included: a curriculum's knob (e.g. from a
+        training callback, ``vec_env.env_method("set_start_error_scale", 0.5)``). ValueError outside [0, 10]."""
+        self._sim.set_start_error_scale(scale)
+
     # --------------------------------------------------------------------------------- access
     @property
     def sim(self) -> BatchSim:
