@@ -395,3 +395,19 @@ def test_set_start_error_scale_is_a_curriculum_knob_for_every_later_reset():
         with pytest.raises(ValueError, match="start_error_scale"):
             env.set_start_error_scale(bad)
     assert float(env.sim.start_error_scale) == 0.0
+
+
+def test_an_env_with_aids_pickles_with_its_memory():
+    import pickle
+
+    env = SoftPVTOLEnv(action_mode="residual", task="track_random", residual_gate=0.3, **AIDS_ON)
+    env.reset(seed=0)
+    rng = np.random.default_rng(7)
+    for a in _actions(rng, 10, 5):
+        env.step(a)
+    copy = pickle.loads(pickle.dumps(env))
+    for a in _actions(rng, 5, 5):
+        o1, r1, *_, i1 = env.step(a)
+        o2, r2, *_, i2 = copy.step(a)
+        np.testing.assert_array_equal(o1, o2)
+        assert r1 == r2 and i1["reward_terms"] == i2["reward_terms"]
