@@ -57,6 +57,7 @@ LOOPS: dict[str, dict] = {
     "improved": dict(allocation="exact", arm_feedforward=True),
     "bounded": dict(allocation="exact", arm_feedforward=True, feedforward_limits=(1.0, 5.0), curvature_limit=0.6),
     "ideal": dict(allocation="ideal", arm_feedforward=False),
+    "extended": dict(allocation="exact", controller="extended"),  # control.extended.ExtendedController
 }
 
 
@@ -175,6 +176,10 @@ class PassivityController:
         ``"bounded"``, ``"ideal"``); keyword arguments override the loop's settings."""
         if loop not in LOOPS:
             raise ValueError(f"loop must be one of {sorted(LOOPS)}, got {loop!r}")
+        if "controller" in LOOPS[loop]:
+            raise ValueError(f"loop {loop!r} is not a PassivityController loop: use "
+                             "control.extended.ExtendedController (simulate_closed_loop and "
+                             "PassivityPolicy.from_env dispatch to it)")
         return cls(**{**LOOPS[loop], **kwargs})
 
     def reset(self, mask: np.ndarray | None = None) -> None:
@@ -342,6 +347,11 @@ def simulate_closed_loop(
     """
     if hold not in HOLDS:
         raise ValueError(f"hold must be one of {HOLDS}, got {hold!r}")
+    if loop == "extended":  # a sibling controller (control/extended.py), not a passivity loop
+        from .extended import simulate_extended_loop
+        return simulate_extended_loop(params=params, gains=gains, q0=q0, qdot0=qdot0, reference=reference,
+                                      t_final=t_final, dt=dt, input_map=input_map, plant_params=plant_params,
+                                      hold=hold)
     params = SoftPVTOLParams() if params is None else params
     plant = params if plant_params is None else plant_params
     ctrl = PassivityController.from_loop(
