@@ -98,7 +98,8 @@ class ExtendedOutput:
     force B(q) a (5); thrust_state: the extension (T, Tdot) used; thrust_accel: its input Tddot = u_1;
     arm_acceleration: (w_l, w_r) asked of the arms; outputs: (y_x, y_z, theta, sigma), y the centre of
     mass; degenerate: True where the decoupling could not be inverted as is (T below ``min_thrust`` or
-    h_l + h_r below ``min_torque_arm``) and the safeguarded values were used.
+    |h_l + h_r| below ``min_torque_arm``) and the safeguarded values were used; output_derivatives:
+    (y, y', y'', y''', y'''') of the centre of mass (5, 2), y'''' as the loop assigns it.
     """
 
     actuators: np.ndarray
@@ -107,6 +108,7 @@ class ExtendedOutput:
     thrust_accel: np.ndarray
     arm_acceleration: np.ndarray
     outputs: np.ndarray
+    output_derivatives: np.ndarray
     degenerate: np.ndarray
 
 
@@ -327,7 +329,9 @@ class ExtendedController:
         tau = generalized_forces(q, act, p, self.input_map)
         outputs = np.stack([y[:, 0], y[:, 1], th, ql + qr], axis=-1)
         return ExtendedOutput(actuators=act, tau=tau, thrust_state=np.stack([T_raw, Td], axis=-1), thrust_accel=u1,
-                              arm_acceleration=w, outputs=outputs, degenerate=small_t | small_h)
+                              arm_acceleration=w, outputs=outputs,
+                              output_derivatives=np.stack([y, yd, ydd, yddd, y4], axis=1),
+                              degenerate=small_t | small_h)
 
     # ------------------------------------------------------------------------------------ the step
     def __call__(self, q, qdot, q_ref, qdot_ref, qddot_ref, q3_ref=None, q4_ref=None,
