@@ -48,7 +48,11 @@ from ..integrators import rk4_step_actuated
 from ..params import SoftPVTOLParams
 from .references import paper_reference
 
-__all__ = ["ExtendedGains", "ExtendedOutput", "ExtendedController", "simulate_extended_loop", "hurwitz"]
+__all__ = ["ExtendedGains", "ExtendedOutput", "ExtendedController", "simulate_extended_loop", "hurwitz",
+           "HELD_COMMANDS"]
+
+#: how a command held over a step is chosen (:meth:`ExtendedController.held_step`)
+HELD_COMMANDS = ("midpoint", "start")
 
 
 def hurwitz(coefficients) -> bool:
@@ -181,6 +185,9 @@ class ExtendedController:
         min_thrust: the decoupling divides by T; below this [N] (default 5 % of the hover thrust M g)
             it uses ``min_thrust`` instead and reports ``degenerate``.
         initial_thrust: T at a reset [N]; None: M |p_ref'' + (0, g)|, the thrust the reference needs.
+        held_command: what :meth:`__call__` returns to be held over dt (:meth:`held_step`): "midpoint"
+            (default), the law at the step's predicted midpoint (a tracking error O(dt^2) when the
+            reference there is known); "start", the law at the step's start (O(dt)).
 
     The memory is the extension (T, Tdot) per batch entry, created at the first call and reset by
     :meth:`reset` (all or a mask): ``ExtendedPolicy`` resets it at ``episode_start``.
@@ -190,7 +197,7 @@ class ExtendedController:
 
     def __init__(self, params: SoftPVTOLParams | None = None, gains: ExtendedGains | None = None,
                  input_map: str = "paper", dt: float = 0.01, min_thrust: float | None = None,
-                 initial_thrust: float | None = None) -> None:
+                 initial_thrust: float | None = None, held_command: str = "midpoint") -> None:
         self.params = SoftPVTOLParams() if params is None else params
         if not isinstance(self.params, SoftPVTOLParams):
             raise ValueError(f"params must be a SoftPVTOLParams, got {type(params).__name__}")
@@ -217,6 +224,9 @@ class ExtendedController:
                                                math.isfinite(initial_thrust) and initial_thrust > 0):
             raise ValueError(f"initial_thrust must be None or a finite number > 0 [N], got {initial_thrust!r}")
         self.initial_thrust = initial_thrust
+        if held_command not in HELD_COMMANDS:
+            raise ValueError(f"held_command must be one of {HELD_COMMANDS}, got {held_command!r}")
+        self.held_command = held_command
         #: the smallest |h_l + h_r| [m] the thrust split divides by (the rotors' moment arms vanish at |q| = pi/2
         #: with the paper's map)
         self.min_torque_arm = 1e-3 * p.l_l
@@ -334,11 +344,38 @@ class ExtendedController:
                               degenerate=small_t | small_h)
 
     # ------------------------------------------------------------------------------------ the step
+    def held_step(self, q, qdot, xi, ref, dt: float | None = None,
+                  ref_mid: np.ndarray | None = None) -> tuple[ExtendedOutput, np.ndarray]:
+        """The command to hold over a step of ``dt`` (default: the controller's) from the state, the
+        extension xi (n, 2) and the reference jet ``ref`` (5, n, 5) at the step's start, and the extension
+        at the step's end. ``held_command="start"``: the law there, the extension advanced with its Tddot
+        (exact for a held Tddot); the held command lags the continuous law by O(dt). ``"midpoint"``: the
+        law at the step's predicted midpoint (the state advanced by dt/2 under the start's command with
+        the controller's model, the extension and the reference by their Taylor series), the extension
+        advanced with the midpoint's Tddot: the held command is the continuous law's average over the
+        step to O(dt^2) when the reference there is known (``ref_mid``, the jet at the step's midpoint;
+        without it the jet is extrapolated by its Taylor series, whose fourth derivative is then off by
+        dt/2 times the fifth)."""
+        h = self.dt if dt is None else float(dt)
+        out = self.evaluate(q, qdot, xi, ref)
+        if self.held_command == "midpoint":
+            m = 0.5 * h
+            qm, vm = rk4_step_actuated(q, qdot, out.actuators, self.params, m, self.input_map)
+            u0 = out.thrust_accel
+            xim = np.stack([xi[:, 0] + m * xi[:, 1] + 0.5 * m * m * u0, xi[:, 1] + m * u0], axis=-1)
+            fact = (1.0, m, m * m / 2.0, m**3 / 6.0, m**4 / 24.0)
+            refm = ref_mid if ref_mid is not None else np.stack(
+                [sum(fact[j] * ref[i + j] for j in range(5 - i)) for i in range(5)])
+            out = self.evaluate(qm, vm, xim, refm)
+        u1 = out.thrust_accel
+        return out, np.stack([xi[:, 0] + h * xi[:, 1] + 0.5 * h * h * u1, xi[:, 1] + h * u1], axis=-1)
+
     def __call__(self, q, qdot, q_ref, qdot_ref, qddot_ref, q3_ref=None, q4_ref=None,
-                 commit: bool = True) -> ExtendedOutput:
-        """One control step (held over ``dt``): the law at the memory's extension, which then advances over
-        dt with the computed Tddot (``commit=False``: evaluate only). The reference's third and fourth
-        derivatives ``q3_ref``, ``q4_ref`` default to zero (a reference whose acceleration is constant)."""
+                 commit: bool = True, ref_mid: np.ndarray | None = None) -> ExtendedOutput:
+        """One control step, the command to hold over ``dt`` (:meth:`held_step`, from the memory's
+        extension, which then advances to the step's end; ``commit=False``: the memory is kept). The reference's third and fourth
+        derivatives ``q3_ref``, ``q4_ref`` default to zero (a reference whose acceleration is constant);
+        ``ref_mid`` (5, n, 5): the reference jet at the step's midpoint, if known (:meth:`held_step`)."""
         arrays = [q, qdot, q_ref, qdot_ref, qddot_ref,
                   np.zeros(5) if q3_ref is None else q3_ref, np.zeros(5) if q4_ref is None else q4_ref]
         names = ("q", "qdot", "q_ref", "qdot_ref", "qddot_ref", "q3_ref", "q4_ref")
@@ -366,11 +403,11 @@ class ExtendedController:
         xi = self._xi.copy()
         if fresh.any():
             xi[fresh] = self.initial_extension(flat[4][fresh])
-        out = self.evaluate(flat[0], flat[1], xi, np.stack(flat[2:]))
+        if ref_mid is not None:
+            ref_mid = np.asarray(ref_mid, dtype=np.float64).reshape(5, n, 5)
+        out, xi_next = self.held_step(flat[0], flat[1], xi, np.stack(flat[2:]), ref_mid=ref_mid)
         if commit:
-            h = self.dt
-            u1 = out.thrust_accel
-            self._xi = np.stack([xi[:, 0] + h * xi[:, 1] + 0.5 * h * h * u1, xi[:, 1] + h * u1], axis=-1)
+            self._xi = xi_next
         lead = shape[:-1]
         if lead != (n,):
             out = ExtendedOutput(**{f.name: getattr(out, f.name).reshape(lead + getattr(out, f.name).shape[1:])
@@ -407,12 +444,15 @@ def simulate_extended_loop(
     plant_params: SoftPVTOLParams | None = None,
     hold: str = "stage",
     initial_thrust: float | None = None,
+    held_command: str = "midpoint",
 ) -> dict[str, np.ndarray]:
     """``simulate_closed_loop("extended", ...)``: the extended loop with fixed-step RK4.
 
     ``hold="stage"``: the controller at every RK4 stage, the extension (T, Tdot) integrated with the plant
-    (the continuous-time closed loop). ``hold="step"``: the actuators held over each step (B(q) at every
-    stage), the extension advanced with the held Tddot. Returns the keys of :func:`simulate_closed_loop`
+    (the continuous-time closed loop). ``hold="step"``: the actuators of
+    :meth:`ExtendedController.held_step` (``held_command``: "midpoint", the default, with the reference's
+    jet at each step's midpoint, or "start") held over
+    each step (B(q) at every stage), as the env's policy holds them. Returns the keys of :func:`simulate_closed_loop`
     (``arm_reference`` and ``storage`` NaN: this loop has neither; the algebraic-loop entries 0) plus
     ``thrust_state`` (T+1, 2), ``outputs`` (T, 4: y_x, y_z, theta, sigma at each step's start) and
     ``degenerate`` (T,: steps where the decoupling was safeguarded). ``q0``, ``qdot0`` of shape (k, 5)
@@ -422,7 +462,8 @@ def simulate_extended_loop(
         raise ValueError(f"hold must be one of ('stage', 'step'), got {hold!r}")
     params = SoftPVTOLParams() if params is None else params
     plant = params if plant_params is None else plant_params
-    ctrl = ExtendedController(params, gains, input_map=input_map, dt=dt, initial_thrust=initial_thrust)
+    ctrl = ExtendedController(params, gains, input_map=input_map, dt=dt, initial_thrust=initial_thrust,
+                              held_command=held_command)
     n = int(round(t_final / dt))
     t = np.arange(n + 1) * dt
     jet_all = reference_jet(reference, t)
@@ -448,13 +489,17 @@ def simulate_extended_loop(
 
     for k in range(n):
         tk = t[k]
-        a1, x1, out, tau = law(tk, q, v, xi)
-        act[k], tau_app[k], outs[k], degen[k] = out.actuators, tau, out.outputs, out.degenerate
-        if hold == "step":
+        if hold == "step":  # the command of ExtendedController.held_step, as the env's policy holds it
+            jet = np.stack([np.broadcast_to(j, (k_runs, 5)) for j in reference_jet(reference, tk)])
+            jet_mid = np.stack([np.broadcast_to(j, (k_runs, 5)) for j in reference_jet(reference, tk + 0.5 * dt)])
+            out, xi_next = ctrl.held_step(q, v, xi, jet, ref_mid=jet_mid)
+            tau = generalized_forces(q, out.actuators, plant, input_map)
+            act[k], tau_app[k], outs[k], degen[k] = out.actuators, tau, out.outputs, out.degenerate
             q, v = rk4_step_actuated(q, v, out.actuators, plant, dt, input_map)
-            u1 = out.thrust_accel
-            xi = np.stack([xi[:, 0] + dt * xi[:, 1] + 0.5 * dt * dt * u1, xi[:, 1] + dt * u1], axis=-1)
+            xi = xi_next
         else:
+            a1, x1, out, tau = law(tk, q, v, xi)
+            act[k], tau_app[k], outs[k], degen[k] = out.actuators, tau, out.outputs, out.degenerate
             h = 0.5 * dt
             a2, x2 = law(tk + h, q + h * v, v + h * a1, xi + h * x1)[:2]
             a3, x3 = law(tk + h, q + h * (v + h * a1), v + h * a2, xi + h * x2)[:2]
