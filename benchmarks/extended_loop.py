@@ -114,14 +114,15 @@ def table(report: dict, bounded: dict | None) -> str:
             f"{c['worst_max_abs_xz']:.1e} / {c['worst_rms_position']:.1e}" for c in cells) + " |")
     if bounded is not None:
         for hold in ("stage", "step"):
+            cells = [bounded[hold][f"{dt:g}"] for dt in dts]
             lines.append(f"| `bounded` | {hold} | " + " | ".join(
-                f"{bounded[hold][f'{dt:g}']['worst_max_abs_xz']:.1e} / {bounded[hold][f'{dt:g}']['worst_rms_position']:.1e}"
-                for dt in dts) + " |")
+                f"{c['worst_max_abs_xz']:.1e} / {c['worst_rms_position']:.1e}" for c in cells) + " |")
     return "\n".join(lines)
 
 
 def env_table(report: dict) -> str:
-    lines = ["| policy (loop) | episode end | steps | steps with a saturated actuator | RMS position error 30–40 s [m] |",
+    lines = ["| policy (loop) | episode end | steps | steps with a saturated actuator "
+             "| RMS position error 30–40 s [m] |",
              "|---|---|---|---|---|"]
     for name, r in report["env"].items():
         rms = "–" if r["rms_position_30_40s"] is None else f"{r['rms_position_30_40s']:.1e}"

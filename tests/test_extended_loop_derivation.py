@@ -140,7 +140,12 @@ def test_centre_of_mass_carries_no_arm_acceleration():
 
 def _thrust_map(input_map: str):
     """A(q_a), B(q_a) of V = T_l u_l + T_r u_r = T A + v B with T_l + T_r = T, h_r T_r - h_l T_l = I v."""
-    h = (lambda s: l * sp.cos(s) * sp.sin(s) / s) if input_map == "paper" else (lambda s: eps * sp.cos(s) + l * sp.sin(s) / s)
+    if input_map == "paper":
+        def h(s):
+            return l * sp.cos(s) * sp.sin(s) / s
+    else:
+        def h(s):
+            return eps * sp.cos(s) + l * sp.sin(s) / s
     hl, hr = h(ql), h(qr)
     Tl = (T * hr - I * v) / (hl + hr)
     Tr = (T * hl + I * v) / (hl + hr)

@@ -207,7 +207,8 @@ class ExtendedController:
                 f"the extended loop needs equal arms (m_l = m_r and l_l = l_r: then the rotor centroid is the body "
                 f"point when q_l + q_r = 0), got m_l={p.m_l}, m_r={p.m_r}, l_l={p.l_l}, l_r={p.l_r}")
         if gains is not None and not isinstance(gains, ExtendedGains):
-            raise ValueError(f"gains must be an ExtendedGains or None for the extended loop, got {type(gains).__name__}")
+            raise ValueError(f"gains must be an ExtendedGains or None for the extended loop, got "
+                             f"{type(gains).__name__}")
         self.gains = ExtendedGains() if gains is None else gains
         input_map_code(input_map)
         self.input_map = input_map
@@ -373,9 +374,10 @@ class ExtendedController:
     def __call__(self, q, qdot, q_ref, qdot_ref, qddot_ref, q3_ref=None, q4_ref=None,
                  commit: bool = True, ref_mid: np.ndarray | None = None) -> ExtendedOutput:
         """One control step, the command to hold over ``dt`` (:meth:`held_step`, from the memory's
-        extension, which then advances to the step's end; ``commit=False``: the memory is kept). The reference's third and fourth
-        derivatives ``q3_ref``, ``q4_ref`` default to zero (a reference whose acceleration is constant);
-        ``ref_mid`` (5, n, 5): the reference jet at the step's midpoint, if known (:meth:`held_step`)."""
+        extension, which then advances to the step's end; ``commit=False``: the memory is kept). The
+        reference's third and fourth derivatives ``q3_ref``, ``q4_ref`` default to zero (a reference whose
+        acceleration is constant); ``ref_mid`` (5, n, 5): the reference jet at the step's midpoint, if
+        known (:meth:`held_step`)."""
         arrays = [q, qdot, q_ref, qdot_ref, qddot_ref,
                   np.zeros(5) if q3_ref is None else q3_ref, np.zeros(5) if q4_ref is None else q4_ref]
         names = ("q", "qdot", "q_ref", "qdot_ref", "qddot_ref", "q3_ref", "q4_ref")
@@ -388,7 +390,8 @@ class ExtendedController:
         try:
             shape = np.broadcast_shapes(*(a.shape for a in arrs))
         except ValueError:
-            raise ValueError(f"q, qdot and the references must broadcast, got shapes {[a.shape for a in arrs]}") from None
+            raise ValueError(f"q, qdot and the references must broadcast, got shapes "
+                             f"{[a.shape for a in arrs]}") from None
         flat = [np.broadcast_to(a, shape).reshape(-1, 5) for a in arrs]
         for name, a in zip(names, flat):
             if not np.isfinite(a).all():

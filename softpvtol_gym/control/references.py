@@ -18,7 +18,8 @@ def paper_reference(t, order: int = 2) -> tuple[np.ndarray, ...]:
     and with ``order=4`` also the third and fourth derivatives (the extended loop needs them).
     """
     if order not in (2, 4):
-        raise ValueError(f"order must be 2 (q, qdot, qddot) or 4 (also the third and fourth derivatives), got {order!r}")
+        raise ValueError(f"order must be 2 (q, qdot, qddot) or 4 (also the third and fourth derivatives), "
+                         f"got {order!r}")
     t = np.asarray(t, dtype=np.float64)
     z = np.zeros(t.shape + (5,))
     q, qd, qdd = z.copy(), z.copy(), z.copy()
