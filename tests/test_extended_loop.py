@@ -77,8 +77,18 @@ def test_committed_study_backs_the_docs():
     spec.loader.exec_module(extended_loop)  # the table in docs/control.md is the generated one
 
     paper = json.loads((ROOT / "baselines/results/paper_reproduction/metrics.json").read_text())
-    table = extended_loop.table(data, paper["steady_state"]["loops"]["bounded"])
-    assert blocks.read_block(extended_loop.BLOCK, extended_loop.SOURCE, ROOT / "docs" / "control.md") == table
+    bounded = paper["steady_state"]["loops"]["bounded"]
+    # held over each step: O(dt^2), and below the bounded loop's
+    assert cells["step 0.005"]["worst_max_abs_xz"] < cells["step 0.01"]["worst_max_abs_xz"] / 3.0
+    assert cells["step 0.01"]["worst_max_abs_xz"] < bounded["step"]["0.01"]["worst_max_abs_xz"] / 10.0
+    env = data["env"]
+    assert env["extended"]["end"] == "time limit" and env["extended"]["saturated_step_share"] == 0.0
+    assert env["extended"]["rms_position_30_40s"] < env["bounded"]["rms_position_30_40s"]
+    table = extended_loop.table(data, bounded)
+    for page in (ROOT / "docs" / "control.md", ROOT / "README.md"):
+        assert blocks.read_block(extended_loop.BLOCK, extended_loop.SOURCE, page) == table
+    assert blocks.read_block(extended_loop.ENV_BLOCK, extended_loop.SOURCE, ROOT / "docs" / "control.md") == \
+        extended_loop.env_table(data)
 
 
 def test_controller_memory_is_the_extension_and_resets():
