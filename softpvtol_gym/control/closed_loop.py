@@ -349,6 +349,9 @@ def simulate_closed_loop(
         raise ValueError(f"hold must be one of {HOLDS}, got {hold!r}")
     if loop == "extended":  # a sibling controller (control/extended.py), not a passivity loop
         from .extended import simulate_extended_loop
+        if (algebraic_iterations, algebraic_tolerance) != (100, 1e-10):
+            raise ValueError("the extended loop has no algebraic loop: leave algebraic_iterations and "
+                             "algebraic_tolerance at their defaults")
         return simulate_extended_loop(params=params, gains=gains, q0=q0, qdot0=qdot0, reference=reference,
                                       t_final=t_final, dt=dt, input_map=input_map, plant_params=plant_params,
                                       hold=hold)
