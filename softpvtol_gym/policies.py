@@ -140,14 +140,18 @@ class PassivityPolicy:
 
     Args:
         config: the env's :class:`EnvConfig` (use :meth:`from_env`).
-        loop: PassivityController loop (:data:`~softpvtol_gym.control.LOOPS`: "bounded", "improved",
-            "exact", "paper", "ideal"); default: the env's ``controller_loop``, or from its allocation
+        loop: PassivityController loop (:data:`~softpvtol_gym.control.LOOPS`: "bounded", "integral",
+            "improved", "exact", "paper", "ideal"); default: the env's ``controller_loop``, or from its allocation
             ("exact" -> "bounded", "paper" -> "paper", "ideal" -> "ideal"), the loop of the residual
             mode's base controller.
         gains: :class:`PassivityGains`.
+        controller_options: further :class:`~softpvtol_gym.control.PassivityController` arguments that
+            override the loop's settings, e.g. ``{"integral_gains": (0.1, 0.1, 0.0)}`` (an unknown
+            option is a ValueError listing the valid ones).
     """
 
-    def __init__(self, config: EnvConfig, loop: str | None = None, gains: PassivityGains | None = None):
+    def __init__(self, config: EnvConfig, loop: str | None = None, gains: PassivityGains | None = None,
+                 controller_options: dict | None = None):
         if not isinstance(config, EnvConfig):
             raise ValueError(f"config must be an EnvConfig, got {short_repr(config)} of type {type(config).__name__} "
                              "(build the policy with PassivityPolicy.from_env(env))")
@@ -177,8 +181,13 @@ class PassivityPolicy:
                 f"loop='ideal' is not valid for action_mode={config.action_mode!r}: the ideal loop outputs the "
                 f"generalized force tau with no allocation to thrusts and arm torques, which only "
                 f"action_mode='virtual' takes; valid loops for action_mode={config.action_mode!r}: {valid}")
+        options = dict(controller_options or {})
+        fixed = sorted({"params", "gains", "input_map", "dt"} & set(options))
+        if fixed:
+            raise ValueError(f"controller_options cannot set {fixed}: they come from the env's config (params, "
+                             "input_map, dt) and the gains argument")
         self.controller = PassivityController.from_loop(
-            self.loop, params=config.params, gains=gains, input_map=config.input_map, dt=config.dt
+            self.loop, params=config.params, gains=gains, input_map=config.input_map, dt=config.dt, **options
         )
         self._n: int | None = None
         self._work = None  # the controller driver's inputs, outputs and error codes for a batch of n
@@ -189,7 +198,8 @@ class PassivityPolicy:
         self._kind = ACTION_VIRTUAL if config.action_mode == "virtual" else ACTION_ACTUATORS
 
     @classmethod
-    def from_env(cls, env, loop: str | None = None, gains: PassivityGains | None = None) -> PassivityPolicy:
+    def from_env(cls, env, loop: str | None = None, gains: PassivityGains | None = None,
+                 controller_options: dict | None = None) -> PassivityPolicy:
         """Policy for a SoftPVTOLEnv / SoftPVTOLVectorEnv (wrapped or not) or the SB3 adapter."""
         cfg = getattr(env, "config", None)
         if cfg is None and hasattr(env, "unwrapped"):
@@ -202,8 +212,11 @@ class PassivityPolicy:
             raise ValueError(f"env must be a SoftPVTOLEnv / SoftPVTOLVectorEnv (wrapped or not) or the SB3 adapter: "
                              f"cannot find a SoftPVTOL EnvConfig on {short_repr(env)}")
         if (loop if loop is not None else cfg.resolved_controller_loop) == "extended":
+            if controller_options:
+                raise ValueError("controller_options are PassivityController options; the extended loop takes "
+                                 "ExtendedPolicy(config, gains=ExtendedGains(...))")
             return ExtendedPolicy(cfg, gains=gains)  # the sibling controller (control/extended.py)
-        return cls(cfg, loop=loop, gains=gains)
+        return cls(cfg, loop=loop, gains=gains, controller_options=controller_options)
 
     def reset(self) -> None:
         self.controller.reset()

@@ -25,17 +25,23 @@ _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 # of a row does not depend on the block it is in.
 
 #: controller memory per row: warm start (T_l, T_r, q_l^d, q_r^d), the last four allocated arm
-#: curvatures (oldest first, (q_l^d, q_r^d) each) and a flag "no history" (fresh, 1.0)
-MEMORY = Layout("controller_memory", [("warm", 4), ("hist", 8), ("fresh", 1)])
-ST_WARM, ST_HIST, ST_FRESH = MEMORY.at
+#: curvatures (oldest first, (q_l^d, q_r^d) each), a flag "no history" (fresh, 1.0) and the integral
+#: of the body error (x, z, theta) of the integral loop (zero in the other loops)
+MEMORY = Layout("controller_memory", [("warm", 4), ("hist", 8), ("fresh", 1), ("integral", 3)], version=2)
+ST_WARM, ST_HIST, ST_FRESH, ST_INT = MEMORY.at
 ST_LEN = MEMORY.size
+if ST_LEN != 16:  # pragma: no cover (put_lane_inputs / put_lane_memory copy the memory written out)
+    raise AssertionError(f"put_lane_inputs and put_lane_memory copy 16 memory columns, the layout has {ST_LEN}")
 #: constants: allocation code, input-map code, the algebraic loop's pass limit and tolerance, arm
 #: feedforward flag, dt, the feedforward limits (rad/s, rad/s^2), curvature limit, then params (10),
-#: Lambda (5), K (5)
+#: Lambda (5), K (5), and the integral loop's body terms (x, z, theta): gains Lambda_I, the integral's
+#: bounds, the bound on the error it integrates, the bound on the error of the law (all 0 / inf: off)
 CONSTANTS = Layout("controller_constants", [("method", 1), ("imap", 1), ("iters", 1), ("tol", 1), ("ff", 1),
                                             ("dt", 1), ("vmax", 1), ("amax", 1), ("qmax", 1), ("p", 10), ("lam", 5),
-                                            ("kg", 5)])
-CC_METHOD, CC_IMAP, CC_ITERS, CC_TOL, CC_FF, CC_DT, CC_VMAX, CC_AMAX, CC_QMAX, CC_P, CC_LAM, CC_KG = CONSTANTS.at
+                                            ("kg", 5), ("lam_i", 3), ("int_max", 3), ("err_max", 3), ("pos_max", 3)],
+                   version=2)
+(CC_METHOD, CC_IMAP, CC_ITERS, CC_TOL, CC_FF, CC_DT, CC_VMAX, CC_AMAX, CC_QMAX, CC_P, CC_LAM, CC_KG, CC_LAMI, CC_IMAX,
+ CC_EMAX, CC_PMAX) = CONSTANTS.at
 CC_LEN = CONSTANTS.size
 #: row error codes: the allocation got a non-finite body force; an arm curvature is beyond 2 pi
 #: (``input_map="exact"``: the thrust-work compensation goes through the checked model API)
@@ -75,14 +81,14 @@ def lane_index(row, lane):
 #: step; outputs: error code (ERR_*), tau (5), actuators (4), arm references (2), allocation info (in
 #: this order: ``batch_controller`` copies them as one run), the algebraic loop's residual and passes;
 #: work: D, C, g entries (17), arm references with their derivatives (6), allocation (4), active flag,
-#: the algebraic loop's relaxation factor and previous residual
+#: the algebraic loop's relaxation factor and previous residual, the body error (integral loop)
 BLOCK = Layout("controller_block", [
     ("q", 5), ("qd", 5), ("qr", 5), ("qdr", 5), ("qddr", 5), ("res", 5), ("st", ST_LEN), ("stn", ST_LEN),
     ("err", 1), ("tau", 5), ("act", 4), ("arm", 2), ("info", N_INFO), ("loop", 2),
-    ("ents", 17), ("ref", 6), ("alloc", 4), ("active", 1), ("relax", 2),
+    ("ents", 17), ("ref", 6), ("alloc", 4), ("active", 1), ("relax", 2), ("qt", 3),
 ])
 (CB_Q, CB_QD, CB_QR, CB_QDR, CB_QDDR, CB_RES, CB_ST, CB_STN, CB_ERR, CB_TAU, CB_ACT, CB_ARM, CB_INFO, CB_LOOP, CB_ENTS,
- CB_REF, CB_ALLOC, CB_ACTIVE, CB_RELAX) = BLOCK.at
+ CB_REF, CB_ALLOC, CB_ACTIVE, CB_RELAX, CB_QT) = BLOCK.at
 CB_LEN = BLOCK.size
 
 
@@ -149,6 +155,7 @@ def put_lane_inputs(B, j, q, qd, qr, qdr, qddr, res, S, n):
     put_lane5(B, CB_ST, j, (S[n, 0], S[n, 1], S[n, 2], S[n, 3], S[n, 4]))
     put_lane4(B, CB_ST + 5, j, (S[n, 5], S[n, 6], S[n, 7], S[n, 8]))
     put_lane4(B, CB_ST + 9, j, (S[n, 9], S[n, 10], S[n, 11], S[n, 12]))
+    put_lane3(B, CB_ST + 13, j, (S[n, 13], S[n, 14], S[n, 15]))
 
 
 @MK.inline
@@ -157,6 +164,7 @@ def put_lane_memory(B, j, S_new, n):
     S_new[n, 0], S_new[n, 1], S_new[n, 2], S_new[n, 3], S_new[n, 4] = lane5(B, CB_STN, j)
     S_new[n, 5], S_new[n, 6], S_new[n, 7], S_new[n, 8] = lane4(B, CB_STN + 5, j)
     S_new[n, 9], S_new[n, 10], S_new[n, 11], S_new[n, 12] = lane4(B, CB_STN + 9, j)
+    S_new[n, 13], S_new[n, 14], S_new[n, 15] = lane3(B, CB_STN + 13, j)
 
 
 @MK.inline
@@ -180,14 +188,59 @@ def _lane_tau(ents, q, qd, br, refs, res, lam, kg, has_res):
     return tau
 
 
+@MK.inline
+def _integral_refs(B, j, lam, integ):
+    """The integral loop's body reference of lane j, written into the block. With the body error
+    q~ = q - q_ref (x, z, theta), its bounded part e = clip(q~, +-pos_max), the integral z (memory,
+    zero for a fresh row) of clip(q~, +-err_max) and Lambda_I = ``integ[0:3]``, the passivity law gets
+    v = qdot_ref - Lambda e - Lambda_I z and a = qddot_ref - Lambda_I clip(q~, +-err_max) - Lambda q~dot
+    (the rate of v; where |q~| > pos_max, e is constant and a drops Lambda q~dot): the sliding
+    variable r = qdot - v = q~dot + Lambda e + Lambda_I z, so that once r = 0 the error obeys
+    (s^2 + lambda s + lambda_I) q~ = 0, and a far start is approached at a speed of at most
+    lambda pos_max. It is passed as the reference q - e with the rates qdot_ref - Lambda_I z and
+    a + Lambda (qdot - qdot_ref + Lambda_I z)."""
+    for i in range(3):
+        li, pmax = integ[i], integ[10 + i]
+        if li > 0.0 or pmax < math.inf:
+            q = B[lane_index(CB_Q + i, j)]
+            qt = q - B[lane_index(CB_QR + i, j)]
+            B[lane_index(CB_QT + i, j)] = qt
+            e = _clip(qt, -pmax, pmax)
+            z = B[lane_index(CB_ST + ST_INT + i, j)]
+            qdr = B[lane_index(CB_QDR + i, j)] - li * z
+            rate_error = B[lane_index(CB_QD + i, j)] - qdr
+            a = B[lane_index(CB_QDDR + i, j)] - li * _clip(qt, -integ[6 + i], integ[6 + i])
+            if e == qt:
+                a -= lam[i] * (B[lane_index(CB_QD + i, j)] - B[lane_index(CB_QDR + i, j)])
+            B[lane_index(CB_QR + i, j)] = q - e
+            B[lane_index(CB_QDR + i, j)] = qdr
+            B[lane_index(CB_QDDR + i, j)] = a + lam[i] * rate_error
+
+
+@MK.inline
+def _integral_update(B, j, dt, integ):
+    """The integral after the step of lane j: z + dt * clip(q~, -err_max, err_max), clipped to
+    +-int_max (anti-windup: the integrated error and the integral are bounded); held while the
+    allocation reports its demand infeasible (a desired curvature clipped: conditional integration)."""
+    feasible = B[lane_index(CB_INFO + 2, j)] > 0.5
+    for i in range(3):
+        z = B[lane_index(CB_ST + ST_INT + i, j)]
+        if feasible and integ[i] > 0.0:
+            e = B[lane_index(CB_QT + i, j)]
+            z = _clip(z + dt * _clip(e, -integ[6 + i], integ[6 + i]), -integ[3 + i], integ[3 + i])
+        B[lane_index(CB_STN + ST_INT + i, j)] = z
+
+
 @_jit
-def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
+def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg, integ):
     """One step of the actuated passivity controller for the rows of a block: lanes 0 .. m - 1 of
     B (``CB_*`` rows, inputs filled, see :func:`put_lane_inputs`); A: the allocation's work.
 
     cfg: (method, input map, algebraic pass limit and tolerance, arm feedforward, dt, vmax, amax, curvature
     limit)
-    (see ``CC_*``); p, lam, kg: params and gains (tuples); the tau residual is added when ``has_res``;
+    (see ``CC_*``); p, lam, kg: params and gains (tuples); integ: the integral action (Lambda_I (3),
+    int_max (3), err_max (3), 1.0 if on else 0.0, pos_max (3); see :func:`_integral_refs`); the tau
+    residual is added when ``has_res``;
     the memory after the step (into CB_STN) is the one before unless ``commit``. Outputs per lane:
     the error code (CB_ERR: ERR_NONE, or the row's outputs are zeros and its memory unchanged), tau (5:
     the commanded generalized force, arm rows: the arm torques asked for), actuators (T_l, T_r,
@@ -207,6 +260,7 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
         vl = vr = al = ar = 0.0
         if B[lane_index(CB_ST + ST_FRESH, j)] > 0.5:
             arm_l, arm_r = B[lane_index(CB_Q + 3, j)], B[lane_index(CB_Q + 4, j)]
+            put_lane3(B, CB_ST + ST_INT, j, (0.0, 0.0, 0.0))  # a new episode: no integral yet
         else:
             h = CB_ST + ST_HIST
             arm_l, arm_r = B[lane_index(h + 6, j)], B[lane_index(h + 7, j)]
@@ -214,6 +268,8 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
                 hist = lane8(B, h, j)
                 vl, al = _arm_derivatives(hist[0], hist[2], hist[4], hist[6], dt, vmax, amax)
                 vr, ar = _arm_derivatives(hist[1], hist[3], hist[5], hist[7], dt, vmax, amax)
+        if integ[9] > 0.0:
+            _integral_refs(B, j, lam, integ)
         put_lane3(B, CB_REF, j, (arm_l, arm_r, vl))
         put_lane3(B, CB_REF + 3, j, (vr, al, ar))
         for k in range(4):  # warm start (NaN: cold)
@@ -304,6 +360,8 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
             put_lane4(B, CB_STN + ST_HIST, j, hist[:4])
             put_lane4(B, CB_STN + ST_HIST + 4, j, hist[4:])
             B[lane_index(CB_STN + ST_FRESH, j)] = 0.0
+            if integ[9] > 0.0:
+                _integral_update(B, j, dt, integ)
             vl = vr = al = ar = 0.0
             if ff:
                 vl, al = _arm_derivatives(hist[0], hist[2], hist[4], hist[6], dt, vmax, amax)
@@ -323,14 +381,19 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg):
 
 @_jit
 def config_tuples(cc):
-    """(cfg, p, lam, kg) tuples of :func:`controller_lanes` from the constant vector ``cc``."""
+    """(cfg, p, lam, kg, integ) tuples of :func:`controller_lanes` from the constant vector ``cc``."""
     cfg = (int(cc[CC_METHOD]), int(cc[CC_IMAP]), int(cc[CC_ITERS]), cc[CC_TOL], cc[CC_FF] > 0.0, cc[CC_DT],
            cc[CC_VMAX], cc[CC_AMAX], cc[CC_QMAX])
     o = CC_P
     p = (cc[o], cc[o + 1], cc[o + 2], cc[o + 3], cc[o + 4], cc[o + 5], cc[o + 6], cc[o + 7], cc[o + 8], cc[o + 9])
     lam = (cc[CC_LAM], cc[CC_LAM + 1], cc[CC_LAM + 2], cc[CC_LAM + 3], cc[CC_LAM + 4])
     kg = (cc[CC_KG], cc[CC_KG + 1], cc[CC_KG + 2], cc[CC_KG + 3], cc[CC_KG + 4])
-    return cfg, p, lam, kg
+    li = (cc[CC_LAMI], cc[CC_LAMI + 1], cc[CC_LAMI + 2])
+    pm = (cc[CC_PMAX], cc[CC_PMAX + 1], cc[CC_PMAX + 2])
+    on = li[0] > 0.0 or li[1] > 0.0 or li[2] > 0.0 or pm[0] < math.inf or pm[1] < math.inf or pm[2] < math.inf
+    integ = li + (cc[CC_IMAX], cc[CC_IMAX + 1], cc[CC_IMAX + 2], cc[CC_EMAX], cc[CC_EMAX + 1], cc[CC_EMAX + 2],
+                  1.0 if on else 0.0) + pm
+    return cfg, p, lam, kg, integ
 
 
 @MK.inline
@@ -359,7 +422,7 @@ def controller_rows(lo, hi, X, has_res, commit, cc, S, S_new, out, err):
     row's memory after the step (unchanged for a failed row, or without ``commit``) into S_new (may
     be S itself: a block's rows are read before they are written). PassivityController, the env's
     residual mode and PassivityPolicy fill X, call this, and read out."""
-    cfg, p, lam, kg = config_tuples(cc)
+    cfg, p, lam, kg, integ = config_tuples(cc)
     B, A = controller_work()
     for n0 in range(lo, hi, CTRL_LANES):
         m = min(CTRL_LANES, hi - n0)
@@ -367,7 +430,7 @@ def controller_rows(lo, hi, X, has_res, commit, cc, S, S_new, out, err):
             n = n0 + j
             put_lane_inputs(B, j, row5(X, n, IN_Q), row5(X, n, IN_QD), row5(X, n, IN_QR), row5(X, n, IN_QDR),
                             row5(X, n, IN_QDDR), row5(X, n, IN_RES), S, n)
-        controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg)
+        controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg, integ)
         for j in range(m):
             n = n0 + j
             err[n] = int(B[lane_index(CB_ERR, j)])

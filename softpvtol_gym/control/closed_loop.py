@@ -19,12 +19,21 @@ Loops (``LOOPS``):
     ``"bounded"``   the improved loop with its demands bounded to what the env's default actuators
                     deliver: fed-forward arm rates within 1 rad/s and 5 rad/s^2, desired curvatures
                     within 0.6 rad (the default of PassivityPolicy and of the residual base controller).
+    ``"integral"``  the bounded loop with integral action on the body position, as a control
+                    engineer would tune it: the integral z of the position error (x, z) enters the
+                    sliding variable, r = q~dot + Lambda clip(q~) + Lambda_I z, with the position
+                    gains raised (Lambda 2 1/s, K 14 N s/m; :data:`INTEGRAL_LOOP_GAINS`), Lambda_I =
+                    1 1/s^2 (a double pole at -1 1/s), the law's position error clipped to +-0.5 m
+                    (a far start is approached at <= 1 m/s), the integrated error to +-0.5 m and
+                    the integral to +-8 m s (anti-windup), held while the allocation clips a
+                    curvature; reset with the episode (docs/control.md, "Integral action": the sweep).
     ``"ideal"``     tau applied directly as the generalized force (the setting of Theorem 1).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
 from collections.abc import Callable
 
@@ -51,11 +60,19 @@ MAX_HELD_CONTROL_PERIOD = 0.012
 
 _F64 = np.dtype(np.float64)
 
+#: Lambda and K of the integral loop: the body position's (x, z) raised from (1, 2.55) to (2, 14), the
+#: rest as the default (:class:`PassivityGains`); chosen with its integral gains by the sweep of
+#: ``benchmarks/integral_sweep.py`` (docs/control.md, "Integral action")
+INTEGRAL_LOOP_GAINS = PassivityGains(lam=(2.0, 2.0, 5.0, 10.0, 10.0), k=(14.0, 14.0, 10.5, 21.0, 21.0))
+
 LOOPS: dict[str, dict] = {
     "paper": dict(allocation="paper", arm_feedforward=False),
     "exact": dict(allocation="exact", arm_feedforward=False),
     "improved": dict(allocation="exact", arm_feedforward=True),
     "bounded": dict(allocation="exact", arm_feedforward=True, feedforward_limits=(1.0, 5.0), curvature_limit=0.6),
+    "integral": dict(allocation="exact", arm_feedforward=True, feedforward_limits=(1.0, 5.0), curvature_limit=0.6,
+                     gains=INTEGRAL_LOOP_GAINS, integral_gains=(1.0, 1.0, 0.0), integral_limits=(8.0, 8.0, 8.0),
+                     integral_error_limits=(0.5, 0.5, 0.5), error_limits=(0.5, 0.5, math.inf)),
     "ideal": dict(allocation="ideal", arm_feedforward=False),
     "extended": dict(allocation="exact", controller="extended"),  # control.extended.ExtendedController
 }
@@ -104,6 +121,21 @@ class PassivityController:
             allocation and reported infeasible.
         feedforward_limits: bounds (rad/s, rad/s^2) on the fed-forward arm reference velocity and
             acceleration.
+        integral_gains: Lambda_I (x, z, theta) [1/s^2] of the integral action (all 0, the default:
+            none): the integral z of the body error q~ enters the sliding variable, r = q~dot +
+            Lambda q~ + Lambda_I z (the passivity law with the reference rates qdot_ref - Lambda_I z
+            and qddot_ref - Lambda_I q~ + Lambda Lambda_I z); linearised, the error obeys
+            (s^2 + lambda s + lambda_I) q~ = 0 once r = 0, so a constant disturbance leaves no offset.
+            Actuated loops only.
+        integral_limits: bounds on |z| (m s, m s, rad s): anti-windup clamping.
+        integral_error_limits: bounds on the error integrated per step (m, m, rad), so that a large
+            transient (a start metres away) winds the integral up no faster than this. z advances
+            once per committed step, and not while the allocation clips a desired curvature
+            (conditional integration); it is zero after a reset.
+        error_limits: bounds (m, m, rad) on the body error q~ in the law's v = qdot_ref - Lambda
+            clip(q~) - Lambda_I z (a saturated proportional term: a start far away is approached at
+            a speed of at most lambda * limit, instead of a force demand proportional to the
+            distance). Actuated loops only.
 
     A call of the actuated loops is one compiled kernel per batch (``control._kernels.controller_lanes``
     on blocks of ``CTRL_LANES`` rows, built from the same passivity and allocation kernels as
@@ -126,6 +158,10 @@ class PassivityController:
         feedforward_limits: tuple[float, float] = (5.0, 50.0),
         algebraic_tolerance: float = 1e-10,
         curvature_limit: float = math.pi,
+        integral_gains: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        integral_limits: tuple[float, float, float] = (math.inf, math.inf, math.inf),
+        integral_error_limits: tuple[float, float, float] = (math.inf, math.inf, math.inf),
+        error_limits: tuple[float, float, float] = (math.inf, math.inf, math.inf),
     ) -> None:
         if allocation != "ideal" and allocation not in ALLOCATION_METHODS:
             raise ValueError(
@@ -153,6 +189,15 @@ class PassivityController:
             raise ValueError(f"curvature_limit must be a number in (0, pi] [rad], got {curvature_limit!r}")
         self.curvature_limit = float(curvature_limit)
         self.feedforward_limits = (float(feedforward_limits[0]), float(feedforward_limits[1]))
+        self.integral_gains = _three("integral_gains", integral_gains, "[1/s^2]", 0.0, math.inf)
+        self.integral_limits = _three("integral_limits", integral_limits, "(m s, m s, rad s)", 0.0, math.inf, True)
+        self.integral_error_limits = _three("integral_error_limits", integral_error_limits, "(m, m, rad)", 0.0,
+                                            math.inf, True)
+        self.error_limits = _three("error_limits", error_limits, "(m, m, rad)", 0.0, math.inf, True)
+        if allocation == "ideal" and (any(self.integral_gains) or min(self.error_limits) < math.inf):
+            raise ValueError("integral_gains and error_limits need an actuated loop (allocation 'exact' or 'paper'); "
+                             f"the ideal loop has neither, got integral_gains={integral_gains!r}, "
+                             f"error_limits={error_limits!r}")
         cc = np.zeros(CK.CC_LEN)
         cc[CK.CC_METHOD] = ALLOCATION_METHODS.get(allocation, 0)
         cc[CK.CC_IMAP] = imap
@@ -165,22 +210,43 @@ class PassivityController:
         cc[CK.CC_P:CK.CC_P + 10] = self.params.array
         cc[CK.CC_LAM:CK.CC_LAM + 5] = self.gains.lam_array
         cc[CK.CC_KG:CK.CC_KG + 5] = self.gains.k_array
+        cc[CK.CC_LAMI:CK.CC_LAMI + 3] = self.integral_gains
+        cc[CK.CC_IMAX:CK.CC_IMAX + 3] = self.integral_limits
+        cc[CK.CC_EMAX:CK.CC_EMAX + 3] = self.integral_error_limits
+        cc[CK.CC_PMAX:CK.CC_PMAX + 3] = self.error_limits
         #: kernel constants (``control._kernels.CC_*``)
         self.kernel_constants = cc
         self._no_residual = np.zeros((1, 5))
         self.reset()
 
+    def __getstate__(self) -> dict:
+        # the layouts of the memory and the constants travel with them: a controller pickled under another
+        # layout is refused on unpickling instead of being read wrongly
+        return {**self.__dict__, "layouts": (CK.MEMORY.signature, CK.CONSTANTS.signature)}
+
+    def __setstate__(self, state: dict) -> None:
+        state = dict(state)
+        memory, constants = state.pop("layouts", (("controller_memory", 1, None), ("controller_constants", 1, None)))
+        CK.MEMORY.check(memory)
+        CK.CONSTANTS.check(constants)
+        self.__dict__.update(state)
+
     @classmethod
     def from_loop(cls, loop: str, **kwargs) -> PassivityController:
         """A controller configured as one of :data:`LOOPS` (``"paper"``, ``"exact"``, ``"improved"``,
-        ``"bounded"``, ``"ideal"``); keyword arguments override the loop's settings."""
+        ``"bounded"``, ``"integral"``, ``"ideal"``); keyword arguments override the loop's settings."""
         if loop not in LOOPS:
             raise ValueError(f"loop must be one of {sorted(LOOPS)}, got {loop!r}")
         if "controller" in LOOPS[loop]:
             raise ValueError(f"loop {loop!r} is not a PassivityController loop: use "
                              "control.extended.ExtendedController (simulate_closed_loop and "
                              "PassivityPolicy.from_env dispatch to it)")
-        return cls(**{**LOOPS[loop], **kwargs})
+        valid = [k for k in inspect.signature(cls.__init__).parameters if k != "self"]
+        unknown = sorted(set(kwargs) - set(valid))
+        if unknown:
+            raise ValueError(f"unknown controller option(s) {unknown}; valid options: {valid}")
+        # None (params, gains: "the default") leaves the loop's own setting
+        return cls(**{**LOOPS[loop], **{k: v for k, v in kwargs.items() if v is not None}})
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         """Forget the warm start and arm-reference history (all, or the batch entries where mask)."""
@@ -309,6 +375,20 @@ class PassivityController:
                                       np.array(out[CK.OUT_INFO + 2] > 0.5))
         return ControlOutput(tau=out[0:5], actuators=out[5:9], arm_reference=out[9:11], allocation=allocation,
                              loop_residual=out[CK.OUT_LOOP], loop_iterations=np.int64(out[CK.OUT_LOOP + 1]))
+
+
+def _three(name: str, value, unit: str, lo: float, hi: float, positive: bool = False) -> tuple[float, float, float]:
+    """``value`` as 3 floats in [lo, hi] (> lo if ``positive``), or a ValueError naming what was given."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = None
+    ok = arr is not None and arr.shape == (3,) and not np.isnan(arr).any() and bool(np.all(arr <= hi)) and bool(
+        np.all(arr > lo) if positive else np.all(arr >= lo))
+    if not ok or isinstance(value, (str, bytes)):
+        raise ValueError(f"{name} must be 3 numbers (x, z, theta) {unit}, each {'>' if positive else '>='} {lo:g}"
+                         f"{'' if hi == math.inf else f' and <= {hi:g}'}, got {value!r}")
+    return (float(arr[0]), float(arr[1]), float(arr[2]))
 
 
 HOLDS = ("stage", "step")

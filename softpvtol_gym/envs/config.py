@@ -129,8 +129,9 @@ class EnvConfig:
     controller_loop: str | None = _argument(
         None, "str | None",
         "residual mode's base controller and `PassivityPolicy`'s default: a loop of "
-        '`softpvtol_gym.control.LOOPS` ("paper" | "exact" | "improved" | "bounded" | "ideal" | "extended"; '
-        '"extended", the dynamically extended loop, is a policy only, not a residual base controller); None: '
+        '`softpvtol_gym.control.LOOPS` ("paper" | "exact" | "improved" | "bounded" | "integral" | "ideal" | '
+        '"extended"; "extended", the dynamically extended loop, is a policy only, not a residual base '
+        'controller); None: '
         'from the allocation, "bounded" for "exact" (the default), "paper" for "paper", "ideal" for "ideal". '
         "A loop whose allocation differs from a given `allocation` is refused.")
     model: str | None = _argument(
