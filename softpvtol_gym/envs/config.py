@@ -137,7 +137,9 @@ class EnvConfig:
     controller_loop: str | None = _argument(
         None, "str | None",
         "residual mode's base controller and `PassivityPolicy`'s default: a loop of "
-        '`softpvtol_gym.control.LOOPS` ("paper" | "exact" | "improved" | "bounded" | "integral" | "ideal"); None: '
+        '`softpvtol_gym.control.LOOPS` ("paper" | "exact" | "improved" | "bounded" | "integral" | "ideal" | '
+        '"extended"; "extended", the dynamically extended loop, is a policy only, not a residual base '
+        'controller); None: '
         'from the allocation, "bounded" for "exact" (the default), "paper" for "paper", "ideal" for "ideal". '
         "A loop whose allocation differs from a given `allocation` is refused.")
     model: str | None = _argument(
@@ -239,6 +241,12 @@ class EnvConfig:
                 raise ValueError("controller_loop='ideal' (tau applied directly) needs action_mode='virtual' with "
                                  f"allocation='ideal', got action_mode={self.action_mode!r}, allocation="
                                  f"{self.allocation!r}")
+            if "controller" in LOOPS[self.controller_loop] and self.action_mode == "residual":
+                raise ValueError(
+                    f"controller_loop={self.controller_loop!r} is not available as the residual mode's base "
+                    "controller (its extension states and reference derivatives are not part of the env's compiled "
+                    "step); use it as a policy (PassivityPolicy.from_env(env, loop=...)) in action_mode='actuators', "
+                    "or a passivity loop (\"bounded\", the default) as the base controller")
             loop_alloc = LOOPS[self.controller_loop]["allocation"]
             if self.allocation is not None and loop_alloc != self.allocation:
                 raise ValueError(f"controller_loop={self.controller_loop!r} uses allocation={loop_alloc!r}, but "
