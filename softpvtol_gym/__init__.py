@@ -11,11 +11,11 @@ NUMBA_CACHE_DIR = configure_numba_cache()
 from . import dynamics, integrators  # noqa: E402
 from .envs import SoftPVTOLEnv, SoftPVTOLVectorEnv, register_envs  # noqa: E402
 from .params import PARAM_FIELDS, SoftPVTOLParams  # noqa: E402
-from .policies import PassivityPolicy  # noqa: E402
+from .policies import ExtendedPolicy, PassivityPolicy  # noqa: E402
 
 register_envs()
 
 __all__ = [
     "SoftPVTOLParams", "PARAM_FIELDS", "dynamics", "integrators", "__version__",
-    "SoftPVTOLEnv", "SoftPVTOLVectorEnv", "PassivityPolicy",
+    "SoftPVTOLEnv", "SoftPVTOLVectorEnv", "PassivityPolicy", "ExtendedPolicy",
 ]

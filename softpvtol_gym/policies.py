@@ -12,12 +12,13 @@ from ._parallel import row_ranges, run_split
 from .control import PassivityController
 from .control import _kernels as CK
 from .control.closed_loop import LOOPS, MAX_HELD_CONTROL_PERIOD
+from .control.extended import ExtendedController, ExtendedGains
 from .control.passivity import PassivityGains
 from .envs._validation import real_array, short_repr
 from .envs.config import EnvConfig
 from .envs.observation import OBS_DIM, OBS_NAMES
 
-__all__ = ["PassivityPolicy"]
+__all__ = ["PassivityPolicy", "ExtendedPolicy"]
 
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 
@@ -162,6 +163,9 @@ class PassivityPolicy:
                              f"{short_repr(loop)}")
         self.config = config
         self.loop = config.resolved_controller_loop if loop is None else loop
+        if "controller" in LOOPS[self.loop]:
+            raise ValueError(f"loop={self.loop!r} is not a passivity loop: build its policy with "
+                             f"PassivityPolicy.from_env(env, loop={self.loop!r}) or ExtendedPolicy(config)")
         default_gains = gains is None or gains == PassivityGains()
         if self.loop != "ideal" and default_gains and config.dt > MAX_HELD_CONTROL_PERIOD:
             raise ValueError(
@@ -207,6 +211,11 @@ class PassivityPolicy:
         if not isinstance(cfg, EnvConfig):
             raise ValueError(f"env must be a SoftPVTOLEnv / SoftPVTOLVectorEnv (wrapped or not) or the SB3 adapter: "
                              f"cannot find a SoftPVTOL EnvConfig on {short_repr(env)}")
+        if (loop if loop is not None else cfg.resolved_controller_loop) == "extended":
+            if controller_options:
+                raise ValueError("controller_options are PassivityController options; the extended loop takes "
+                                 "ExtendedPolicy(config, gains=ExtendedGains(...))")
+            return ExtendedPolicy(cfg, gains=gains)  # the sibling controller (control/extended.py)
         return cls(cfg, loop=loop, gains=gains, controller_options=controller_options)
 
     def reset(self) -> None:
@@ -254,17 +263,21 @@ class PassivityPolicy:
         return out
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        """(action, state) for observations (18,) or (N, 18) of the env; ``episode_start``: None, a bool
+        """(action, state) for observations (18,) or (N, 18) of the env (21 entries with the env's
+        ``observe_error_integral``: the policy reads entries 0-17); ``episode_start``: None, a bool
         or a bool array of N entries (the entries whose controller memory is reset). Observations must be
         finite and inside the model's validity (arm curvatures |q_l|, |q_r| <= 2 pi); ValueError otherwise."""
         obs = observation
         if not (type(obs) is np.ndarray and obs.dtype is _F64 and obs.flags.c_contiguous and obs.flags.writeable):
             obs = real_array("observation", observation, _OBS_EXPECTED)
         single = obs.ndim == 1
-        if obs.ndim not in (1, 2) or obs.shape[-1] != OBS_DIM or obs.shape[0] == 0:
-            raise ValueError(f"observation must have shape ({OBS_DIM},) or (N, {OBS_DIM}) with N >= 1, got shape "
-                             f"{obs.shape}")
-        obs = obs.reshape(-1, OBS_DIM)
+        dim = self.config.obs_dim  # 18, or 21 with the error integrals (observe_error_integral)
+        if obs.ndim not in (1, 2) or obs.shape[-1] != dim or obs.shape[0] == 0:
+            raise ValueError(f"observation must have shape ({dim},) or (N, {dim}) with N >= 1 (the observation of "
+                             f"the policy's env), got shape {obs.shape}")
+        obs = obs.reshape(-1, dim)
+        if dim != OBS_DIM:  # the controller reads entries 0-17; the error integrals are the env's, not its memory
+            obs = np.ascontiguousarray(obs[:, :OBS_DIM])
         n = obs.shape[0]
         _check_observation(obs)
         mask = None if episode_start is None else _episode_start_mask(episode_start, n)
@@ -291,4 +304,117 @@ class PassivityPolicy:
                 u[:, 0:2] = 2.0 * a[:, 0:2] / self._tmax - 1.0
                 u[:, 2:4] = a[:, 2:4] / self._taumax
             action = np.clip(u, -1.0, 1.0).astype(np.float32)
+        return (action[0] if single else action), state
+
+
+#: observations of the reference acceleration the extended policy fits a cubic to (its jerk and snap)
+REF_HISTORY = 8
+
+
+def _cubic_fit_weights(n: int, dt: float) -> np.ndarray:
+    """Weights (4, n) that give, from samples a(-i dt) (i = 0 .. n-1), the first and second derivative of
+    their least-squares cubic at t = 0 (rows 0, 1) and t = dt / 2 (rows 2, 3)."""
+    tau = -np.arange(n) * dt
+    V = np.vander(tau, 4, increasing=True)  # columns 1, t, t^2, t^3
+    P = np.linalg.pinv(V)  # coefficients = P @ samples
+    rows = []
+    for t in (0.0, 0.5 * dt):
+        rows.append(np.array([0.0, 1.0, 2.0 * t, 3.0 * t * t]) @ P)
+        rows.append(np.array([0.0, 0.0, 2.0, 6.0 * t]) @ P)
+    return np.array(rows)
+
+
+class ExtendedPolicy:
+    """The dynamically extended loop (:class:`~softpvtol_gym.control.extended.ExtendedController`) acting
+    from SoftPVTOL observations, with :class:`PassivityPolicy`'s ``predict`` interface
+    (``PassivityPolicy.from_env(env, loop="extended")`` builds it).
+
+    Actuators mode only: the action is the controller's (T_l, T_r, tau_l, tau_r) scaled to [-1, 1] and
+    clipped (the env saturates at its limits; the controller's extension (T, Tdot) keeps its own value,
+    there is no anti-windup). The state is rebuilt from the observation as in
+    :meth:`PassivityPolicy.state_from_observation`; the observation carries the reference's velocity and
+    acceleration only, so its third and fourth derivatives, at the step's start and midpoint (the held
+    command is the law's at the predicted midpoint, ``ExtendedController.held_step``), are those of a
+    least-squares cubic through the last ``REF_HISTORY`` = 8 observed reference accelerations (zero until
+    8 observations of the episode exist), unlike ``simulate_closed_loop("extended")``, which takes them
+    exactly. Memory (the extension and that history) per batch entry, reset where
+    ``episode_start`` is True and entirely when the batch size changes.
+
+    Args:
+        config: the env's :class:`EnvConfig` (use :meth:`PassivityPolicy.from_env`).
+        gains: :class:`~softpvtol_gym.control.extended.ExtendedGains`.
+    """
+
+    loop = "extended"
+
+    def __init__(self, config: EnvConfig, gains: ExtendedGains | None = None):
+        if not isinstance(config, EnvConfig):
+            raise ValueError(f"config must be an EnvConfig, got {short_repr(config)} of type {type(config).__name__} "
+                             "(build the policy with PassivityPolicy.from_env(env, loop='extended'))")
+        if gains is not None and not isinstance(gains, ExtendedGains):
+            raise ValueError(f"gains must be an ExtendedGains or None for the extended loop, got {short_repr(gains)} "
+                             f"of type {type(gains).__name__}")
+        if config.action_mode != "actuators":
+            raise ValueError(f"the extended loop's policy acts in action_mode='actuators' only (its output is the "
+                             f"actuators), got action_mode={config.action_mode!r}")
+        self.config = config
+        self.controller = ExtendedController(config.params, gains, input_map=config.input_map, dt=config.dt)
+        self._n: int | None = None
+        self._acc_hist: np.ndarray | None = None  # (n, REF_HISTORY, 3): the last observed reference accelerations
+        self._hist_len: np.ndarray | None = None
+        self._weights = _cubic_fit_weights(REF_HISTORY, config.dt)
+        self._tmax = config.thrust_max
+        self._taumax = config.arm_torque_max
+
+    def reset(self) -> None:
+        self.controller.reset()
+        self._n = None
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        """(action, state) for observations (18,) or (N, 18); ``episode_start``: None, a bool or N bools
+        (the entries whose memory is reset). ValueError for observations that are not finite or outside
+        the model's validity."""
+        obs = real_array("observation", observation, _OBS_EXPECTED)
+        single = obs.ndim == 1
+        if obs.ndim not in (1, 2) or obs.shape[-1] != OBS_DIM or obs.shape[0] == 0:
+            raise ValueError(f"observation must have shape ({OBS_DIM},) or (N, {OBS_DIM}) with N >= 1, got shape "
+                             f"{obs.shape}")
+        obs = np.ascontiguousarray(obs.reshape(-1, OBS_DIM), dtype=np.float64)
+        n = obs.shape[0]
+        _check_observation(obs)
+        mask = None if episode_start is None else _episode_start_mask(episode_start, n)
+        if self._n != n:
+            self.controller.reset()
+            self._n = n
+            self._acc_hist = np.zeros((n, REF_HISTORY, 3))
+            self._hist_len = np.zeros(n, dtype=np.int64)
+        elif mask is not None and mask.any():
+            self.controller.reset(mask)
+            self._hist_len[mask] = 0
+        q, qd, q_ref, qdr, qddr = PassivityPolicy.state_from_observation(obs)
+        hist, k = self._acc_hist, self._hist_len
+        hist[:, 1:] = hist[:, :-1].copy()
+        hist[:, 0] = qddr[:, :3]  # hist[:, i]: the reference acceleration i steps ago
+        np.minimum(k + 1, REF_HISTORY, out=k)
+        jet = np.zeros((5, n, 5))
+        jet[0], jet[1], jet[2] = q_ref, qdr, qddr
+        mid = jet.copy()
+        full = k == REF_HISTORY
+        if full.any():  # the fitted cubic's derivatives at the step's start and midpoint
+            w = self._weights
+            for row, (c3, c4) in ((jet, (w[0], w[1])), (mid, (w[2], w[3]))):
+                row[3][full, :3] = np.einsum("i,nic->nc", c3, hist[full])
+                row[4][full, :3] = np.einsum("i,nic->nc", c4, hist[full])
+        m = 0.5 * self.controller.dt
+        mid[0] = jet[0] + m * jet[1] + m * m / 2 * jet[2] + m**3 / 6 * jet[3] + m**4 / 24 * jet[4]
+        mid[1] = jet[1] + m * jet[2] + m * m / 2 * jet[3] + m**3 / 6 * jet[4]
+        mid[2] = jet[2] + m * jet[3] + m * m / 2 * jet[4]
+        out = self.controller(q, qd, q_ref, qdr, qddr, jet[3], jet[4], ref_mid=mid)
+        a = out.actuators
+        u = np.empty((n, 4))
+        u[:, 0:2] = 2.0 * a[:, 0:2] / self._tmax - 1.0
+        u[:, 2:4] = a[:, 2:4] / self._taumax
+        if not np.isfinite(u).all():  # pragma: no cover (the law safeguards its divisions)
+            raise ValueError("the extended loop produced non-finite actuators; its memory is kept, reset it")
+        action = np.clip(u, -1.0, 1.0).astype(np.float32)
         return (action[0] if single else action), state

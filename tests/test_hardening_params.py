@@ -236,7 +236,8 @@ def env_arguments(draw):
     if mode == "residual":
         kw["residual_scale"] = draw(_log_uniform(1e-6, MAX_RESIDUAL_SCALE))
         kw["residual_space"] = draw(st.sampled_from(["virtual", "actuators"]))
-        kw["controller_loop"] = draw(st.sampled_from([None] + sorted(k for k in LOOPS if k != "ideal")))
+        kw["controller_loop"] = draw(st.sampled_from([None] + sorted(k for k in LOOPS if k != "ideal"
+                                                                       and "controller" not in LOOPS[k])))
     if mode == "virtual":
         kw["allocation"] = draw(st.sampled_from([None, "exact", "paper", "ideal"]))
     if draw(st.booleans()):

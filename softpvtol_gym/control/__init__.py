@@ -2,12 +2,13 @@
 
 from .allocation import ALLOCATION_METHODS, AllocationInfo, allocate
 from .closed_loop import LOOPS, MAX_HELD_CONTROL_PERIOD, ControlOutput, PassivityController, simulate_closed_loop
+from .extended import ExtendedController, ExtendedGains, ExtendedOutput, simulate_extended_loop
 from .passivity import PassivityGains, passivity_control, storage_function
 from .references import hover_reference, paper_reference
 
 __all__ = [
     "ALLOCATION_METHODS", "AllocationInfo", "allocate", "LOOPS", "MAX_HELD_CONTROL_PERIOD", "ControlOutput",
-    "PassivityController",
+    "PassivityController", "ExtendedController", "ExtendedGains", "ExtendedOutput", "simulate_extended_loop",
     "simulate_closed_loop", "PassivityGains", "passivity_control", "storage_function",
     "hover_reference", "paper_reference",
 ]

@@ -74,6 +74,7 @@ LOOPS: dict[str, dict] = {
                      gains=INTEGRAL_LOOP_GAINS, integral_gains=(1.0, 1.0, 0.0), integral_limits=(8.0, 8.0, 8.0),
                      integral_error_limits=(0.5, 0.5, 0.5), error_limits=(0.5, 0.5, math.inf)),
     "ideal": dict(allocation="ideal", arm_feedforward=False),
+    "extended": dict(allocation="exact", controller="extended"),  # control.extended.ExtendedController
 }
 
 
@@ -236,6 +237,10 @@ class PassivityController:
         ``"bounded"``, ``"integral"``, ``"ideal"``); keyword arguments override the loop's settings."""
         if loop not in LOOPS:
             raise ValueError(f"loop must be one of {sorted(LOOPS)}, got {loop!r}")
+        if "controller" in LOOPS[loop]:
+            raise ValueError(f"loop {loop!r} is not a PassivityController loop: use "
+                             "control.extended.ExtendedController (simulate_closed_loop and "
+                             "PassivityPolicy.from_env dispatch to it)")
         valid = [k for k in inspect.signature(cls.__init__).parameters if k != "self"]
         unknown = sorted(set(kwargs) - set(valid))
         if unknown:
@@ -422,6 +427,14 @@ def simulate_closed_loop(
     """
     if hold not in HOLDS:
         raise ValueError(f"hold must be one of {HOLDS}, got {hold!r}")
+    if loop == "extended":  # a sibling controller (control/extended.py), not a passivity loop
+        from .extended import simulate_extended_loop
+        if (algebraic_iterations, algebraic_tolerance) != (100, 1e-10):
+            raise ValueError("the extended loop has no algebraic loop: leave algebraic_iterations and "
+                             "algebraic_tolerance at their defaults")
+        return simulate_extended_loop(params=params, gains=gains, q0=q0, qdot0=qdot0, reference=reference,
+                                      t_final=t_final, dt=dt, input_map=input_map, plant_params=plant_params,
+                                      hold=hold)
     params = SoftPVTOLParams() if params is None else params
     plant = params if plant_params is None else plant_params
     ctrl = PassivityController.from_loop(

@@ -10,11 +10,10 @@ from .. import model as MK
 from .._parallel import row_ranges, run_split
 from ..control import _kernels as CK
 from ..control.closed_loop import MAX_HELD_CONTROL_PERIOD, PassivityController
-from ._validation import real_array, short_repr
+from ._validation import bounded_number, real_array, short_repr
 from .config import EnvConfig
-from .episodes import apply_options, sample_episodes
+from .episodes import MAX_START_ERROR_SCALE, START_SCALE_REASON, apply_options, sample_episodes
 from .layout import CONST, ISTATE, STATE, S
-from .observation import OBS_DIM
 from .reset import reset_rows
 from .step import (
     STEP_BAD_ACTION,
@@ -24,6 +23,7 @@ from .step import (
     step_controller_rows,
     step_physics_rows,
 )
+from .training_aids import TrainingAids
 
 _F64 = np.dtype(np.float64)
 
@@ -32,10 +32,13 @@ class BatchSim:
     """State of N envs as arrays and their step/reset.
 
     The state is ``F`` (N, STATE.size) float64, ``I`` (N, ISTATE.size) int64, ``key`` (N,) uint64 and
-    ``obs`` (N, 18) float32 (layouts: :mod:`softpvtol_gym.envs.layout`); every field of STATE and
+    ``obs`` (N, cfg.obs_dim) float32 (18 entries, 21 with ``observe_error_integral``; layouts:
+    :mod:`softpvtol_gym.envs.layout`); every field of STATE and
     ISTATE is also an attribute, a view into them (``q``, ``qd``, ``qm``, ``qdm``, ``qr``, ``qdr``,
     ``qddr``, ``refp``, ``lag``, ``applied``, ``wind``, ``u`` (the clipped action), ``reward``,
     ``terms``, ``P``, ``t``, the diagnostics, ``counter``, ``steps``, ``reason``, ``clipped``, ...).
+    The opt-in training aids' memory is ``aids`` (a :class:`~.training_aids.TrainingAids`, None when every
+    aid is off).
     """
 
     def __init__(self, cfg: EnvConfig, n: int):
@@ -50,7 +53,10 @@ class BatchSim:
         self.F = np.zeros((n, STATE.size))
         self.I = np.zeros((n, ISTATE.size), dtype=np.int64)
         self.key = np.zeros(n, dtype=np.uint64)
-        self.obs = np.zeros((n, OBS_DIM), dtype=np.float32)
+        self.obs = np.zeros((n, cfg.obs_dim), dtype=np.float32)
+        self.aids = TrainingAids(cfg, n, self.action_dim) if cfg.uses_training_aids else None
+        # the start-error scale of the resets without the reset option (set_start_error_scale: a curriculum)
+        self.start_error_scale = np.array(float(cfg.start_error_scale))
         self._make_views()
         self.P[:] = cfg.params.array
         self.lag_init[:] = 1
@@ -94,18 +100,27 @@ class BatchSim:
         ISTATE.check(layouts[1])
         # (state saved before the constants' layout was recorded has the constants' version 1)
         CONST.check(layouts[2] if len(layouts) > 2 else ("env_constants", 1, None))
+        state.setdefault("aids", None)  # (state saved before the training aids)
+        state.setdefault("start_error_scale", np.array(float(state["cfg"].start_error_scale)))
         self.__dict__.update(state)
         self._make_views()
         self._step_serial = serial_step_kernel(self.n, self.cfg.action_mode == "residual")
 
     # -------------------------------------------------------------------------------- reset
+    def set_start_error_scale(self, scale: float) -> None:
+        """The start-error scale of the next resets that do not give the ``start_error_scale`` option (the
+        autoresets included), in [0, 10]; the config's ``start_error_scale`` until set."""
+        self.start_error_scale[()] = bounded_number("start_error_scale", scale, 0.0, MAX_START_ERROR_SCALE,
+                                                    START_SCALE_REASON)
+
     def reset_entries(self, idx: np.ndarray, u: np.ndarray, options: dict | None = None) -> None:
         """Start new episodes in entries ``idx`` from uniforms ``u`` (len(idx), N_UNIFORMS)."""
         self.apply_reset(idx, self.prepare_reset(u, options))
 
     def prepare_reset(self, u: np.ndarray, options: dict | None = None) -> dict:
         """The new episodes of :meth:`reset_entries` (changes nothing yet)."""
-        ep = sample_episodes(self.cfg, u)
+        scale = options.get("start_error_scale") if options else None
+        ep = sample_episodes(self.cfg, u, start_error_scale=float(self.start_error_scale) if scale is None else scale)
         if options:
             ep = apply_options(self.cfg, ep, options)
         ep["ref"] = np.ascontiguousarray(np.concatenate(self.task.evaluate(np.zeros(u.shape[0]), ep["refp"]), axis=1))
@@ -118,6 +133,8 @@ class BatchSim:
                    ep["refp"], ep["ref"])
         if self.controller is not None:
             self.controller.reset_rows(rows)
+        if self.aids is not None:
+            self.aids.reset(rows, self.obs)
 
     # --------------------------------------------------------------------------------- step
     def step(self, action, batched: bool, side=None) -> None:
@@ -140,6 +157,10 @@ class BatchSim:
             a = a.reshape(1, self.action_dim)
         if not self.task.is_compiled:  # a registered task: its reference at the end of the step, from Python
             self.qr_custom[:] = np.concatenate(self.task.evaluate((self.steps + 1) * self.dt, self.refp), axis=1)
+        aids = self.aids
+        given = a
+        if aids is not None:
+            a = aids.gated(a, self.F)
         ctrl = self.controller
         if ctrl is not None:
             cc, (S_mem, S_new) = ctrl.kernel_constants, ctrl.memory_pair(self.n)
@@ -155,6 +176,8 @@ class BatchSim:
                              f"{short_repr(action)}")
         if ctrl is not None:
             ctrl.swap_memory()
+        if aids is not None:
+            aids.after_step(given, self.F, self.clipped, self.obs, self.dt)
         if len(self._ranges) == 1 and side is not None:
             side()
 

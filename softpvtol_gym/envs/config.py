@@ -22,7 +22,9 @@ from ..tasks import TaskSpec, get_task
 from . import tiers as _tiers
 from ._validation import bounded_number, choice, short_repr
 from .actions import ACTION_MODE_SPECS, ACTION_MODES
+from .episodes import MAX_START_ERROR_SCALE, START_DISTRIBUTIONS, START_SCALE_REASON
 from .layout import CODES, CONST, SC, SK
+from .observation import N_ERROR_INTEGRALS, OBS_DIM
 
 PHYSICS_DT = 0.01  # s, the paper's RK4 step
 INPUT_MAPS = ("paper", "exact")
@@ -48,6 +50,12 @@ RESIDUAL_SCALE_REASON = ("the correction at action +-1 as a fraction of the virt
 ACTUATOR_LIMIT_MAX = _tiers.FORCE_MAX
 ACTUATOR_LIMIT_REASON = (f"> 0; {ACTUATOR_LIMIT_MAX:g} is 50 x the largest default limit the parameter bounds give "
                          "(2e18 N m), far inside float64")
+
+
+#: training aids (issue 25): the largest reward weight of the precision and action-rate terms and the
+#: largest error-integral bound (the start-error scale's bound and the start distributions: .episodes)
+MAX_AID_WEIGHT = 100.0
+ERROR_INTEGRAL_LIMIT_MAX = 1.0e6
 
 
 def _argument(default, type_: str, description: str, *, factory=None, default_text: str | None = None):
@@ -129,7 +137,9 @@ class EnvConfig:
     controller_loop: str | None = _argument(
         None, "str | None",
         "residual mode's base controller and `PassivityPolicy`'s default: a loop of "
-        '`softpvtol_gym.control.LOOPS` ("paper" | "exact" | "improved" | "bounded" | "integral" | "ideal"); None: '
+        '`softpvtol_gym.control.LOOPS` ("paper" | "exact" | "improved" | "bounded" | "integral" | "ideal" | '
+        '"extended"; "extended", the dynamically extended loop, is a policy only, not a residual base '
+        'controller); None: '
         'from the allocation, "bounded" for "exact" (the default), "paper" for "paper", "ideal" for "ideal". '
         "A loop whose allocation differs from a given `allocation` is refused.")
     model: str | None = _argument(
@@ -138,6 +148,46 @@ class EnvConfig:
         "that do not rotate with theta) or the consistent one (tips rotated by theta, virtual-work input map); "
         'None: "consistent" in a tier with the consistent plant ("model_gap"), else "paper". The controllers '
         "use the paper's model in every case.")
+    # ---- training aids (issue 25): opt-in, the defaults leave observation, reward and dynamics as they were
+    observe_error_integral: bool = _argument(
+        False, "bool",
+        "True: the observation gets 3 more entries (18-20), the integrals over the episode of the measured "
+        "tracking errors e_x, e_z [m s] and e_theta [rad s] (the errors of entries 0-2, summed x dt after every "
+        "step, reset to 0 with the episode, each clipped to +/-`error_integral_limit`).")
+    error_integral_limit: float = _argument(
+        10.0, "float",
+        "`observe_error_integral`: the bound of each error integral (anti-windup clamp), in (0, 1e6] [m s or "
+        "rad s]; 10 is an error of 1 m held for 10 s.")
+    precision_reward_weight: float = _argument(
+        0.0, "float",
+        "w >= 0 (at most 100): adds the reward term precision = w exp(-|(e_x, e_z)| / `precision_reward_scale`) "
+        "(true state; in [0, w]; its slope w / scale stays the largest at millimetre errors); 0: no term.")
+    precision_reward_scale: float = _argument(
+        0.01, "float",
+        "the precision term's length scale [m], in [1e-6, 100]: the term is w/e (37 %) at this error, 0.9 w at "
+        "a tenth of it.")
+    action_rate_penalty: float = _argument(
+        0.0, "float",
+        "w >= 0 (at most 100): adds the reward term action_rate = -w mean((a_t - a_(t-1))^2) of the clipped "
+        "actions (0 at an episode's first step; in [-4 w, 0]); 0: no term.")
+    residual_gate: float | None = _argument(
+        None, "float | None",
+        'residual mode: sigma > 0 (at most 1e6): the residual action is multiplied by the gate g = 1 - exp(-rho^2 '
+        '/ sigma^2) of the measured tracking error rho^2 = e_x^2 + e_z^2 + e_theta^2 + edot_x^2 + edot_z^2 + '
+        "edot_theta^2 (SI units: m, rad, m/s, rad/s) at the start of the step, so the correction is exactly 0 at "
+        "zero error and its slope there is 0 (the base loop alone near the reference); None: no gate.")
+    start_error_scale: float = _argument(
+        1.0, "float",
+        "scales the starting state's deviation from the reference at t = 0 (q0 - q_ref(0), qdot0 - qdot_ref(0); "
+        "arm references 0), in [0, 10]; 0: starts on the reference; positions are then clipped into |x| <= 19 m, "
+        "0 <= z <= 19 m, arms into +/-0.9 pi. A curriculum sets it per reset (reset option `start_error_scale`) "
+        "or for every later reset, autoresets included (`env.set_start_error_scale(s)`).")
+    start_distribution: str = _argument(
+        "task", "str",
+        '"task" (the task\'s starting states, see Starting State) | "wide": deviations from the reference at '
+        "t = 0 uniform in +/-(6 m, 8 m, 0.7 rad, 0.5 rad, 0.5 rad) on q and +/-(1 m/s, 1 m/s, 0.5, 0.5, 0.5 rad/s) "
+        "on qdot (x `start_error_scale`), positions truncated to |x| <= 19 m, 0 <= z <= 19 m: starts like "
+        "track_paper's (5 m beside, 7 m below, tilted 0.63 rad) around any task's reference.")
 
     def __post_init__(self) -> None:
         if self.actuator_limits is not None:
@@ -191,12 +241,42 @@ class EnvConfig:
                 raise ValueError("controller_loop='ideal' (tau applied directly) needs action_mode='virtual' with "
                                  f"allocation='ideal', got action_mode={self.action_mode!r}, allocation="
                                  f"{self.allocation!r}")
+            if "controller" in LOOPS[self.controller_loop] and self.action_mode == "residual":
+                raise ValueError(
+                    f"controller_loop={self.controller_loop!r} is not available as the residual mode's base "
+                    "controller (its extension states and reference derivatives are not part of the env's compiled "
+                    "step); use it as a policy (PassivityPolicy.from_env(env, loop=...)) in action_mode='actuators', "
+                    "or a passivity loop (\"bounded\", the default) as the base controller")
             loop_alloc = LOOPS[self.controller_loop]["allocation"]
             if self.allocation is not None and loop_alloc != self.allocation:
                 raise ValueError(f"controller_loop={self.controller_loop!r} uses allocation={loop_alloc!r}, but "
                                  f"allocation={self.allocation!r} was given; pass one of them, or both consistent")
         _tiers.check_tier_options(self.tier_options)
+        self._check_training_aids()
         self._check_physics()
+
+    def _check_training_aids(self) -> None:
+        """The opt-in training aids (issue 25): types and ranges, and the residual gate only in residual mode."""
+        flag = self.observe_error_integral
+        if not isinstance(flag, (bool, np.bool_)):
+            raise ValueError(f"observe_error_integral must be a bool (True: 3 more observation entries), got "
+                             f"{short_repr(flag)} of type {type(flag).__name__}")
+        object.__setattr__(self, "observe_error_integral", bool(flag))
+        bounded_number("error_integral_limit", self.error_integral_limit, 0.0, ERROR_INTEGRAL_LIMIT_MAX,
+                       "[m s]; the bound of each error integral, inside the observation clip 1e6", low_open=True)
+        for name in ("precision_reward_weight", "action_rate_penalty"):
+            bounded_number(name, getattr(self, name), 0.0, MAX_AID_WEIGHT,
+                           f"a reward weight; 0 switches the term off, {MAX_AID_WEIGHT:g} is 100 x the alive bonus")
+        bounded_number("precision_reward_scale", self.precision_reward_scale, 1e-6, 100.0,
+                       "[m]; the error at which the precision term has fallen to w/e")
+        if self.residual_gate is not None:
+            bounded_number("residual_gate", self.residual_gate, 0.0, 1e6,
+                           "the gate's error scale sigma (SI units); None: no gate", low_open=True)
+            if self.action_mode != "residual":
+                raise ValueError(f"residual_gate gates the residual action of action_mode='residual', got "
+                                 f"action_mode={self.action_mode!r}; pass residual_gate=None or action_mode='residual'")
+        bounded_number("start_error_scale", self.start_error_scale, 0.0, MAX_START_ERROR_SCALE, START_SCALE_REASON)
+        choice("start_distribution", self.start_distribution, START_DISTRIBUTIONS)
 
     def _check_physics(self) -> None:
         """What the parameters must satisfy together with the other arguments: the default actuator
@@ -282,6 +362,25 @@ class EnvConfig:
     def max_steps(self) -> int:
         # (at most 2**62: an "endless" episode length stays an int64)
         return max(1, min(int(round(self.episode_seconds / self.dt)), 2**62))
+
+    @property
+    def obs_dim(self) -> int:
+        """Observation entries: 18 (:data:`~softpvtol_gym.envs.observation.OBS_DIM`), + 3 error integrals with
+        ``observe_error_integral``."""
+        return OBS_DIM + (N_ERROR_INTEGRALS if self.observe_error_integral else 0)
+
+    @property
+    def extra_reward_terms(self) -> tuple[str, ...]:
+        """The opt-in reward terms switched on, after :data:`~softpvtol_gym.envs.reward.REWARD_TERMS` in
+        ``info["reward_terms"]``: "precision" (``precision_reward_weight > 0``), "action_rate"
+        (``action_rate_penalty > 0``)."""
+        return tuple(name for name, w in (("precision", self.precision_reward_weight),
+                                          ("action_rate", self.action_rate_penalty)) if w > 0)
+
+    @property
+    def uses_training_aids(self) -> bool:
+        """Whether a step needs the training aids' kernels (:mod:`~softpvtol_gym.envs.training_aids`)."""
+        return self.observe_error_integral or bool(self.extra_reward_terms) or self.residual_gate is not None
 
     @functools.cached_property
     def tier_values(self) -> dict:

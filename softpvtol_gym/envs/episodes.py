@@ -13,7 +13,7 @@ from .._layout import Layout
 from ..params import PARAM_FIELDS
 from ..references import N_REF_PARAMS, RP, RP_Z0
 from ..tasks import HOVER_SETPOINT, PAPER_Q0, SAMPLE_CUSTOM, SAMPLE_HOVER, SAMPLE_PAPER, SAMPLE_SETPOINT
-from ._validation import real_array, short_repr
+from ._validation import bounded_number, real_array, short_repr
 from .termination import BOX_X, BOX_Z, GROUND_Z, Q_LIMITS
 from .tiers import MISMATCH_FIELDS
 
@@ -29,9 +29,14 @@ UNIFORMS = Layout("reset_uniforms", [("state", 10), ("setpoint", 3), ("sinusoids
 U = UNIFORMS.at
 N_UNIFORMS = UNIFORMS.size
 N_STATE_UNIFORMS = UNIFORMS.widths["state"]
+#: ``start_error_scale`` (an env argument and a reset option): its bound; ``start_distribution``'s values
+MAX_START_ERROR_SCALE = 10.0
+START_SCALE_REASON = ("x the task's starting deviation from the reference; at 10 the hover perturbation reaches "
+                      "10 m and 3 rad, and positions are clipped into the start box")
+START_DISTRIBUTIONS = ("task", "wide")
 
 
-def sample_episodes(cfg, u: np.ndarray) -> dict[str, np.ndarray]:
+def sample_episodes(cfg, u: np.ndarray, start_error_scale: float | None = None) -> dict[str, np.ndarray]:
     """Initial state q0, qd0 (N, 5), reference parameters refp (N, 21), plant parameters P (N, 10)
     and noise keys (N,) of len(u) new episodes, from uniforms u (N, N_UNIFORMS) in [0, 1).
 
@@ -42,7 +47,9 @@ def sample_episodes(cfg, u: np.ndarray) -> dict[str, np.ndarray]:
     theta = 0.3 c12), track_paper at the paper's q0 at rest, track_random at its reference + dq/2 (the
     reference: z0 = 3, amplitudes u*(1.0 | 0.5), rates 0.2 + 0.6 u, phases 2 pi u), a registered task
     at its reference at t = 0 + dq (or its own ``initial_state(u[:, :10])``); plant mismatch scales
-    the masses, inertias and lengths by 1 + s c31..c38.
+    the masses, inertias and lengths by 1 + s c31..c38. ``cfg.start_distribution`` and the start-error
+    scale (``start_error_scale``, by default ``cfg.start_error_scale``) then reshape the start
+    (:func:`shape_starts`; nothing changes with "task" and scale 1).
     """
     n = u.shape[0]
     spec = cfg.task_spec
@@ -60,7 +67,54 @@ def sample_episodes(cfg, u: np.ndarray) -> dict[str, np.ndarray]:
         pos, vel, _ = spec.evaluate(np.zeros(n), refp)
         q0[:, :3] += pos
         qd0[:, :3] += vel
+    scale = cfg.start_error_scale if start_error_scale is None else start_error_scale
+    if cfg.start_distribution != "task" or scale != 1.0:
+        q0, qd0 = shape_starts(cfg, u[:, U.state:U.state + N_STATE_UNIFORMS], refp, q0, qd0, float(scale))
     return dict(q0=q0, qd0=qd0, refp=refp, P=P, key=key)
+
+
+#: ``start_distribution="wide"``: the half-widths of the uniform deviations from the reference at t = 0, on q
+#: (x, z [m], theta, q_l, q_r [rad]; track_paper's start (5 m, -7 m, 0.63 rad, 0.03 rad, -0.47 rad) lies inside)
+#: and on qdot [m/s, rad/s]
+WIDE_Q = (6.0, 8.0, 0.7, 0.5, 0.5)
+WIDE_QD = (1.0, 1.0, 0.5, 0.5, 0.5)
+#: the box that reshaped starts are kept in: |x| <= START_X, START_Z_MIN <= z <= START_Z_MAX, |q_arm| <=
+#: START_ARM (1 m inside the termination box, the ground limit 1 m below; the arms 0.1 pi inside the model's
+#: validity)
+START_X, START_Z_MIN, START_Z_MAX, START_ARM = BOX_X - 1.0, GROUND_Z + 1.0, BOX_Z - 1.0, 0.9 * math.pi
+
+
+def shape_starts(cfg, u: np.ndarray, refp: np.ndarray, q0: np.ndarray, qd0: np.ndarray, scale: float):
+    """Starting states (q0, qd0) (N, 5) reshaped by ``cfg.start_distribution`` and ``scale``, around the
+    reference at t = 0 (q_ref(0) = (x_ref, z_ref, theta_ref, 0, 0), likewise qdot_ref(0)):
+
+    * "task": q0 = q_ref(0) + scale (q0 - q_ref(0)), qd0 likewise; x, z and the arms then clipped into the
+      start box (|x| <= 19 m, 0 <= z <= 19 m, |q_arm| <= 0.9 pi);
+    * "wide": deviations scale x WIDE_Q c, scale x WIDE_QD c' from the episode's uniforms u (N, 10)
+      (c = 2 u - 1); x and z uniform on the part of [ref - scale w, ref + scale w] inside the start box (a
+      truncated uniform: no starts piled up on the box's edge), the arms clipped.
+    """
+    n = u.shape[0]
+    pos, vel, _ = cfg.task_spec.evaluate(np.zeros(n), refp)
+    qr = np.zeros((n, 5))
+    qdr = np.zeros((n, 5))
+    qr[:, :3] = pos
+    qdr[:, :3] = vel
+    lo = np.array([-START_X, START_Z_MIN])
+    hi = np.array([START_X, START_Z_MAX])
+    if cfg.start_distribution == "wide":
+        c = 2.0 * u - 1.0
+        q = qr + scale * np.asarray(WIDE_Q) * c[:, :5]
+        qd = qdr + scale * np.asarray(WIDE_QD) * c[:, 5:]
+        a = np.maximum(qr[:, :2] - scale * np.asarray(WIDE_Q[:2]), lo)
+        b = np.minimum(qr[:, :2] + scale * np.asarray(WIDE_Q[:2]), hi)
+        q[:, :2] = np.where(a <= b, a + u[:, :2] * (b - a), np.clip(qr[:, :2], lo, hi))
+    else:
+        q = qr + scale * (q0 - qr)
+        qd = qdr + scale * (qd0 - qdr)
+    q[:, :2] = np.clip(q[:, :2], lo, hi)
+    q[:, 3:] = np.clip(q[:, 3:], -START_ARM, START_ARM)
+    return q, qd
 
 
 def _custom_initial_state(spec, u):
@@ -132,8 +186,8 @@ def _sample_rows(u, sampler, params, scale, refp, q0, qd0, P, key):
         key[i] = np.uint64(u[i, U.key] * 2.0**53) ^ (np.uint64(u[i, U.key + 1] * 2.0**53) << np.uint64(11))
 
 
-#: the keys of ``reset(options=...)``
-RESET_OPTIONS = ("q0", "qdot0", "setpoint")
+#: the keys of ``reset(options=...)``: vectors, then the scalar "start_error_scale" (see EnvConfig)
+RESET_OPTIONS = ("q0", "qdot0", "setpoint", "start_error_scale")
 _OPTION_SIZES = {"q0": 5, "qdot0": 5, "setpoint": 3}
 
 
@@ -161,7 +215,10 @@ def check_reset_options(cfg, options, extra_keys: tuple = ()) -> dict:
     if unknown:
         raise ValueError(f"unknown reset option(s) {unknown}; valid ones are {list(valid)}")
     out = {}
-    for k in RESET_OPTIONS:
+    if options.get("start_error_scale") is not None:
+        out["start_error_scale"] = bounded_number("reset option 'start_error_scale'", options["start_error_scale"],
+                                                  0.0, MAX_START_ERROR_SCALE, START_SCALE_REASON)
+    for k in _OPTION_SIZES:
         if options.get(k) is None:
             continue
         size = _OPTION_SIZES[k]
@@ -193,6 +250,8 @@ def check_reset_options(cfg, options, extra_keys: tuple = ()) -> dict:
 def apply_options(cfg, ep: dict, options: dict) -> dict:
     """reset(options=...) (checked by :func:`check_reset_options`) written into the episodes ``ep``."""
     for k, v in check_reset_options(cfg, options).items():
+        if k == "start_error_scale":  # (used by sample_episodes)
+            continue
         if k == "setpoint":
             ep["refp"][:, RP.setpoint:RP.setpoint + 3] = v
         else:

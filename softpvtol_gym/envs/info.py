@@ -15,6 +15,7 @@ FLOAT_ENTRIES = (("total_energy", S.total_energy), ("storage_function", S.storag
                  ("curvature_violation", S.curvature_violation), ("allocation_residual", S.allocation_residual))
 #: flags stored as 0.0/1.0
 FLAG_ENTRIES = (("thrust_saturated", S.thrust_saturated), ("arm_torque_saturated", S.arm_torque_saturated))
+#: (with ``residual_gate``, also "residual_gate": the gate g applied to the step's residual, 0 at a reset)
 INFO_KEYS = ("reward_terms", *(k for k, _ in FLOAT_ENTRIES), *(k for k, _ in FLAG_ENTRIES), "action_clipped",
              "termination_reason", "time")
 _MASK_KEYS = tuple("_" + k for k in INFO_KEYS)
@@ -31,6 +32,12 @@ def single_info(sim, reason: str | None) -> dict[str, Any]:
     info["action_clipped"] = bool(sim.I[0, SI.clipped])
     info["termination_reason"] = reason
     info["time"] = f[S.t]
+    aids = sim.aids
+    if aids is not None:  # the opt-in training aids: their reward terms, the residual gate
+        for i, name in enumerate(aids.term_names):
+            info["reward_terms"][name] = float(aids.terms[0, i])
+        if aids.sigma is not None:
+            info["residual_gate"] = float(aids.gate[0])
     return info
 
 
@@ -49,4 +56,11 @@ def batch_info(sim, reasons: np.ndarray | None) -> dict[str, Any]:
     info["termination_reason"] = np.empty(n, dtype=object) if reasons is None else reasons
     info["time"] = F[:, S.t]
     info.update(dict.fromkeys(_MASK_KEYS, np.ones(n, dtype=bool)))
+    aids = sim.aids
+    if aids is not None:  # the opt-in training aids: their reward terms, the residual gate
+        for i, name in enumerate(aids.term_names):
+            info["reward_terms"][name] = aids.terms[:, i].copy()
+        if aids.sigma is not None:
+            info["residual_gate"] = aids.gate.copy()
+            info["_residual_gate"] = np.ones(n, dtype=bool)
     return info

@@ -31,6 +31,10 @@ OBS_NAMES = (
     "xdot_ref", "zdot_ref", "thetadot_ref", "xddot_ref", "zddot_ref", "thetaddot_ref",
 )
 
+#: ``observe_error_integral=True``: the entries after OBS_DIM, the integrals of entries 0-2 over the episode
+ERROR_INTEGRAL_NAMES = ("int (x - x_ref) dt", "int (z - z_ref) dt", "int (theta - theta_ref) dt")
+N_ERROR_INTEGRALS = len(ERROR_INTEGRAL_NAMES)
+
 
 @_jit
 def wrap(a):

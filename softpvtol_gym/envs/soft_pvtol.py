@@ -13,13 +13,13 @@ from .batch_sim import BatchSim
 from .config import RENDER_MODES, EnvConfig
 from .episodes import N_UNIFORMS, check_reset_options
 from .info import single_info
-from .observation import OBS_CLIP, OBS_DIM
+from .observation import OBS_CLIP
 from .termination import R_NONE, REASONS
 
 
 def make_spaces(cfg: EnvConfig) -> tuple[spaces.Box, spaces.Box]:
     """(observation_space, action_space) of one env."""
-    obs = spaces.Box(-OBS_CLIP, OBS_CLIP, shape=(OBS_DIM,), dtype=np.float32)
+    obs = spaces.Box(-OBS_CLIP, OBS_CLIP, shape=(cfg.obs_dim,), dtype=np.float32)
     act = spaces.Box(-1.0, 1.0, shape=(cfg.action_dim,), dtype=np.float32)
     return obs, act
 
@@ -71,7 +71,11 @@ class SoftPVTOLEnv(gym.Env):
     :class:`~softpvtol_gym.control.PassivityController` with the nominal ``params`` and the loop
     ``controller_loop``: by default "bounded" (exact allocation, arm references fed forward with bounded
     rates, desired curvatures within 0.6 rad) for allocation "exact", "paper" for "paper"; it is fed the
-    measured state, and action 0 reproduces it exactly. Finite out-of-range actions are clipped
+    measured state, and action 0 reproduces it exactly. ``residual_gate=sigma`` multiplies the clipped
+    residual by g = 1 - exp(-rho^2 / sigma^2), rho^2 = e_x^2 + e_z^2 + e_theta^2 + edot_x^2 + edot_z^2 +
+    edot_theta^2 of the measured body errors (position, attitude and their rates; SI units) of the last
+    observation: the residual is exactly 0 at zero tracking error, with zero slope there
+    (``info["residual_gate"]``: the g applied). Finite out-of-range actions are clipped
     (``info["action_clipped"]``); NaN/inf, wrong shapes and values that are not real numbers (str, bool,
     complex, None) raise ValueError (nothing is cast).
 
@@ -104,6 +108,11 @@ class SoftPVTOLEnv(gym.Env):
     from the reference. This is everything the passivity controller needs
     (:class:`~softpvtol_gym.PassivityPolicy` acts from it alone).
 
+    With ``observe_error_integral=True`` the observation is ``Box(-1e6, 1e6, (21,), float32)``: entries
+    18, 19, 20 are the integrals over the episode of entries 0, 1, 2 (the measured errors; m s, m s, rad s):
+    I_k = clip(I_(k-1) + dt e_k, -L, L) after every step k, I_0 = 0 at the reset, L = ``error_integral_limit``
+    (10). :class:`~softpvtol_gym.PassivityPolicy` takes the 21 entries and reads 0-17.
+
     ## Rewards
 
     r = 1 + position + attitude + velocity + effort + curvature + crash, with (each in ``info["reward_terms"]``)
@@ -113,6 +122,12 @@ class SoftPVTOLEnv(gym.Env):
     of the applied actuators (T_h the hover thrust; ideal mode: the normalised tau);
     curvature = -0.2 clip((max|q_arm| - pi/2) / (pi/2), 0, 1)^2; crash = -10 at termination.
     Non-terminal rewards lie in [0, 1]; the terms use the true (noise-free) state.
+
+    Opt-in terms (off by default; when on, added to r and listed after "crash" in ``info["reward_terms"]``):
+    precision = w_p exp(-|(e_x, e_z)| / s_p) (``precision_reward_weight`` w_p, ``precision_reward_scale``
+    s_p = 0.01 m; true state; in [0, w_p], slope w_p / s_p at zero error, so 0.1 mm against 0.2 m is worth
+    ~w_p); action_rate = -w_r mean((a_t - a_(t-1))^2) (``action_rate_penalty`` w_r; a the clipped action as
+    the policy gave it; 0 at an episode's first step; in [-4 w_r, 0]).
 
     ## Starting State
 
@@ -125,6 +140,14 @@ class SoftPVTOLEnv(gym.Env):
     * ``"track_random"``: x_ref = sum_k A_k (sin(w_k t + phi_k) - sin phi_k), 3 terms, A_k in [0, 1] m;
       z_ref = 3 m + the same with A_k in [0, 0.5] m; w_k in [0.2, 0.8] rad/s, phi_k in [0, 2 pi);
       theta_ref = 0. Start at the reference plus half the hover perturbation. 20 s.
+
+    ``start_error_scale`` (default 1) scales every start's deviation from the reference at t = 0 (q and
+    qdot; arm references 0; positions then clipped into |x| <= 19 m, 0 <= z <= 19 m, arms into ±0.9 pi);
+    ``start_distribution="wide"`` draws the deviations uniformly in ±(6 m, 8 m, 0.7 rad, 0.5 rad, 0.5 rad)
+    and ±(1 m/s, 1 m/s, 0.5 rad/s x 3) (x the scale; x, z uniform on the part inside that box), around any
+    task's reference: starts like track_paper's. Both use the episode's own uniforms (no extra draws).
+    ``reset(options={"start_error_scale": s})`` sets the scale for that reset,
+    ``env.set_start_error_scale(s)`` for every later one (a curriculum).
 
     ``reset(options={"q0": ..., "qdot0": ..., "setpoint": (x, z, theta)})`` overrides them; q0 must lie
     inside the position limits below (|q_l|, |q_r| <= pi: the model's validity; the box) and the
@@ -162,8 +185,16 @@ class SoftPVTOLEnv(gym.Env):
     | `tier_options` | `dict \| None` | `None` | overrides of the tier's numbers: `mismatch_scale` (in [0, 1), default 0.2; the scaled plant parameters must stay within the `SoftPVTOLParams` bounds), `wind_std` [N] (in [0, 1e20], 3), `wind_correlation_time` [s] (in (0, 1e9], 1), `obs_noise_scale` (x the noise stds, in [0, 1e8], 1), `actuator_time_constant` [s] (in [0, 1e9], 0.05); an option given by hand switches its effect on. |
     | `residual_scale` | `float` | `0.2` | residual mode: the correction at action +/-1 as a fraction of the virtual scales (or of (T_max/2, T_max/2, tau_max, tau_max) with `residual_space="actuators"`), in (0, 100] (at 100 an action of 0.02 already exceeds the default actuator range). |
     | `actuator_limits` | `tuple \| None` | `None` | (T_max [N], tau_max [N m]), two numbers in (0, 1e20]: each rotor's thrust range [0, T_max] and each arm's torque range [-tau_max, tau_max], which scale the actions and saturate the applied commands; None: 3 x the hover thrust per rotor and 4 x the larger arm gravity load g m_i l_i / 2 of `params` (102.9 N, 9.8 N m with the defaults; with g = 0, free flight, these are 0: give the limits). |
-    | `controller_loop` | `str \| None` | `None` | residual mode's base controller and `PassivityPolicy`'s default: a loop of `softpvtol_gym.control.LOOPS` ("paper" \| "exact" \| "improved" \| "bounded" \| "integral" \| "ideal"); None: from the allocation, "bounded" for "exact" (the default), "paper" for "paper", "ideal" for "ideal". A loop whose allocation differs from a given `allocation` is refused. |
+    | `controller_loop` | `str \| None` | `None` | residual mode's base controller and `PassivityPolicy`'s default: a loop of `softpvtol_gym.control.LOOPS` ("paper" \| "exact" \| "improved" \| "bounded" \| "integral" \| "ideal" \| "extended"; "extended", the dynamically extended loop, is a policy only, not a residual base controller); None: from the allocation, "bounded" for "exact" (the default), "paper" for "paper", "ideal" for "ideal". A loop whose allocation differs from a given `allocation` is refused. |
     | `model` | `str \| None` | `None` | "paper" \| "consistent": the plant's Lagrangian (docs/model.md): the paper's (rotor masses at tips that do not rotate with theta) or the consistent one (tips rotated by theta, virtual-work input map); None: "consistent" in a tier with the consistent plant ("model_gap"), else "paper". The controllers use the paper's model in every case. |
+    | `observe_error_integral` | `bool` | `False` | True: the observation gets 3 more entries (18-20), the integrals over the episode of the measured tracking errors e_x, e_z [m s] and e_theta [rad s] (the errors of entries 0-2, summed x dt after every step, reset to 0 with the episode, each clipped to +/-`error_integral_limit`). |
+    | `error_integral_limit` | `float` | `10.0` | `observe_error_integral`: the bound of each error integral (anti-windup clamp), in (0, 1e6] [m s or rad s]; 10 is an error of 1 m held for 10 s. |
+    | `precision_reward_weight` | `float` | `0.0` | w >= 0 (at most 100): adds the reward term precision = w exp(-\|(e_x, e_z)\| / `precision_reward_scale`) (true state; in [0, w]; its slope w / scale stays the largest at millimetre errors); 0: no term. |
+    | `precision_reward_scale` | `float` | `0.01` | the precision term's length scale [m], in [1e-6, 100]: the term is w/e (37 %) at this error, 0.9 w at a tenth of it. |
+    | `action_rate_penalty` | `float` | `0.0` | w >= 0 (at most 100): adds the reward term action_rate = -w mean((a_t - a_(t-1))^2) of the clipped actions (0 at an episode's first step; in [-4 w, 0]); 0: no term. |
+    | `residual_gate` | `float \| None` | `None` | residual mode: sigma > 0 (at most 1e6): the residual action is multiplied by the gate g = 1 - exp(-rho^2 / sigma^2) of the measured tracking error rho^2 = e_x^2 + e_z^2 + e_theta^2 + edot_x^2 + edot_z^2 + edot_theta^2 (SI units: m, rad, m/s, rad/s) at the start of the step, so the correction is exactly 0 at zero error and its slope there is 0 (the base loop alone near the reference); None: no gate. |
+    | `start_error_scale` | `float` | `1.0` | scales the starting state's deviation from the reference at t = 0 (q0 - q_ref(0), qdot0 - qdot_ref(0); arm references 0), in [0, 10]; 0: starts on the reference; positions are then clipped into \|x\| <= 19 m, 0 <= z <= 19 m, arms into +/-0.9 pi. A curriculum sets it per reset (reset option `start_error_scale`) or for every later reset, autoresets included (`env.set_start_error_scale(s)`). |
+    | `start_distribution` | `str` | `"task"` | "task" (the task's starting states, see Starting State) \| "wide": deviations from the reference at t = 0 uniform in +/-(6 m, 8 m, 0.7 rad, 0.5 rad, 0.5 rad) on q and +/-(1 m/s, 1 m/s, 0.5, 0.5, 0.5 rad/s) on qdot (x `start_error_scale`), positions truncated to \|x\| <= 19 m, 0 <= z <= 19 m: starts like track_paper's (5 m beside, 7 m below, tilted 0.63 rad) around any task's reference. |
 
     An unknown argument is a TypeError naming the valid ones.
 
@@ -209,6 +240,11 @@ class SoftPVTOLEnv(gym.Env):
       needs explicit ``actuator_limits`` and a non-zero g must be >= 1e-6 m/s^2, a mismatch tier's scaled plant must stay within the parameter
       bounds, and a reward term whose measure is NaN (the residual base controller failing outside the model,
       the episode ending as "non_finite") counts as its cap instead of making the reward NaN.
+    * v0, training aids (issue 25, 2026-12-02, an addition: the defaults are unchanged, bit for bit): opt-in
+      ``observe_error_integral`` (+ ``error_integral_limit``; observation entries 18-20),
+      ``precision_reward_weight`` (+ ``precision_reward_scale``) and ``action_rate_penalty`` (reward terms
+      "precision", "action_rate"), ``residual_gate`` (residual mode), ``start_error_scale`` (also a reset
+      option) and ``start_distribution="wide"``.
     """
 
     # per instance: render_fps = 1 / control period
@@ -232,6 +268,14 @@ class SoftPVTOLEnv(gym.Env):
         actuator_limits: tuple | None = None,
         controller_loop: str | None = None,
         model: str | None = None,
+        observe_error_integral: bool = False,
+        error_integral_limit: float = 10.0,
+        precision_reward_weight: float = 0.0,
+        precision_reward_scale: float = 0.01,
+        action_rate_penalty: float = 0.0,
+        residual_gate: float | None = None,
+        start_error_scale: float = 1.0,
+        start_distribution: str = "task",
         **unknown,
     ) -> None:
         """The arguments are :class:`EnvConfig`'s fields (see Arguments), validated there; ``unknown``
@@ -240,7 +284,11 @@ class SoftPVTOLEnv(gym.Env):
             action_mode=action_mode, task=task, tier=tier, params=params, input_map=input_map,
             allocation=allocation, residual_space=residual_space, frame_skip=frame_skip,
             max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
-            actuator_limits=actuator_limits, controller_loop=controller_loop, model=model, **unknown)
+            actuator_limits=actuator_limits, controller_loop=controller_loop, model=model,
+            observe_error_integral=observe_error_integral, error_integral_limit=error_integral_limit,
+            precision_reward_weight=precision_reward_weight, precision_reward_scale=precision_reward_scale,
+            action_rate_penalty=action_rate_penalty, residual_gate=residual_gate, start_error_scale=start_error_scale,
+            start_distribution=start_distribution, **unknown)
         choice("render_mode", render_mode, RENDER_MODES)
         self.render_mode = render_mode
         self.observation_space, self.action_space = make_spaces(self.config)
@@ -288,6 +336,12 @@ class SoftPVTOLEnv(gym.Env):
         if self.render_mode == "human":
             self.render()
         return sim.obs[0].copy(), float(sim.reward[0]), terminated, truncated, info
+
+    def set_start_error_scale(self, scale: float) -> None:
+        """Scale the starting deviations of the next resets (``start_error_scale``, in [0, 10]) that do not
+        pass the ``start_error_scale`` reset option, the autoresets included: a curriculum's knob (e.g. from a
+        training callback, ``vec_env.env_method("set_start_error_scale", 0.5)``). ValueError outside [0, 10]."""
+        self._sim.set_start_error_scale(scale)
 
     # --------------------------------------------------------------------------------- access
     @property

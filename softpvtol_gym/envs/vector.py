@@ -34,7 +34,8 @@ class SoftPVTOLVectorEnv(VectorEnv):
     Infos are a dict of arrays (gymnasium's vector convention, each with its ``_name`` mask):
     ``reward_terms`` (a dict of arrays), ``total_energy``, ``storage_function``,
     ``curvature_violation``, ``allocation_residual``, ``thrust_saturated``, ``arm_torque_saturated``,
-    ``action_clipped``, ``termination_reason`` (object array, None where not done), ``time``.
+    ``action_clipped``, ``termination_reason`` (object array, None where not done), ``time`` (and, with
+    ``residual_gate``, ``residual_gate``; the opt-in reward terms are in ``reward_terms``).
     With SameStep autoreset, ``final_obs``/``final_info`` as in gymnasium. With Disabled autoreset,
     ``reset(options={"reset_mask": mask})`` (a bool array of num_envs) resets the sub-envs where mask
     (gymnasium's convention), and stepping a sub-env that has ended warns once per episode.
@@ -63,6 +64,14 @@ class SoftPVTOLVectorEnv(VectorEnv):
         actuator_limits: tuple | None = None,
         controller_loop: str | None = None,
         model: str | None = None,
+        observe_error_integral: bool = False,
+        error_integral_limit: float = 10.0,
+        precision_reward_weight: float = 0.0,
+        precision_reward_scale: float = 0.01,
+        action_rate_penalty: float = 0.0,
+        residual_gate: float | None = None,
+        start_error_scale: float = 1.0,
+        start_distribution: str = "task",
         **unknown,
     ) -> None:
         if isinstance(num_envs, (bool, np.bool_)) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
@@ -73,7 +82,11 @@ class SoftPVTOLVectorEnv(VectorEnv):
             action_mode=action_mode, task=task, tier=tier, params=params, input_map=input_map,
             allocation=allocation, residual_space=residual_space, frame_skip=frame_skip,
             max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
-            actuator_limits=actuator_limits, controller_loop=controller_loop, model=model, **unknown)
+            actuator_limits=actuator_limits, controller_loop=controller_loop, model=model,
+            observe_error_integral=observe_error_integral, error_integral_limit=error_integral_limit,
+            precision_reward_weight=precision_reward_weight, precision_reward_scale=precision_reward_scale,
+            action_rate_penalty=action_rate_penalty, residual_gate=residual_gate, start_error_scale=start_error_scale,
+            start_distribution=start_distribution, **unknown)
         choice("render_mode", render_mode, (None, "rgb_array"))
         try:
             self.autoreset_mode = AutoresetMode(autoreset_mode)
@@ -240,6 +253,12 @@ class SoftPVTOLVectorEnv(VectorEnv):
             if reasons is not None:
                 self._over |= done
         return obs, rewards, terminated, truncated, infos
+
+    def set_start_error_scale(self, scale: float) -> None:
+        """Scale the starting deviations of the next resets (``start_error_scale``, in [0, 10]) that do not
+        pass the ``start_error_scale`` reset option, the autoresets included: a curriculum's knob (e.g. from a
+        training callback, ``vec_env.env_method("set_start_error_scale", 0.5)``). ValueError outside [0, 10]."""
+        self._sim.set_start_error_scale(scale)
 
     # --------------------------------------------------------------------------------- access
     @property

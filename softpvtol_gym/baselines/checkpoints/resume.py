@@ -47,6 +47,8 @@ def _env_parts(vector_env) -> list[tuple[str, object]]:
     parts = [("venv", vector_env), ("sim", sim)]
     if getattr(sim, "controller", None) is not None:
         parts.append(("controller", sim.controller))
+    if getattr(sim, "aids", None) is not None:  # the opt-in training aids' memory (error integrals, last action)
+        parts.append(("aids", sim.aids))
     return parts
 
 
@@ -106,9 +108,12 @@ def env_state(vector_env) -> tuple[dict, dict[str, np.ndarray]]:
 # layout's constants, so their memory safety does not rest on the checkpoint being honest).
 _DYNAMIC = {
     "venv": ("_autoreset", "_fresh", "_over", "_warned", "_needs_reset", "_np_random_seed", "_rngs", "_np_random"),
-    "sim": ("F", "I", "key", "obs", "_ctl_in", "_ctl", "_ctl_err"),
+    "sim": ("F", "I", "key", "obs", "_ctl_in", "_ctl", "_ctl_err", "start_error_scale"),
     "controller": ("_state", "_spare"),
+    "aids": ("integrals", "prev_action", "has_prev", "terms", "gate", "_gated", "_new_gate", "_clipped"),
 }
+#: dynamic state that checkpoints saved before it existed lack: kept at the fresh env's value (the config's)
+_ADDED_LATER = {("sim", "start_error_scale")}
 _ENTRY_KEYS = {"arrays": list, "views": list, "numpy_scalars": list, "scalars": dict, "generators": dict}
 
 
@@ -197,7 +202,8 @@ def _validated_part(part: str, obj, entry, arrays: dict, num_envs: int) -> dict:
         if n not in fresh and n not in dynamic:
             raise _Mismatch(f"{part}.{n} is not state of this env (the checkpoint names an attribute it does not have)")
     # a None attribute may hold an array later (the controller's memory): compare what can be
-    lost = sorted(n for n in fresh if n not in saved_kind and getattr(obj, n) is not None)
+    lost = sorted(n for n in fresh if n not in saved_kind and getattr(obj, n) is not None
+                  and (part, n) not in _ADDED_LATER)
     if lost:
         raise _Mismatch(f"{part} has state {lost} that the checkpoint lacks")
 
@@ -246,8 +252,12 @@ def _validated_part(part: str, obj, entry, arrays: dict, num_envs: int) -> dict:
                 raise _Mismatch("controller has no memory to restore into")
             out[n] = _array(f"controller.{n}", value, ref).copy()
             _check_controller_memory(obj, n, out[n])
-        else:  # the simulator's and the vector env's arrays: this env's layout
+        else:  # the simulator's, the vector env's and the training aids' arrays: this env's layout
             out[n] = _array(f"{part}.{n}", value, current).copy()
+            if part == "aids" and not np.isfinite(out[n]).all():
+                raise _Mismatch(f"aids.{n} holds non-finite values; the training aids' memory is finite")
+            if part == "sim" and n == "start_error_scale" and not 0.0 <= float(out[n]) <= 10.0:
+                raise _Mismatch(f"sim.start_error_scale must be in [0, 10], got {float(out[n])!r}")
     if part == "sim":
         _check_sim_state(obj, out["F"], out["I"], out["obs"])
         views = {**STATE.views(out["F"]), **ISTATE.views(out["I"]), "u": out["F"][:, S.u:S.u + obj.action_dim]}

@@ -35,8 +35,12 @@ NON_ALGO_KEYS = ("policy", "n_envs", "n_timesteps", "normalize", "frame_stack")
 #: the most observations ``frame_stack`` may stack (a bound on the policy's input, 64 floats per observation)
 MAX_FRAME_STACK = 64
 #: env arguments a run may set besides mode, task, tier and base loop (RunConfig.env_options, train.py --env):
-#: the residual mode's residual scale and the space the residual acts in (softpvtol_gym EnvConfig fields)
-ENV_OPTION_KEYS = ("residual_scale", "residual_space")
+#: the residual mode's residual scale, the space the residual acts in and its gate, and the error-integral
+#: observation (softpvtol_gym EnvConfig fields). They define the policy's interface, so the run's training and
+#: evaluation envs both get them; the training-only aids (precision and action-rate reward terms, wider starts)
+#: are not run options yet (issue 25, part 2)
+ENV_OPTION_KEYS = ("residual_scale", "residual_space", "residual_gate", "observe_error_integral",
+                   "error_integral_limit")
 #: the env options a run saved before RunConfig had ``env_options`` trained with (none: the env's defaults)
 LEGACY_ENV_OPTIONS: dict = {}
 #: constructor arguments of the SB3 algorithms that a run sets itself (not hyperparameters)
