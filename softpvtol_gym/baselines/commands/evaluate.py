@@ -47,7 +47,7 @@ MAX_SEED = 2**63 - 1
 
 def build_parser(prog: str = "evaluate.py") -> Parser:
     ap = Parser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--policy", required=True, help="'passivity' or a checkpoint path")
+    ap.add_argument("--policy", required=True, help="'passivity', 'mpc' or a checkpoint path")
     ap.add_argument("--action-mode", choices=ACTION_MODES, default=None,
                     help="default: the checkpoint's; 'actuators' for passivity")
     ap.add_argument("--task", choices=registered_tasks(), default=None,
@@ -60,6 +60,8 @@ def build_parser(prog: str = "evaluate.py") -> Parser:
     ap.add_argument("--controller-loop", choices=[k for k in LOOPS if k != "ideal"], default=None,
                     help="analytic loop of the passivity policy and of the residual base controller; default: "
                          "the env's (bounded with the exact allocation, paper with the paper's)")
+    ap.add_argument("--mpc-option", action="append", default=[], metavar="KEY=VALUE",
+                    help="--policy mpc: an MPCOptions field (repeatable), e.g. --mpc-option horizon=20")
     ap.add_argument("--episodes", type=int_arg(), default=20, help=f"1 to {MAX_EPISODES:,} (default 20)")
     ap.add_argument("--seed", type=int_arg(), default=EVAL_SEED_OFFSET)
     ap.add_argument("--json", type=Path, default=None, help="write the results here (refuses to overwrite)")
@@ -90,6 +92,16 @@ def _main(argv, layout: Layout, prog: str) -> int:
         mode, task, tier = args.action_mode or "actuators", args.task or "hover", args.tier or "nominal"
         policy = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode=mode, task=task, **env_kwargs))
         source = "passivity"
+    elif args.policy == "mpc":
+        mode, task, tier = args.action_mode or "actuators", args.task or "hover", args.tier or "nominal"
+        from softpvtol_gym.control.mpc import MPCOptions, MPCPolicy
+
+        try:
+            policy = MPCPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode=mode, task=task, **env_kwargs),
+                                        **MPCOptions.parse_items(args.mpc_option))
+        except (ImportError, ValueError) as exc:
+            ap.error(str(exc))
+        source = "mpc"
     else:
         import torch
 
@@ -113,6 +125,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
     report = {"policy": source, "action_mode": mode, "task": task, "tier": tier, "allocation": cfg.resolved_allocation,
               "controller_loop": cfg.resolved_controller_loop,
               "seed": args.seed, **result}
+    if args.policy == "mpc":
+        report["mpc"] = {"options": {k: v for k, v in vars(policy.options).items()}, "solver": policy.stats}
     print(f"{source}: {mode} / {task} / {tier}, {args.episodes} episodes from seed {args.seed}")
     print(f"  return {s['mean_return']:.1f}  rms position {s['mean_rms_position_error']:.3f} m  "
           f"rms attitude {s['mean_rms_attitude_error']:.3f} rad  effort {s['mean_control_effort']:.3f}  "
