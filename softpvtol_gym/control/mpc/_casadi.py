@@ -6,7 +6,7 @@ import importlib
 
 #: the casadi versions the MPC is written for (pyproject's ``mpc`` extra)
 CASADI_REQUIREMENT = "casadi>=3.6,<4"
-INSTALL_HINT = "pip install 'softpvtol-gym[mpc]'"
+INSTALL_HINT = 'pip install "softpvtol-gym[mpc]"'
 
 
 def import_casadi():
@@ -16,4 +16,4 @@ def import_casadi():
     except ImportError as exc:
         raise ImportError(
             f"the nonlinear MPC (softpvtol_gym.MPCPolicy) needs CasADi ({CASADI_REQUIREMENT}), which is not "
-            f"installed: {INSTALL_HINT} (or pip install '{CASADI_REQUIREMENT}')") from exc
+            f"installed: {INSTALL_HINT} (or pip install \"{CASADI_REQUIREMENT}\")") from exc

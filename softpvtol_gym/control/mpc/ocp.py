@@ -21,8 +21,13 @@ the previous solution shifted by one control period (warm start).
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import dataclasses
 import math
+import os
+import sys
+import warnings
 
 import numpy as np
 
@@ -30,6 +35,7 @@ from ...envs._validation import short_repr
 from ...params import SoftPVTOLParams
 from . import symbolic
 from ._casadi import import_casadi
+from ._codegen import compile_functions, find_compiler
 from ._kernels import condense
 
 NX, NU = 10, 4
@@ -73,6 +79,9 @@ class MPCOptions:
     ``jerk_extrapolation``    True     extrapolate the reference with its jerk, estimated from the
                                        reference accelerations of consecutive observations (else
                                        constant acceleration)
+    ``compile_model``         None     compile the model's Functions with the system's C compiler (cached
+                                       on disk; ~10x faster than CasADi's virtual machine): None if a
+                                       compiler is found, True always (error without one), False never
     ========================= ======== ===================================================================
 
     u_hover is the input that holds the robot still with straight arms (each thrust M g / 2), u_scale
@@ -96,6 +105,7 @@ class MPCOptions:
     sqp_iterations: int = 1
     qp_solver: str = "qpoases"
     jerk_extrapolation: bool = True
+    compile_model: bool | None = None
 
     def __post_init__(self) -> None:
         _int("horizon", self.horizon, 1, 200)
@@ -111,6 +121,8 @@ class MPCOptions:
         if not isinstance(self.qp_solver, str) or self.qp_solver not in QP_SOLVERS:
             raise ValueError(f"MPC option qp_solver must be one of {sorted(QP_SOLVERS)}, got "
                              f"{short_repr(self.qp_solver)}")
+        if self.compile_model is not None and not isinstance(self.compile_model, (bool, np.bool_)):
+            raise ValueError(f"MPC option compile_model must be None, True or False, got {short_repr(self.compile_model)}")
         if not isinstance(self.jerk_extrapolation, (bool, np.bool_)):
             raise ValueError(f"MPC option jerk_extrapolation must be a bool, got {short_repr(self.jerk_extrapolation)}")
 
@@ -169,6 +181,34 @@ def _real(name, value, lo, hi) -> None:
         raise ValueError(f"MPC option {name} must be a finite number in [{lo:g}, {hi:g}], got {short_repr(value)}")
 
 
+@contextlib.contextmanager
+def _quiet_stdout():
+    """The process's stdout (file descriptor 1, where C libraries print) sent to os.devnull."""
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+    except OSError:  # no file descriptor 1: nothing to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            try:
+                yield
+            finally:
+                _flush_c_stdio()  # what the library printed into C's buffer goes to os.devnull too
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+def _flush_c_stdio() -> None:
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError, TypeError):  # no C library to reach (e.g. Windows): nothing buffered there
+        pass
+
+
 def _differences(V: np.ndarray, v_prev: np.ndarray) -> np.ndarray:
     """D V - (v_prev, 0, ..): the changes v_k - v_{k-1} of the stacked inputs V (4 N), v_{-1} = v_prev."""
     dv = V.copy()
@@ -210,19 +250,32 @@ class TrackingOCP:
         self.u_scale = np.array([0.5 * thrust_max, 0.5 * thrust_max, arm_torque_max, arm_torque_max])
 
         f = symbolic.continuous_dynamics(params.array, input_map)
-        # per interval length: (x, u) -> (x_next, dx_next/dx, dx_next/du)
-        steps = {}
-        for h in sorted(set(self.intervals.tolist())):
-            F = symbolic.rk4_step(f, h, o.substeps)
-            xs, us = ca.SX.sym("x", NX), ca.SX.sym("u", NU)
-            out = F(xs, us)
-            steps[h] = ca.Function("rk4_linearized", [xs, us], ca.cse([out, ca.jacobian(out, xs), ca.jacobian(out, us)]))
-        x0 = ca.SX.sym("x0", NX)
-        U = ca.SX.sym("U", NU, n)
+        step = symbolic.rk4_step(f, o.substeps)  # (x, u, h) -> x_next
+        xs, us, hs = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("h")
+        out = step(xs, us, hs)
+        # (x, u, h) -> (x_next, dx_next/dx, dx_next/du)
+        step_lin = ca.Function("softpvtol_rk4_linearized", [xs, us, hs],
+                               ca.cse([out, ca.jacobian(out, xs), ca.jacobian(out, us)]))
+        #: how the model's Functions run: "compiled" (machine code, see _codegen) or "virtual machine"
+        self.backend = "virtual machine"
+        compiler = find_compiler() if o.compile_model is not False else None
+        if o.compile_model and compiler is None:
+            raise ValueError("MPC option compile_model=True needs a C compiler ($CC, cc or gcc on the PATH), none "
+                             "was found; install one, or pass compile_model=None (use one if found) or False")
+        if compiler is not None:
+            try:
+                step, step_lin = compile_functions([step, step_lin], compiler)
+                self.backend = "compiled"
+            except RuntimeError as exc:
+                if o.compile_model:
+                    raise
+                warnings.warn(f"{exc}; the MPC runs its model in CasADi's virtual machine (slower)", stacklevel=3)
+        x0 = ca.MX.sym("x0", NX)
+        U = ca.MX.sym("U", NU, n)
         X, A, B = [x0], [], []
         x = x0
         for k in range(n):
-            x, a, b = steps[float(self.intervals[k])](x, U[:, k])
+            x, a, b = step_lin(x, U[:, k], float(self.intervals[k]))
             X.append(x)
             A.append(a)
             B.append(b)
@@ -231,7 +284,7 @@ class TrackingOCP:
         x = x0
         X = [x0]
         for k in range(n):
-            x = steps[float(self.intervals[k])](x, U[:, k])[0]
+            x = step(x, U[:, k], float(self.intervals[k]))
             X.append(x)
         #: (x0, U) -> X (10, N+1): the rollout alone
         self.rollout = ca.Function("mpc_rollout", [x0, U], [ca.horzcat(*X)])
@@ -257,6 +310,10 @@ class TrackingOCP:
         self._v_lo = np.tile((self.u_lo - self.u_hover) / self.u_scale, n)
         self._v_hi = np.tile((self.u_hi - self.u_hover) / self.u_scale, n)
         self._arm_rows = np.concatenate([np.arange(NX * k + 3, NX * k + 5) for k in range(n)])
+        # one solve now: loads the QP solver's library (qpOASES prints its banner then, silenced here) and
+        # the compiled condensing, so that the first control step is not the slow one
+        with _quiet_stdout():
+            self.solve(np.zeros(NX), np.zeros((n, NX)), np.tile(self.u_hover, (n, 1)), self.u_hover)
 
     def _merit(self, X: np.ndarray, V: np.ndarray, x_ref: np.ndarray, v_prev: np.ndarray) -> float:
         """The cost of the plan V with the rollout X (N, 10), plus ``VIOLATION_PENALTY`` x the curvature

@@ -112,12 +112,13 @@ def continuous_dynamics(p, input_map: str):
     return ca.Function("softpvtol_dynamics", [x, u], [ca.vertcat(*qd, *acc)], ["x", "u"], ["xdot"])
 
 
-def rk4_step(f, h: float, substeps: int = 1):
-    """CasADi Function ``F(x[10], u[4]) -> x_next[10]``: ``substeps`` classical RK4 steps of the
+def rk4_step(f, substeps: int = 1):
+    """CasADi Function ``F(x[10], u[4], h) -> x_next[10]``: ``substeps`` classical RK4 steps of the
     continuous dynamics ``f`` over h seconds in all, u held."""
     ca = import_casadi()
     x = ca.SX.sym("x", 10)
     u = ca.SX.sym("u", 4)
+    h = ca.SX.sym("h")
     dt = h / substeps
     xn = x
     for _ in range(substeps):
@@ -126,4 +127,4 @@ def rk4_step(f, h: float, substeps: int = 1):
         k3 = f(xn + 0.5 * dt * k2, u)
         k4 = f(xn + dt * k3, u)
         xn = xn + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-    return ca.Function("softpvtol_rk4", [x, u], [xn], ["x", "u"], ["x_next"])
+    return ca.Function("softpvtol_rk4", [x, u, h], [xn], ["x", "u", "h"], ["x_next"])
