@@ -69,7 +69,7 @@ class MPCOptions:
     ``weight_velocity``       1        on (xdot, zdot) - reference velocity [s^2/m^2]
     ``weight_attitude_rate``  0.1      on thetadot - its reference [s^2/rad^2]
     ``weight_arms``           1        on the curvatures q_l, q_r (reference 0: straight arms)
-    ``weight_arm_rates``      0.01     on q_l dot, q_r dot
+    ``weight_arm_rates``      1        on q_l dot, q_r dot (damps the arms: 0.01 crashed in the noisy tier)
     ``weight_input``          0.01     on the normalised input (u - u_hover) / u_scale
     ``weight_input_rate``     0.1      on the change of the normalised input from interval to interval
     ``terminal_weight``       5        factor of the state weights at the last node
@@ -97,7 +97,7 @@ class MPCOptions:
     weight_velocity: float = 1.0
     weight_attitude_rate: float = 0.1
     weight_arms: float = 1.0
-    weight_arm_rates: float = 0.01
+    weight_arm_rates: float = 1.0
     weight_input: float = 0.01
     weight_input_rate: float = 0.1
     terminal_weight: float = 5.0
@@ -289,8 +289,9 @@ class TrackingOCP:
         #: (x0, U) -> X (10, N+1): the rollout alone
         self.rollout = ca.Function("mpc_rollout", [x0, U], [ca.horzcat(*X)])
         nv = NU * n
-        self.qp = ca.conic("mpc_qp", o.qp_solver, {"h": ca.Sparsity.dense(nv, nv), "a": ca.Sparsity.dense(2 * n, nv)},
-                           dict(QP_SOLVERS[o.qp_solver]))
+        with _quiet_stdout():  # qpOASES prints its banner when its plugin loads
+            self.qp = ca.conic("mpc_qp", o.qp_solver, {"h": ca.Sparsity.dense(nv, nv),
+                                                       "a": ca.Sparsity.dense(2 * n, nv)}, dict(QP_SOLVERS[o.qp_solver]))
 
         # weights per node k = 1 .. N (rows) and state coordinate (columns)
         w = np.array([o.weight_position, o.weight_position, o.weight_attitude, o.weight_arms, o.weight_arms,
@@ -357,7 +358,8 @@ class TrackingOCP:
             dtd[:-NU] -= dv[NU:]
             g = g_state + o.weight_input * V + o.weight_input_rate * dtd
             qa = X[:, 3:5].reshape(-1)
-            sol = self.qp(h=H, g=g, a=G[self._arm_rows], lba=-qmax - qa, uba=qmax - qa, lbx=lo - V, ubx=hi - V)
+            with _quiet_stdout():  # qpOASES prints some failures even at printLevel "none"
+                sol = self.qp(h=H, g=g, a=G[self._arm_rows], lba=-qmax - qa, uba=qmax - qa, lbx=lo - V, ubx=hi - V)
             step = np.asarray(sol["x"]).reshape(-1)
             if not self.qp.stats()["success"] or not np.isfinite(step).all():
                 return U_guess, False
