@@ -69,7 +69,8 @@ class MPCOptions:
     ``weight_velocity``       1        on (xdot, zdot) - reference velocity [s^2/m^2]
     ``weight_attitude_rate``  0.1      on thetadot - its reference [s^2/rad^2]
     ``weight_arms``           1        on the curvatures q_l, q_r (reference 0: straight arms)
-    ``weight_arm_rates``      1        on q_l dot, q_r dot (damps the arms: 0.01 crashed in the noisy tier)
+    ``weight_arm_rates``      1        on q_l dot, q_r dot (damps the arms; with 0.01 the noisy tier's
+                                       track_paper episode crashed)
     ``weight_input``          0.01     on the normalised input (u - u_hover) / u_scale
     ``weight_input_rate``     0.1      on the change of the normalised input from interval to interval
     ``terminal_weight``       5        factor of the state weights at the last node
