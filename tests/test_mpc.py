@@ -265,3 +265,37 @@ def test_track_paper_quality_targets():
     for tier in ("wind", "noisy"):
         _, crashed = _episode(MPCPolicy(EnvConfig(task="track_paper", tier=tier)), "track_paper", tier, 40.0)
         assert not crashed, tier
+
+
+# ------------------------------------------------------------------------------------------ evaluate.py
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--policy", "mpc", "--mpc-option", "bogus=1"], "unknown MPC option 'bogus'; valid options are"),
+    (["--policy", "mpc", "--mpc-option", "horizon=0"], r"horizon must be an int in \[1, 200\]"),
+    (["--policy", "mpc", "--action-mode", "virtual"], "MPCPolicy acts in action_mode='actuators'"),
+    (["--policy", "passivity", "--mpc-option", "horizon=5"], "--mpc-option is for --policy mpc"),
+])
+def test_evaluate_mpc_bad_input_exits_2(argv, message, capsys):
+    from softpvtol_gym.baselines.commands.evaluate import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and __import__("re").search(message, err), err
+
+
+@pytest.mark.slow  # one 10 s hover episode of the MPC
+def test_evaluate_policy_mpc_writes_its_solver_statistics(tmp_path):
+    import json
+
+    from softpvtol_gym.baselines.commands.evaluate import main
+
+    out = tmp_path / "mpc.json"
+    assert main(["--policy", "mpc", "--task", "hover", "--episodes", "1", "--mpc-option", "horizon=15",
+                 "--json", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["policy"] == "mpc" and report["summary"]["crash_rate"] == 0.0
+    assert report["mpc"]["options"]["horizon"] == 15
+    solver = report["mpc"]["solver"]
+    assert solver["solves"] == 1000 and solver["fallbacks"] == 0 and solver["solve_ms_median"] > 0
+    assert report["episodes"][0]["rms_position_error"] < 1.0

@@ -7,7 +7,9 @@
 
 ``--policy``: ``passivity`` (the analytic controller: its loop is the env's default, ``bounded``;
 ``--controller-loop paper|exact|improved|bounded`` picks another, ``--allocation paper`` the paper's
-loop) or a checkpoint: a run directory, a checkpoint directory or its ``model.safetensors``.
+loop), ``mpc`` (the nonlinear MPC, ``softpvtol_gym.MPCPolicy``, actuators mode; needs the mpc extra;
+``--mpc-option KEY=VALUE`` sets an ``MPCOptions`` field, the JSON adds its options and solve times under
+``mpc``) or a checkpoint: a run directory, a checkpoint directory or its ``model.safetensors``.
 Checkpoints load in the project's safe format (docs/baselines.md, "Loading checkpoints"): nothing is
 unpickled. A pickle-based file (an SB3 ``model.zip``, a ``vecnormalize.pkl``) is refused unless
 ``--trust-pickle`` is given: loading one runs any code it contains, so pass it only for files you
@@ -35,6 +37,7 @@ from softpvtol_gym.baselines.util.args import Parser, check_output_file, command
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.control import LOOPS
+from softpvtol_gym.control.mpc import MPCOptions, MPCPolicy
 from softpvtol_gym.envs.actions import ACTION_MODES
 from softpvtol_gym.envs.config import EnvConfig
 from softpvtol_gym.envs.tiers import registered_tiers
@@ -86,6 +89,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
             and LOOPS[args.controller_loop]["allocation"] != args.allocation:
         ap.error(f"--controller-loop {args.controller_loop} uses the {LOOPS[args.controller_loop]['allocation']} "
                  f"allocation, not --allocation {args.allocation}; pass one of them")
+    if args.mpc_option and args.policy != "mpc":
+        ap.error(f"--mpc-option is for --policy mpc, got --policy {args.policy}; leave it out or pass --policy mpc")
     env_kwargs = {k: v for k, v in (("allocation", args.allocation), ("controller_loop", args.controller_loop))
                   if v is not None}
     if args.policy == "passivity":
@@ -94,8 +99,6 @@ def _main(argv, layout: Layout, prog: str) -> int:
         source = "passivity"
     elif args.policy == "mpc":
         mode, task, tier = args.action_mode or "actuators", args.task or "hover", args.tier or "nominal"
-        from softpvtol_gym.control.mpc import MPCOptions, MPCPolicy
-
         try:
             policy = MPCPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode=mode, task=task, **env_kwargs),
                                         **MPCOptions.parse_items(args.mpc_option))

@@ -123,7 +123,8 @@ class MPCOptions:
             raise ValueError(f"MPC option qp_solver must be one of {sorted(QP_SOLVERS)}, got "
                              f"{short_repr(self.qp_solver)}")
         if self.compile_model is not None and not isinstance(self.compile_model, (bool, np.bool_)):
-            raise ValueError(f"MPC option compile_model must be None, True or False, got {short_repr(self.compile_model)}")
+            raise ValueError(f"MPC option compile_model must be None, True or False, got "
+                             f"{short_repr(self.compile_model)}")
         if not isinstance(self.jerk_extrapolation, (bool, np.bool_)):
             raise ValueError(f"MPC option jerk_extrapolation must be a bool, got {short_repr(self.jerk_extrapolation)}")
 
@@ -291,8 +292,8 @@ class TrackingOCP:
         self.rollout = ca.Function("mpc_rollout", [x0, U], [ca.horzcat(*X)])
         nv = NU * n
         with _quiet_stdout():  # qpOASES prints its banner when its plugin loads
-            self.qp = ca.conic("mpc_qp", o.qp_solver, {"h": ca.Sparsity.dense(nv, nv),
-                                                       "a": ca.Sparsity.dense(2 * n, nv)}, dict(QP_SOLVERS[o.qp_solver]))
+            dense = {"h": ca.Sparsity.dense(nv, nv), "a": ca.Sparsity.dense(2 * n, nv)}
+            self.qp = ca.conic("mpc_qp", o.qp_solver, dense, dict(QP_SOLVERS[o.qp_solver]))
 
         # weights per node k = 1 .. N (rows) and state coordinate (columns)
         w = np.array([o.weight_position, o.weight_position, o.weight_attitude, o.weight_arms, o.weight_arms,

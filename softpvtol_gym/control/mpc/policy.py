@@ -188,7 +188,8 @@ def check_limits(config: EnvConfig) -> None:
     weight = p.total_mass * p.g
     if 2.0 * config.thrust_max <= weight:
         raise ValueError(
-            f"infeasible actuator limits for the MPC: the largest total thrust 2 x T_max = {2.0 * config.thrust_max:g} N "
+            f"infeasible actuator limits for the MPC: the largest total thrust 2 x T_max = "
+            f"{2.0 * config.thrust_max:g} N "
             f"does not exceed the weight (m + m_l + m_r) g = {weight:g} N, so the robot cannot hover or climb; "
             f"give actuator_limits with T_max > {0.5 * weight:g} N (the default is 3 x the hover thrust)")
     from .ocp import hover_input
