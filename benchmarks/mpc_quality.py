@@ -3,6 +3,7 @@
     python benchmarks/mpc_quality.py                       # track_paper; tiers nominal, wind, noisy
     python benchmarks/mpc_quality.py --tiers nominal --seconds 20 --json /tmp/mpc.json
     python benchmarks/mpc_quality.py --option horizon=20 --option step=0.06
+    python benchmarks/mpc_quality.py --table benchmarks/mpc_quality.json   # docs/control.md's table
 
 One episode per (tier, policy) of ``SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=...)``
 reset with ``--seed``. The errors are those of the true (noise-free) state, as in
@@ -58,6 +59,26 @@ def run_episode(policy, task: str, tier: str, seed: int, seconds: float | None) 
     return out
 
 
+TABLE_START = ("<!-- benchmarks/mpc_quality.py --table: start (generated from benchmarks/mpc_quality.json, "
+               "do not edit) -->")
+TABLE_END = "<!-- benchmarks/mpc_quality.py --table: end -->"
+
+
+def table_markdown(results: list[dict]) -> str:
+    """The Markdown table of docs/control.md ("Nonlinear MPC") from this script's JSON."""
+    lines = ["| tier | policy | 0-10 s | 10-20 s | 20-40 s | max, last 5 s | crashed | solve ms: median / p99 / max "
+             "| load |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        cells = [f"{r[k]:.2g}" if k in r else "-" for k in ("rms_0_10s", "rms_10_20s", "rms_20_40s", "max_final_5s")]
+        s = r.get("solver")
+        solve = (f"{s['solve_ms_median']:.1f} / {s['solve_ms_p99']:.1f} / {s['solve_ms_max']:.0f} "
+                 f"({s['fallbacks']} fallbacks)") if s else "-"
+        load = "-" if r["policy"] != "mpc" else f"{r['load_average_1min'][0]:.1f}-{r['load_average_1min'][1]:.1f}"
+        lines.append(f"| {r['tier']} | {r['policy']} | {' | '.join(cells)} | "
+                     f"{r['termination_reason'] if r['crashed'] else 'no'} | {solve} | {load} |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--task", default="track_paper")
@@ -68,7 +89,12 @@ def main(argv=None) -> int:
                     help="an MPCOptions field (repeatable), e.g. horizon=20")
     ap.add_argument("--no-passivity", action="store_true", help="skip the bounded passivity loop")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--table", type=Path, default=None, metavar="JSON",
+                    help="print the Markdown table of a JSON this script wrote, and run nothing")
     args = ap.parse_args(argv)
+    if args.table is not None:
+        print(f"{TABLE_START}\n{table_markdown(json.loads(args.table.read_text()))}\n{TABLE_END}")
+        return 0
 
     from softpvtol_gym import MPCPolicy
     from softpvtol_gym.control.mpc import MPCOptions
@@ -92,13 +118,13 @@ def main(argv=None) -> int:
             results.append(row)
             windows = "  ".join(f"{k[4:]} {v:.3e}" for k, v in row.items() if k.startswith("rms_"))
             print(f"{args.task} {tier:8s} {name:18s} {'CRASH ' + row['termination_reason'] if row['crashed'] else 'ok'}"
-                  f"  RMS [m] {windows}  max last 5 s {row['max_final_5s']:.3e}")
+                  f"  RMS [m] {windows}  max last 5 s {row['max_final_5s']:.3e}", flush=True)
             if name == "mpc":
                 s = row["solver"]
                 print(f"    solver: {s['solves']} solves, {s['fallbacks']} fallbacks; solve ms median "
                       f"{s['solve_ms_median']:.2f} p99 {s['solve_ms_p99']:.2f} max {s['solve_ms_max']:.2f} "
                       f"(load average {row['load_average_1min'][0]} -> {row['load_average_1min'][1]}, "
-                      f"{os.cpu_count()} CPUs)")
+                      f"{os.cpu_count()} CPUs)", flush=True)
     if args.json is not None:
         args.json.write_text(json.dumps(results, indent=2) + "\n")
     return 0
