@@ -9,11 +9,16 @@ import numpy as np
 from ...envs._validation import real_array, short_repr
 from ...envs.config import EnvConfig
 from ...envs.observation import OBS_DIM
-from ...policies import PassivityPolicy, _check_observation, _episode_start_mask, actuator_action, env_config
+from ...policies import (
+    _OBS_EXPECTED,
+    PassivityPolicy,
+    _check_observation,
+    _episode_start_mask,
+    actuator_action,
+    env_config,
+)
 from ._casadi import import_casadi
-from .ocp import NU, NX, MPCOptions, TrackingOCP
-
-_OBS_EXPECTED = f"an array of shape ({OBS_DIM},) or (N, {OBS_DIM})"
+from .ocp import NU, NX, MPCOptions, TrackingOCP, hover_input
 
 
 class MPCPolicy:
@@ -192,8 +197,6 @@ def check_limits(config: EnvConfig) -> None:
             f"{2.0 * config.thrust_max:g} N "
             f"does not exceed the weight (m + m_l + m_r) g = {weight:g} N, so the robot cannot hover or climb; "
             f"give actuator_limits with T_max > {0.5 * weight:g} N (the default is 3 x the hover thrust)")
-    from .ocp import hover_input
-
     arms = hover_input(p, config.input_map)[2:]
     if np.abs(arms).max() > config.arm_torque_max:
         raise ValueError(
