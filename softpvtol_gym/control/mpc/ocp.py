@@ -14,9 +14,10 @@ control period: the first input is exactly what the env holds) then ``step`` sec
 Solver: real-time iteration, i.e. Gauss-Newton SQP with ``sqp_iterations`` steps per control step
 (default one; each step shortened by a backtracking line search on the nonlinear cost), single
 shooting. Each iteration rolls the model out from x0 under the current input guess and gets the
-interval Jacobians A_k = dF/dx, B_k = dF/du from one CasADi Function (symbolic RK4, AD), condenses them (states eliminated: the QP has the N x 4 inputs as variables, the 2N curvature rows as
-constraints), and solves the dense QP with a CasADi ``conic`` solver (qpOASES by default). The guess is
-the previous solution shifted by one control period (warm start).
+interval Jacobians A_k = dF/dx, B_k = dF/du from one CasADi Function (symbolic RK4, AD), condenses them
+(states eliminated: the QP has the N x 4 inputs as variables, the 2N curvature rows as constraints),
+and solves the dense QP with a CasADi ``conic`` solver (qpOASES by default). The guess is the previous
+solution shifted by one control period (warm start).
 """
 
 from __future__ import annotations
