@@ -250,21 +250,19 @@ def test_hover_from_an_offset_settles():
     assert pol.stats["fallbacks"] == 0
 
 
-@pytest.mark.slow  # 3 x 40 s episodes of the MPC (~2 min on 2 cores)
-def test_track_paper_quality_targets():
-    """Issue 23's targets on track_paper (actuators): nominal 0-10 s RMS below the bounded passivity loop's and
-    20-40 s RMS <= 1e-3 m; no crash on nominal, wind and noisy."""
+@pytest.mark.slow  # a 40 s episode of the MPC and one of the passivity loop (~1.5 min on 2 cores)
+def test_track_paper_nominal_quality_targets():
+    """Issue 23's targets on track_paper nominal (actuators), rerun: 0-10 s RMS below the bounded passivity
+    loop's, 20-40 s RMS <= 1e-3 m, no crash. (Wind and noisy: the committed benchmark, checked below.)"""
     cfg = EnvConfig(task="track_paper")
-    e, crashed = _episode(MPCPolicy(cfg), "track_paper", "nominal", 40.0)
+    pol = MPCPolicy(cfg)
+    e, crashed = _episode(pol, "track_paper", "nominal", 40.0)
     ref, _ = _episode(PassivityPolicy(cfg), "track_paper", "nominal", 40.0)
     t = 0.01 * np.arange(1, e.size + 1)
     rms = lambda x, lo, hi: np.sqrt(np.mean(x[(t > lo) & (t <= hi)] ** 2))  # noqa: E731
-    assert not crashed and e.size == 4000
+    assert not crashed and e.size == 4000 and pol.stats["fallbacks"] == 0
     assert rms(e, 0, 10) < rms(ref, 0, 10)
     assert rms(e, 20, 40) <= 1e-3
-    for tier in ("wind", "noisy"):
-        _, crashed = _episode(MPCPolicy(EnvConfig(task="track_paper", tier=tier)), "track_paper", tier, 40.0)
-        assert not crashed, tier
 
 
 # ------------------------------------------------------------------------------------------ evaluate.py
