@@ -28,6 +28,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from softpvtol_gym import PassivityPolicy, SoftPVTOLVectorEnv  # noqa: E402
+from softpvtol_gym.baselines.util.atomic import atomic_write_text  # noqa: E402
 
 WINDOWS = ((0.0, 10.0), (10.0, 20.0), (20.0, 40.0))
 
@@ -126,7 +127,7 @@ def main(argv=None) -> int:
                       f"(load average {row['load_average_1min'][0]} -> {row['load_average_1min'][1]}, "
                       f"{os.cpu_count()} CPUs)", flush=True)
     if args.json is not None:
-        args.json.write_text(json.dumps(results, indent=2) + "\n")
+        atomic_write_text(args.json, json.dumps(results, indent=2) + "\n")
     return 0
 
 
