@@ -17,5 +17,15 @@ register_envs()
 
 __all__ = [
     "SoftPVTOLParams", "PARAM_FIELDS", "dynamics", "integrators", "__version__",
-    "SoftPVTOLEnv", "SoftPVTOLVectorEnv", "PassivityPolicy", "ExtendedPolicy",
+    "SoftPVTOLEnv", "SoftPVTOLVectorEnv", "PassivityPolicy", "ExtendedPolicy", "MPCPolicy",
 ]
+
+
+def __getattr__(name: str):
+    """``MPCPolicy`` (:mod:`softpvtol_gym.control.mpc`), imported on first use (PEP 562): the package
+    imports without CasADi, the MPC's optional dependency."""
+    if name == "MPCPolicy":
+        from .control.mpc import MPCPolicy
+
+        return MPCPolicy
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

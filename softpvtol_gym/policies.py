@@ -121,6 +121,33 @@ def _episode_start_mask(episode_start, n: int) -> np.ndarray:
     return np.repeat(mask, n) if mask.size == 1 and n > 1 else mask
 
 
+def env_config(env) -> EnvConfig:
+    """The :class:`EnvConfig` of a SoftPVTOLEnv / SoftPVTOLVectorEnv (wrapped or not) or the SB3 adapter
+    (what the policies' ``from_env`` build from); ValueError for anything else."""
+    cfg = getattr(env, "config", None)
+    if cfg is None and hasattr(env, "unwrapped"):
+        cfg = getattr(env.unwrapped, "config", None)
+    if cfg is None and hasattr(env, "venv"):
+        cfg = getattr(env.venv, "config", None)
+    if cfg is None and hasattr(env, "get_wrapper_attr"):
+        cfg = env.get_wrapper_attr("config")
+    if not isinstance(cfg, EnvConfig):
+        raise ValueError(f"env must be a SoftPVTOLEnv / SoftPVTOLVectorEnv (wrapped or not) or the SB3 adapter: "
+                         f"cannot find a SoftPVTOL EnvConfig on {short_repr(env)}")
+    return cfg
+
+
+def actuator_action(actuators: np.ndarray, thrust_max: float, arm_torque_max: float) -> np.ndarray:
+    """The env's normalised action (unclipped) of actuators (..., 4) = (T_l, T_r, tau_l, tau_r):
+    thrusts [0, T_max] -> [-1, 1] (2 T / T_max - 1), arm torques [-tau_max, tau_max] -> [-1, 1]
+    (the compiled path of :class:`PassivityPolicy` writes the same formula in its kernel)."""
+    a = np.asarray(actuators, dtype=np.float64)
+    u = np.empty(a.shape)
+    u[..., 0:2] = 2.0 * a[..., 0:2] / thrust_max - 1.0
+    u[..., 2:4] = a[..., 2:4] / arm_torque_max
+    return u
+
+
 class PassivityPolicy:
     """The paper's passivity controller acting from SoftPVTOL observations only.
 
@@ -201,16 +228,7 @@ class PassivityPolicy:
     def from_env(cls, env, loop: str | None = None, gains: PassivityGains | None = None,
                  controller_options: dict | None = None) -> PassivityPolicy:
         """Policy for a SoftPVTOLEnv / SoftPVTOLVectorEnv (wrapped or not) or the SB3 adapter."""
-        cfg = getattr(env, "config", None)
-        if cfg is None and hasattr(env, "unwrapped"):
-            cfg = getattr(env.unwrapped, "config", None)
-        if cfg is None and hasattr(env, "venv"):
-            cfg = getattr(env.venv, "config", None)
-        if cfg is None and hasattr(env, "get_wrapper_attr"):
-            cfg = env.get_wrapper_attr("config")
-        if not isinstance(cfg, EnvConfig):
-            raise ValueError(f"env must be a SoftPVTOLEnv / SoftPVTOLVectorEnv (wrapped or not) or the SB3 adapter: "
-                             f"cannot find a SoftPVTOL EnvConfig on {short_repr(env)}")
+        cfg = env_config(env)
         if (loop if loop is not None else cfg.resolved_controller_loop) == "extended":
             if controller_options:
                 raise ValueError("controller_options are PassivityController options; the extended loop takes "
@@ -299,10 +317,7 @@ class PassivityPolicy:
             if cfg.action_mode == "virtual":
                 u = (out.tau - self._offset) / self._scale
             else:
-                a = out.actuators
-                u = np.empty((n, 4))
-                u[:, 0:2] = 2.0 * a[:, 0:2] / self._tmax - 1.0
-                u[:, 2:4] = a[:, 2:4] / self._taumax
+                u = actuator_action(out.actuators, self._tmax, self._taumax)
             action = np.clip(u, -1.0, 1.0).astype(np.float32)
         return (action[0] if single else action), state
 

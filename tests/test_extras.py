@@ -1,4 +1,4 @@
-"""The plain install (``pip install softpvtol-gym``) without its extras: torch, stable-baselines3 and pygame
+"""The plain install (``pip install softpvtol-gym``) without its extras: torch, stable-baselines3, pygame and casadi
 made unimportable in a subprocess, the env, the vector env and the analytic policy still work, and what
 needs an extra says which one.
 
@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-BLOCKED = ("torch", "stable_baselines3", "pygame")
+BLOCKED = ("torch", "stable_baselines3", "pygame", "casadi")
 
 _PRELUDE = f"""
 import sys
@@ -89,6 +89,16 @@ try:
 except ImportError as e:
     out["errors"]["sb3"] = str(e)
 
+# the MPC's names import without casadi; building one says which extra installs it
+from softpvtol_gym import MPCPolicy
+from softpvtol_gym.control import MPCPolicy as MPCPolicy2
+out["mpc_same"] = MPCPolicy is MPCPolicy2
+try:
+    MPCPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, task="hover"))
+    out["errors"]["mpc"] = None
+except ImportError as e:
+    out["errors"]["mpc"] = str(e)
+
 out["attempted"] = sorted(set(ATTEMPTS))
 out["loaded"] = sorted(n for n in sys.modules if n.split(".")[0] in BLOCKED)
 print("RESULT " + json.dumps(out))
@@ -122,6 +132,10 @@ def test_plain_install_runs_without_torch_sb3_pygame():
     msg = out["errors"]["sb3"]
     assert msg is not None and "\n" not in msg, msg
     assert "stable-baselines3" in msg and 'pip install "softpvtol-gym[train]"' in msg, msg
+    assert out["mpc_same"]
+    msg = out["errors"]["mpc"]
+    assert msg is not None and "\n" not in msg, msg
+    assert "CasADi" in msg and 'pip install "softpvtol-gym[mpc]"' in msg, msg
     # nothing got hold of a blocked module another way, and the blocker was what refused them
     assert out["loaded"] == [], out["loaded"]
-    assert {"pygame", "stable_baselines3"} <= set(out["attempted"]), out["attempted"]
+    assert {"pygame", "stable_baselines3", "casadi"} <= set(out["attempted"]), out["attempted"]

@@ -7,7 +7,9 @@
 
 ``--policy``: ``passivity`` (the analytic controller: its loop is the env's default, ``bounded``;
 ``--controller-loop paper|exact|improved|bounded`` picks another, ``--allocation paper`` the paper's
-loop) or a checkpoint: a run directory, a checkpoint directory or its ``model.safetensors``.
+loop), ``mpc`` (the nonlinear MPC, ``softpvtol_gym.MPCPolicy``, actuators mode; needs the mpc extra;
+``--mpc-option KEY=VALUE`` sets an ``MPCOptions`` field, the JSON adds its options and solve times under
+``mpc``) or a checkpoint: a run directory, a checkpoint directory or its ``model.safetensors``.
 Checkpoints load in the project's safe format (docs/baselines.md, "Loading checkpoints"): nothing is
 unpickled. A pickle-based file (an SB3 ``model.zip``, a ``vecnormalize.pkl``) is refused unless
 ``--trust-pickle`` is given: loading one runs any code it contains, so pass it only for files you
@@ -39,6 +41,7 @@ from softpvtol_gym.baselines.util.args import Parser, check_output_file, command
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.control import LOOPS
+from softpvtol_gym.control.mpc import MPCOptions, MPCPolicy
 from softpvtol_gym.envs.actions import ACTION_MODES
 from softpvtol_gym.envs.config import EnvConfig
 from softpvtol_gym.envs.tiers import registered_tiers
@@ -51,7 +54,7 @@ MAX_SEED = 2**63 - 1
 
 def build_parser(prog: str = "evaluate.py") -> Parser:
     ap = Parser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--policy", required=True, help="'passivity' or a checkpoint path")
+    ap.add_argument("--policy", required=True, help="'passivity', 'mpc' or a checkpoint path")
     ap.add_argument("--action-mode", choices=ACTION_MODES, default=None,
                     help="default: the checkpoint's; 'actuators' for passivity")
     ap.add_argument("--task", choices=registered_tasks(), default=None,
@@ -64,6 +67,8 @@ def build_parser(prog: str = "evaluate.py") -> Parser:
     ap.add_argument("--controller-loop", choices=[k for k in LOOPS if k != "ideal"], default=None,
                     help="analytic loop of the passivity policy and of the residual base controller; default: "
                          "the env's (bounded with the exact allocation, paper with the paper's)")
+    ap.add_argument("--mpc-option", action="append", default=[], metavar="KEY=VALUE",
+                    help="--policy mpc: an MPCOptions field (repeatable), e.g. --mpc-option horizon=20")
     ap.add_argument("--episodes", type=int_arg(), default=20, help=f"1 to {MAX_EPISODES:,} (default 20)")
     ap.add_argument("--seed", type=int_arg(), default=EVAL_SEED_OFFSET)
     ap.add_argument("--json", type=Path, default=None, help="write the results here (refuses to overwrite)")
@@ -88,12 +93,22 @@ def _main(argv, layout: Layout, prog: str) -> int:
             and LOOPS[args.controller_loop]["allocation"] != args.allocation:
         ap.error(f"--controller-loop {args.controller_loop} uses the {LOOPS[args.controller_loop]['allocation']} "
                  f"allocation, not --allocation {args.allocation}; pass one of them")
+    if args.mpc_option and args.policy != "mpc":
+        ap.error(f"--mpc-option is for --policy mpc, got --policy {args.policy}; leave it out or pass --policy mpc")
     env_kwargs = {k: v for k, v in (("allocation", args.allocation), ("controller_loop", args.controller_loop))
                   if v is not None}
     if args.policy == "passivity":
         mode, task, tier = args.action_mode or "actuators", args.task or "hover", args.tier or "nominal"
         policy = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode=mode, task=task, **env_kwargs))
         source = "passivity"
+    elif args.policy == "mpc":
+        mode, task, tier = args.action_mode or "actuators", args.task or "hover", args.tier or "nominal"
+        try:
+            policy = MPCPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode=mode, task=task, **env_kwargs),
+                                        **MPCOptions.parse_items(args.mpc_option))
+        except (ImportError, ValueError) as exc:
+            ap.error(str(exc))
+        source = "mpc"
     else:
         import torch
 
@@ -117,6 +132,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
     report = {"policy": source, "action_mode": mode, "task": task, "tier": tier, "allocation": cfg.resolved_allocation,
               "controller_loop": cfg.resolved_controller_loop,
               "seed": args.seed, **result}
+    if args.policy == "mpc":
+        report["mpc"] = {"options": {k: v for k, v in vars(policy.options).items()}, "solver": policy.stats}
     print(f"{source}: {mode} / {task} / {tier}, {args.episodes} episodes from seed {args.seed}")
     print(f"  return {s['mean_return']:.1f}  rms position {s['mean_rms_position_error']:.3f} m  "
           f"rms attitude {s['mean_rms_attitude_error']:.3f} rad  effort {s['mean_control_effort']:.3f}  "

@@ -1,0 +1,384 @@
+"""The MPC's optimal control problem and its real-time-iteration solver.
+
+Problem (one per control step, from the measured state x0):
+
+    min_{u_0..u_{N-1}}  sum_{k=1..N} |x_k - r_k|^2_{W_k} + sum_{k=0..N-1} |v_k|^2_{R} + |v_k - v_{k-1}|^2_{R_d}
+    s.t.  x_{k+1} = F_k(x_k, u_k)        (RK4 of the paper's model, u held over interval k)
+          u_lo <= u_k <= u_hi            (the env's actuator limits, hard)
+          |q_l,k|, |q_r,k| <= q_max      (the curvature limits, hard, k = 1..N)
+
+with v_k = (u_k - u_hover) / u_scale the normalised input, v_{-1} the input applied at the previous step,
+W_k diagonal (the terminal node's times ``terminal_weight``). The intervals are ``first_step`` (the env's
+control period: the first input is exactly what the env holds) then ``step`` seconds.
+
+Solver: real-time iteration, i.e. Gauss-Newton SQP with ``sqp_iterations`` steps per control step
+(default one; each step shortened by a backtracking line search on the nonlinear cost), single
+shooting. Each iteration rolls the model out from x0 under the current input guess and gets the
+interval Jacobians A_k = dF/dx, B_k = dF/du from one CasADi Function (symbolic RK4, AD), condenses them
+(states eliminated: the QP has the N x 4 inputs as variables, the 2N curvature rows as constraints),
+and solves the dense QP with a CasADi ``conic`` solver (qpOASES by default). The guess is the previous
+solution shifted by one control period (warm start).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import dataclasses
+import math
+import os
+import sys
+import warnings
+
+import numpy as np
+
+from ...envs._validation import short_repr
+from ...params import SoftPVTOLParams
+from . import symbolic
+from ._casadi import import_casadi
+from ._codegen import compile_functions, find_compiler
+from ._kernels import condense
+
+NX, NU = 10, 4
+#: the line search's step lengths (fractions of the Gauss-Newton step)
+LINE_SEARCH_STEPS = (1.0, 0.5, 0.25, 0.125)
+#: merit of a curvature bound violation [cost units per rad]
+VIOLATION_PENALTY = 1e4
+#: CasADi QP solvers the MPC accepts (dense ones that CasADi's wheels bundle) and their options
+QP_SOLVERS: dict[str, dict] = {
+    "qpoases": {"printLevel": "none", "sparse": False, "error_on_fail": False},
+    "daqp": {"error_on_fail": False},
+    "qrqp": {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False},
+    "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-7, "eps_rel": 1e-7, "max_iter": 4000, "polish": True},
+             "warm_start_primal": True, "error_on_fail": False},
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class MPCOptions:
+    """Options of :class:`~softpvtol_gym.control.mpc.MPCPolicy` (``MPCPolicy.from_env(env, **options)``).
+
+    ========================= ======== ===================================================================
+    option                    default  meaning
+    ========================= ======== ===================================================================
+    ``horizon``               25       N, the number of intervals (1 .. 200)
+    ``step``                  0.05     length [s] of intervals 1 .. N-1 (interval 0: ``first_step``)
+    ``first_step``            None     length [s] of interval 0; None: the env's control period
+    ``substeps``              1        RK4 steps per interval (1 .. 20)
+    ``weight_position``       100      on (x, z) - reference [1/m^2]
+    ``weight_attitude``       10       on theta - theta_ref [1/rad^2]
+    ``weight_velocity``       1        on (xdot, zdot) - reference velocity [s^2/m^2]
+    ``weight_attitude_rate``  0.1      on thetadot - its reference [s^2/rad^2]
+    ``weight_arms``           1        on the curvatures q_l, q_r (reference 0: straight arms)
+    ``weight_arm_rates``      1        on q_l dot, q_r dot (damps the arms; with 0.01 the noisy tier's
+                                       track_paper episode crashed)
+    ``weight_input``          0.01     on the normalised input (u - u_hover) / u_scale
+    ``weight_input_rate``     0.1      on the change of the normalised input from interval to interval
+    ``terminal_weight``       5        factor of the state weights at the last node
+    ``curvature_limit``       pi       |q_l|, |q_r| bound [rad] (the env ends an episode beyond pi)
+    ``sqp_iterations``        1        Gauss-Newton SQP iterations per control step (1: real-time iteration)
+    ``qp_solver``             qpoases  CasADi conic plugin: "qpoases" | "daqp" | "qrqp" | "osqp"
+    ``jerk_extrapolation``    True     extrapolate the reference with its jerk, estimated from the
+                                       reference accelerations of consecutive observations (else
+                                       constant acceleration)
+    ``compile_model``         None     compile the model's Functions with the system's C compiler (cached
+                                       on disk; ~10x faster than CasADi's virtual machine): None if a
+                                       compiler is found, True always (error without one), False never
+    ========================= ======== ===================================================================
+
+    u_hover is the input that holds the robot still with straight arms (each thrust M g / 2), u_scale
+    (T_max / 2, T_max / 2, tau_max, tau_max), as the env's action scaling.
+    """
+
+    horizon: int = 25
+    step: float = 0.05
+    first_step: float | None = None
+    substeps: int = 1
+    weight_position: float = 100.0
+    weight_attitude: float = 10.0
+    weight_velocity: float = 1.0
+    weight_attitude_rate: float = 0.1
+    weight_arms: float = 1.0
+    weight_arm_rates: float = 1.0
+    weight_input: float = 0.01
+    weight_input_rate: float = 0.1
+    terminal_weight: float = 5.0
+    curvature_limit: float = math.pi
+    sqp_iterations: int = 1
+    qp_solver: str = "qpoases"
+    jerk_extrapolation: bool = True
+    compile_model: bool | None = None
+
+    def __post_init__(self) -> None:
+        _int("horizon", self.horizon, 1, 200)
+        _int("substeps", self.substeps, 1, 20)
+        _int("sqp_iterations", self.sqp_iterations, 1, 50)
+        _real("step", self.step, 1e-4, 10.0)
+        if self.first_step is not None:
+            _real("first_step", self.first_step, 1e-4, 10.0)
+        for f in dataclasses.fields(self):
+            if f.name.startswith("weight_") or f.name == "terminal_weight":
+                _real(f.name, getattr(self, f.name), 0.0, 1e12)
+        _real("curvature_limit", self.curvature_limit, 1e-3, math.pi)
+        if not isinstance(self.qp_solver, str) or self.qp_solver not in QP_SOLVERS:
+            raise ValueError(f"MPC option qp_solver must be one of {sorted(QP_SOLVERS)}, got "
+                             f"{short_repr(self.qp_solver)}")
+        if self.compile_model is not None and not isinstance(self.compile_model, (bool, np.bool_)):
+            raise ValueError(f"MPC option compile_model must be None, True or False, got "
+                             f"{short_repr(self.compile_model)}")
+        if not isinstance(self.jerk_extrapolation, (bool, np.bool_)):
+            raise ValueError(f"MPC option jerk_extrapolation must be a bool, got {short_repr(self.jerk_extrapolation)}")
+
+    @classmethod
+    def names(cls) -> list[str]:
+        return [f.name for f in dataclasses.fields(cls)]
+
+    @classmethod
+    def from_kwargs(cls, **kwargs) -> MPCOptions:
+        """MPCOptions(**kwargs) with a ValueError naming the valid options for an unknown one."""
+        unknown = [k for k in kwargs if k not in cls.names()]
+        if unknown:
+            raise ValueError(f"unknown MPC option(s) {unknown}; valid options are {cls.names()}")
+        return cls(**kwargs)
+
+    @classmethod
+    def parse_items(cls, items) -> dict:
+        """Option keywords from "KEY=VALUE" strings (the command line's ``--mpc-option``): VALUE as an int,
+        a float, true/false or none where it reads as one, else the string; the values are checked by
+        :class:`MPCOptions` itself. ValueError for an item without "=" or an unknown KEY."""
+        out = {}
+        for item in items:
+            key, sep, text = str(item).partition("=")
+            key = key.strip().replace("-", "_")
+            if not sep or not key:
+                raise ValueError(f"an MPC option must read KEY=VALUE, got {item!r}; valid keys are {cls.names()}")
+            if key not in cls.names():
+                raise ValueError(f"unknown MPC option {key!r}; valid options are {cls.names()}")
+            out[key] = _parse_value(text.strip())
+        return out
+
+
+def _parse_value(text: str):
+    low = text.lower()
+    if low in ("true", "false"):
+        return low == "true"
+    if low == "none":
+        return None
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def _int(name, value, lo, hi) -> None:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
+        raise ValueError(f"MPC option {name} must be an int in [{lo}, {hi}], got {short_repr(value)}")
+
+
+def _real(name, value, lo, hi) -> None:
+    ok = (not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, float, np.integer, np.floating))
+          and math.isfinite(value) and lo <= value <= hi)
+    if not ok:
+        raise ValueError(f"MPC option {name} must be a finite number in [{lo:g}, {hi:g}], got {short_repr(value)}")
+
+
+@contextlib.contextmanager
+def _quiet_stdout():
+    """The process's stdout (file descriptor 1, where C libraries print) sent to os.devnull."""
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+    except OSError:  # no file descriptor 1: nothing to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            try:
+                yield
+            finally:
+                _flush_c_stdio()  # what the library printed into C's buffer goes to os.devnull too
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+def _flush_c_stdio() -> None:
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError, TypeError):  # no C library to reach (e.g. Windows): nothing buffered there
+        pass
+
+
+def _differences(V: np.ndarray, v_prev: np.ndarray) -> np.ndarray:
+    """D V - (v_prev, 0, ..): the changes v_k - v_{k-1} of the stacked inputs V (4 N), v_{-1} = v_prev."""
+    dv = V.copy()
+    dv[NU:] -= V[:-NU]
+    dv[:NU] -= v_prev
+    return dv
+
+
+def hover_input(params: SoftPVTOLParams, input_map: str) -> np.ndarray:
+    """u_hover (4): the actuators that hold the robot at rest with straight arms (each thrust M g / 2, the
+    arm torques that balance gravity and, with the exact map, the thrusts' work on the curvatures),
+    from the package's numeric model (:mod:`softpvtol_gym.dynamics`)."""
+    from ... import dynamics
+
+    q0 = np.zeros(5)
+    thrust = params.hover_thrust
+    grav = dynamics.gravity_vector(q0, params)
+    from_thrust = dynamics.generalized_forces(q0, np.array([thrust, thrust, 0.0, 0.0]), params, input_map=input_map)
+    return np.array([thrust, thrust, grav[3] - from_thrust[3], grav[4] - from_thrust[4]])
+
+
+class TrackingOCP:
+    """The tracking problem of the module docstring for one parameter set, limits and options; the
+    CasADi Functions are built once here. :meth:`solve` runs the SQP iterations for one state."""
+
+    def __init__(self, params: SoftPVTOLParams, input_map: str, thrust_max: float, arm_torque_max: float,
+                 control_period: float, options: MPCOptions):
+        ca = import_casadi()
+        self.options = o = options
+        self.params = params
+        n = o.horizon
+        first = control_period if o.first_step is None else o.first_step
+        self.intervals = np.array([first] + [o.step] * (n - 1))
+        #: node times tau_k [s] from now, k = 0 .. N
+        self.node_times = np.concatenate([[0.0], np.cumsum(self.intervals)])
+        self.u_lo = np.array([0.0, 0.0, -arm_torque_max, -arm_torque_max])
+        self.u_hi = np.array([thrust_max, thrust_max, arm_torque_max, arm_torque_max])
+        self.u_hover = hover_input(params, input_map)
+        self.u_scale = np.array([0.5 * thrust_max, 0.5 * thrust_max, arm_torque_max, arm_torque_max])
+
+        f = symbolic.continuous_dynamics(params.array, input_map)
+        step = symbolic.rk4_step(f, o.substeps)  # (x, u, h) -> x_next
+        xs, us, hs = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("h")
+        out = step(xs, us, hs)
+        # (x, u, h) -> (x_next, dx_next/dx, dx_next/du)
+        step_lin = ca.Function("softpvtol_rk4_linearized", [xs, us, hs],
+                               ca.cse([out, ca.jacobian(out, xs), ca.jacobian(out, us)]))
+        #: how the model's Functions run: "compiled" (machine code, see _codegen) or "virtual machine"
+        self.backend = "virtual machine"
+        compiler = find_compiler() if o.compile_model is not False else None
+        if o.compile_model and compiler is None:
+            raise ValueError("MPC option compile_model=True needs a C compiler ($CC, cc or gcc on the PATH), none "
+                             "was found; install one, or pass compile_model=None (use one if found) or False")
+        if compiler is not None:
+            try:
+                step, step_lin = compile_functions([step, step_lin], compiler)
+                self.backend = "compiled"
+            except RuntimeError as exc:
+                if o.compile_model:
+                    raise
+                warnings.warn(f"{exc}; the MPC runs its model in CasADi's virtual machine (slower)", stacklevel=3)
+        x0 = ca.MX.sym("x0", NX)
+        U = ca.MX.sym("U", NU, n)
+        X, A, B = [x0], [], []
+        x = x0
+        for k in range(n):
+            x, a, b = step_lin(x, U[:, k], float(self.intervals[k]))
+            X.append(x)
+            A.append(a)
+            B.append(b)
+        #: (x0, U) -> (X (10, N+1), A (10, 10 N), B (10, 4 N)): rollout and interval Jacobians
+        self.linearize = ca.Function("mpc_linearize", [x0, U], [ca.horzcat(*X), ca.horzcat(*A), ca.horzcat(*B)])
+        x = x0
+        X = [x0]
+        for k in range(n):
+            x = step(x, U[:, k], float(self.intervals[k]))
+            X.append(x)
+        #: (x0, U) -> X (10, N+1): the rollout alone
+        self.rollout = ca.Function("mpc_rollout", [x0, U], [ca.horzcat(*X)])
+        nv = NU * n
+        with _quiet_stdout():  # qpOASES prints its banner when its plugin loads
+            dense = {"h": ca.Sparsity.dense(nv, nv), "a": ca.Sparsity.dense(2 * n, nv)}
+            self.qp = ca.conic("mpc_qp", o.qp_solver, dense, dict(QP_SOLVERS[o.qp_solver]))
+
+        # weights per node k = 1 .. N (rows) and state coordinate (columns)
+        w = np.array([o.weight_position, o.weight_position, o.weight_attitude, o.weight_arms, o.weight_arms,
+                      o.weight_velocity, o.weight_velocity, o.weight_attitude_rate, o.weight_arm_rates,
+                      o.weight_arm_rates])
+        W = np.tile(w, (n, 1))
+        # interval lengths weight the running cost (a finer first interval counts less)
+        W *= (self.intervals / o.step)[:, None]
+        W[-1] = w * o.terminal_weight
+        self.state_weights = W.reshape(-1)
+        # input cost: R on v_k, R_d on v_k - v_{k-1}: H_u = R I + R_d D^T D (D the difference operator)
+        D = np.eye(nv) - np.eye(nv, k=-NU)
+        self._input_hessian = o.weight_input * np.eye(nv) + o.weight_input_rate * D.T @ D
+        self._cond = np.zeros((NX * n, nv))
+        self._hessian = np.zeros((nv, nv))
+        self._gradient = np.zeros(nv)
+        self._v_lo = np.tile((self.u_lo - self.u_hover) / self.u_scale, n)
+        self._v_hi = np.tile((self.u_hi - self.u_hover) / self.u_scale, n)
+        self._arm_rows = np.concatenate([np.arange(NX * k + 3, NX * k + 5) for k in range(n)])
+        # one solve now: loads the QP solver's library (qpOASES prints its banner then, silenced here) and
+        # the compiled condensing, so that the first control step is not the slow one
+        with _quiet_stdout():
+            self.solve(np.zeros(NX), np.zeros((n, NX)), np.tile(self.u_hover, (n, 1)), self.u_hover)
+
+    def _merit(self, X: np.ndarray, V: np.ndarray, x_ref: np.ndarray, v_prev: np.ndarray) -> float:
+        """The cost of the plan V with the rollout X (N, 10), plus ``VIOLATION_PENALTY`` x the curvature
+        bound violation (the line search's merit function)."""
+        o = self.options
+        e = (X - x_ref).reshape(-1)
+        dv = _differences(V, v_prev)
+        cost = e @ (self.state_weights * e) + o.weight_input * (V @ V) + o.weight_input_rate * (dv @ dv)
+        excess = np.maximum(np.abs(X[:, 3:5]) - o.curvature_limit, 0.0).sum()
+        return 0.5 * cost + VIOLATION_PENALTY * excess
+
+    def solve(self, x0: np.ndarray, x_ref: np.ndarray, U_guess: np.ndarray, u_prev: np.ndarray
+              ) -> tuple[np.ndarray, bool]:
+        """(U (N, 4), success) from the state x0 (10), the reference x_ref (N, 10) at nodes 1 .. N, the
+        initial guess U_guess (N, 4) and the previously applied input u_prev (4). On failure (a QP
+        solver failure or a non-finite linearisation) U is the guess as given.
+
+        Each SQP iteration takes the Gauss-Newton step of the QP, shortened by a backtracking line search
+        on the nonlinear cost (``_merit``: the rollout of the model, steps 1, 1/2, 1/4, 1/8; none of them
+        better than the current plan: the plan is kept)."""
+        o = self.options
+        n = o.horizon
+        V = ((U_guess - self.u_hover) / self.u_scale).reshape(-1)
+        v_prev = (u_prev - self.u_hover) / self.u_scale
+        lo, hi = self._v_lo, self._v_hi
+        qmax = o.curvature_limit
+        g_state = self._gradient
+        for _ in range(o.sqp_iterations):
+            U = (self.u_hover + V.reshape(n, NU) * self.u_scale).T
+            Xs, As, Bs = self.linearize(x0, U)
+            X = np.asarray(Xs)[:, 1:].T  # (N, 10), nodes 1 .. N
+            A = np.asarray(As)
+            B = np.asarray(Bs)
+            if not (np.isfinite(X).all() and np.isfinite(A).all() and np.isfinite(B).all()):
+                return U_guess, False
+            G, H = self._cond, self._hessian
+            condense(A, B, self.u_scale, self.state_weights, (X - x_ref).reshape(-1), G, H, g_state)
+            H += self._input_hessian
+            dv = _differences(V, v_prev)
+            dtd = dv.copy()  # D^T dv
+            dtd[:-NU] -= dv[NU:]
+            g = g_state + o.weight_input * V + o.weight_input_rate * dtd
+            qa = X[:, 3:5].reshape(-1)
+            with _quiet_stdout():  # qpOASES prints some failures even at printLevel "none"
+                sol = self.qp(h=H, g=g, a=G[self._arm_rows], lba=-qmax - qa, uba=qmax - qa, lbx=lo - V, ubx=hi - V)
+            step = np.asarray(sol["x"]).reshape(-1)
+            if not self.qp.stats()["success"] or not np.isfinite(step).all():
+                return U_guess, False
+            merit0 = self._merit(X, V, x_ref, v_prev)
+            for alpha in LINE_SEARCH_STEPS:
+                V_try = np.clip(V + alpha * step, lo, hi)
+                X_try = np.asarray(self.rollout(x0, (self.u_hover + V_try.reshape(n, NU) * self.u_scale).T))[:, 1:].T
+                if np.isfinite(X_try).all() and self._merit(X_try, V_try, x_ref, v_prev) < merit0:
+                    V = V_try
+                    break
+        return self.u_hover + V.reshape(n, NU) * self.u_scale, True
+
+    def shift(self, U: np.ndarray, period: float) -> np.ndarray:
+        """The plan U (N, 4) on this grid, started ``period`` seconds later: each interval takes the input
+        planned for its start time + period (the last input repeated past the horizon)."""
+        starts = self.node_times[:-1] + period + 1e-9  # (a start on a node takes that node's input)
+        idx = np.searchsorted(self.node_times, starts, side="right") - 1
+        return U[np.minimum(idx, U.shape[0] - 1)]
+

@@ -1,0 +1,205 @@
+"""MPCPolicy: the nonlinear MPC with the stable-baselines3 ``predict`` interface."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ...envs._validation import real_array, short_repr
+from ...envs.config import EnvConfig
+from ...envs.observation import OBS_DIM
+from ...policies import (
+    _OBS_EXPECTED,
+    PassivityPolicy,
+    _check_observation,
+    _episode_start_mask,
+    actuator_action,
+    env_config,
+)
+from ._casadi import import_casadi
+from .ocp import NU, NX, MPCOptions, TrackingOCP, hover_input
+
+
+class MPCPolicy:
+    """Nonlinear model-predictive control of the Soft-PVTOL from its observations (actuators mode).
+
+    ``predict(observation, state=None, episode_start=None, deterministic=True) -> (action, state)`` like
+    a stable-baselines3 policy (and :class:`~softpvtol_gym.PassivityPolicy`), for single (18,) or
+    batched (N, 18) observations; the action is the env's normalised actuator action (T_l, T_r, tau_l,
+    tau_r) in [-1, 1]. Needs CasADi: ``pip install 'softpvtol-gym[mpc]'``.
+
+    **Model.** The paper's model with the env's *nominal* parameters and input map (the MPC knows
+    neither a tier's parameter mismatch, nor its wind, noise or actuator lag, nor the consistent plant
+    of ``model_gap``), written symbolically in :mod:`softpvtol_gym.control.mpc.symbolic` (checked against
+    the package's numeric model to ~1e-12), discretised by RK4 with the input held over each interval.
+
+    **Problem** (:mod:`softpvtol_gym.control.mpc.ocp`): N = ``horizon`` intervals, the first one the env's
+    control period, the others ``step`` seconds (defaults: 25 intervals, 0.01 s + 24 x 0.05 s = 1.21 s);
+    a least-squares tracking cost on (x, z, theta) and their rates, the arm curvatures and their rates
+    (towards straight arms), the input relative to hover and its changes; the env's actuator limits as
+    hard input bounds; |q_l|, |q_r| <= ``curvature_limit`` (pi, the env's) as hard state bounds at every
+    node. Solved by real-time iteration: one Gauss-Newton SQP step per control step (condensed dense
+    QP, qpOASES through CasADi), with a backtracking line search on the nonlinear cost, warm-started from
+    the previous plan shifted by one control period. When a QP fails, the policy applies the previous
+    plan's next input (the fallback) and counts it in :attr:`stats`.
+
+    **Reference over the horizon: extrapolated from the observation** (no preview of the task): the
+    observation holds the position error, the reference attitude (theta - e_theta) and the reference's
+    velocity and acceleration now; the reference over the horizon is their Taylor extrapolation,
+    p_ref(t + s) = p_ref(t) + v s + a s^2 / 2 + j s^3 / 6, with the jerk j estimated by differencing the
+    reference accelerations of consecutive observations of the same episode (zero at an episode's first
+    step; ``jerk_extrapolation=False``: constant acceleration). A learned policy sees the same
+    observations, so the comparison gives the MPC no information the learned policies lack, besides the
+    model itself.
+
+    Memory per batch entry: the plan (warm start), the input applied last and the last reference
+    acceleration; it is reset where ``episode_start`` is True (and entirely when the batch size changes).
+
+    Args:
+        config: the env's :class:`EnvConfig` (use :meth:`from_env`); ``action_mode`` must be "actuators".
+        options: :class:`~softpvtol_gym.control.mpc.MPCOptions` or its fields as keywords (unknown names:
+            ValueError listing the valid ones).
+    """
+
+    def __init__(self, config: EnvConfig, options: MPCOptions | None = None, **kwargs):
+        import_casadi()
+        if not isinstance(config, EnvConfig):
+            raise ValueError(f"config must be an EnvConfig, got {short_repr(config)} of type {type(config).__name__} "
+                             "(build the policy with MPCPolicy.from_env(env, **options))")
+        if options is not None and not isinstance(options, MPCOptions):
+            raise ValueError(f"options must be an MPCOptions or None, got {short_repr(options)} of type "
+                             f"{type(options).__name__}")
+        if options is not None and kwargs:
+            raise ValueError(f"pass either options=MPCOptions(...) or option keywords, not both (got {sorted(kwargs)})")
+        options = options if options is not None else MPCOptions.from_kwargs(**kwargs)
+        if config.action_mode != "actuators":
+            raise ValueError(f"MPCPolicy acts in action_mode='actuators' (it plans the thrusts and arm torques "
+                             f"directly), got an env with action_mode={config.action_mode!r}; build the env with "
+                             "action_mode='actuators'")
+        check_limits(config)
+        self.config = config
+        self.options = options
+        self.ocp = TrackingOCP(config.params, config.input_map, config.thrust_max, config.arm_torque_max,
+                               config.dt, options)
+        self._n: int | None = None
+        self._plans = self._applied = self._last_ref_acc = None
+        #: seconds per solve (one entry per batch entry and control step), since the last :meth:`reset_stats`
+        self.solve_times: list[float] = []
+        self._solves = 0
+        self._failures = 0
+
+    @classmethod
+    def from_env(cls, env, **options) -> MPCPolicy:
+        """Policy for a SoftPVTOLEnv / SoftPVTOLVectorEnv (wrapped or not) or the SB3 adapter, with
+        :class:`~softpvtol_gym.control.mpc.MPCOptions` fields as keywords."""
+        import_casadi()
+        return cls(env_config(env), **options)
+
+    # ------------------------------------------------------------------------------------- memory
+    def reset(self) -> None:
+        """Forget every batch entry's plan (the statistics stay: :meth:`reset_stats`)."""
+        self._n = None
+
+    def reset_stats(self) -> None:
+        self.solve_times = []
+        self._solves = 0
+        self._failures = 0
+
+    def _reset_entries(self, mask: np.ndarray) -> None:
+        self._plans[mask] = self.ocp.u_hover
+        self._applied[mask] = self.ocp.u_hover
+        self._last_ref_acc[mask] = np.nan
+
+    @property
+    def stats(self) -> dict:
+        """Solver statistics since the last :meth:`reset_stats`: ``solves`` (QPs attempted, one per batch
+        entry and control step), ``failures`` (solves that failed; each one applied the fallback, the
+        previous plan's next input), ``fallbacks`` (= failures), and the solve time per control step in
+        ms (``solve_ms_median``, ``solve_ms_p99``, ``solve_ms_max``, ``solve_ms_mean``; None before the
+        first solve). A solve's time is the policy's whole computation for one entry: reference,
+        linearisation, QP, line search."""
+        t = np.asarray(self.solve_times) * 1e3
+        summary = {"solves": self._solves, "failures": self._failures, "fallbacks": self._failures}
+        for name, fn in (("median", np.median), ("p99", lambda a: np.percentile(a, 99)), ("max", np.max),
+                         ("mean", np.mean)):
+            summary[f"solve_ms_{name}"] = float(fn(t)) if t.size else None
+        return summary
+
+    # ------------------------------------------------------------------------------------ acting
+    def _reference(self, obs_row: np.ndarray, theta: float, jerk: np.ndarray) -> np.ndarray:
+        """x_ref (N, 10) at nodes 1 .. N, positions relative to the reference position now."""
+        s = self.ocp.node_times[1:, None]
+        v, a = obs_row[12:15], obs_row[15:18]
+        ref = np.zeros((self.options.horizon, NX))
+        ref[:, 0:3] = v * s + 0.5 * a * s**2 + jerk * s**3 / 6.0
+        ref[:, 2] += theta - obs_row[2]
+        ref[:, 5:8] = v + a * s + 0.5 * jerk * s**2
+        return ref
+
+    def _act(self, i: int, obs_row: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """The input (4) for batch entry i; updates its memory."""
+        t0 = time.perf_counter()
+        acc = obs_row[15:18]
+        last = self._last_ref_acc[i]
+        jerk = (acc - last) / self.config.dt if self.options.jerk_extrapolation and np.isfinite(last).all() \
+            else np.zeros(3)
+        x0 = np.concatenate([q, qd])
+        x0[0:2] = obs_row[0:2]  # positions relative to the reference position now
+        guess = self._plans[i]
+        plan, ok = self.ocp.solve(x0, self._reference(obs_row, q[2], jerk), guess, self._applied[i])
+        self._solves += 1
+        if not ok:
+            self._failures += 1
+        u = plan[0].copy()
+        self._plans[i] = self.ocp.shift(plan, self.config.dt)
+        self._applied[i] = u
+        self._last_ref_acc[i] = acc
+        self.solve_times.append(time.perf_counter() - t0)
+        return u
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        """(action, state) for observations (18,) or (N, 18) of the env; ``episode_start``: None, a bool
+        or a bool array of N entries (the entries whose plan is reset). Observations must be finite and
+        inside the model's validity (arm curvatures |q_l|, |q_r| <= 2 pi); ValueError otherwise."""
+        obs = real_array("observation", observation, _OBS_EXPECTED)
+        single = obs.ndim == 1
+        if obs.ndim not in (1, 2) or obs.shape[-1] != OBS_DIM or obs.shape[0] == 0:
+            raise ValueError(f"observation must have shape ({OBS_DIM},) or (N, {OBS_DIM}) with N >= 1, got shape "
+                             f"{obs.shape}")
+        obs = obs.reshape(-1, OBS_DIM)
+        n = obs.shape[0]
+        _check_observation(obs)
+        mask = None if episode_start is None else _episode_start_mask(episode_start, n)
+        if self._n != n:
+            self._plans = np.empty((n, self.options.horizon, NU))
+            self._applied = np.empty((n, NU))
+            self._last_ref_acc = np.empty((n, 3))
+            self._reset_entries(np.ones(n, dtype=bool))
+            self._n = n
+        elif mask is not None and mask.any():
+            self._reset_entries(mask)
+        q, qd = PassivityPolicy.state_from_observation(obs)[:2]
+        u = np.stack([self._act(i, obs[i], q[i], qd[i]) for i in range(n)])
+        action = np.clip(actuator_action(u, self.config.thrust_max, self.config.arm_torque_max), -1.0, 1.0)
+        action = action.astype(np.float32)
+        return (action[0] if single else action), state
+
+
+def check_limits(config: EnvConfig) -> None:
+    """ValueError when the env's actuator limits cannot hold the robot in hover with straight arms (the
+    MPC's input reference and the equilibrium its cost regulates to)."""
+    p = config.params
+    weight = p.total_mass * p.g
+    if 2.0 * config.thrust_max <= weight:
+        raise ValueError(
+            f"infeasible actuator limits for the MPC: the largest total thrust 2 x T_max = "
+            f"{2.0 * config.thrust_max:g} N "
+            f"does not exceed the weight (m + m_l + m_r) g = {weight:g} N, so the robot cannot hover or climb; "
+            f"give actuator_limits with T_max > {0.5 * weight:g} N (the default is 3 x the hover thrust)")
+    arms = hover_input(p, config.input_map)[2:]
+    if np.abs(arms).max() > config.arm_torque_max:
+        raise ValueError(
+            f"infeasible actuator limits for the MPC: holding the arms straight in hover needs arm torques "
+            f"{arms.round(4).tolist()} N m, beyond tau_max = {config.arm_torque_max:g} N m; give actuator_limits "
+            f"with tau_max >= {np.abs(arms).max():g} N m (the default is 4 x the arm gravity load)")
