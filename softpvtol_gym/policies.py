@@ -23,7 +23,6 @@ __all__ = ["PassivityPolicy", "ExtendedPolicy"]
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 
 _F64 = np.dtype(np.float64)
-_OBS_EXPECTED = f"an array of shape ({OBS_DIM},) or (N, {OBS_DIM})"
 #: kernel codes of the action the policy returns
 ACTION_ACTUATORS, ACTION_VIRTUAL = 0, 1
 
@@ -108,6 +107,25 @@ def _check_observation(obs: np.ndarray) -> None:
             f"'curvature_limit', and clips observations at +-1e6 only after a divergence); act on observations "
             f"of running episodes"
         )
+
+
+def policy_observations(observation, dim: int) -> tuple[np.ndarray, bool]:
+    """(obs (N, 18) float64, single) of the analytic policies' ``predict``: ``observation`` (dim,) or (N,
+    dim) of the policy's env (dim 18, or 21 with its ``observe_error_integral``: the controllers read
+    entries 0-17), checked (real numbers, the shape, finite, arm curvatures inside the model's validity);
+    a ValueError naming what was received otherwise."""
+    obs = observation
+    if not (type(obs) is np.ndarray and obs.dtype is _F64 and obs.flags.c_contiguous and obs.flags.writeable):
+        obs = real_array("observation", observation, f"an array of shape ({dim},) or (N, {dim})")
+    single = obs.ndim == 1
+    if obs.ndim not in (1, 2) or obs.shape[-1] != dim or obs.shape[0] == 0:
+        raise ValueError(f"observation must have shape ({dim},) or (N, {dim}) with N >= 1 (the observation of "
+                         f"the policy's env), got shape {obs.shape}")
+    obs = obs.reshape(-1, dim)
+    if dim != OBS_DIM:  # the controllers read entries 0-17; the error integrals are the env's, not their memory
+        obs = np.ascontiguousarray(obs[:, :OBS_DIM])
+    _check_observation(obs)
+    return obs, single
 
 
 def _episode_start_mask(episode_start, n: int) -> np.ndarray:
@@ -285,19 +303,8 @@ class PassivityPolicy:
         ``observe_error_integral``: the policy reads entries 0-17); ``episode_start``: None, a bool
         or a bool array of N entries (the entries whose controller memory is reset). Observations must be
         finite and inside the model's validity (arm curvatures |q_l|, |q_r| <= 2 pi); ValueError otherwise."""
-        obs = observation
-        if not (type(obs) is np.ndarray and obs.dtype is _F64 and obs.flags.c_contiguous and obs.flags.writeable):
-            obs = real_array("observation", observation, _OBS_EXPECTED)
-        single = obs.ndim == 1
-        dim = self.config.obs_dim  # 18, or 21 with the error integrals (observe_error_integral)
-        if obs.ndim not in (1, 2) or obs.shape[-1] != dim or obs.shape[0] == 0:
-            raise ValueError(f"observation must have shape ({dim},) or (N, {dim}) with N >= 1 (the observation of "
-                             f"the policy's env), got shape {obs.shape}")
-        obs = obs.reshape(-1, dim)
-        if dim != OBS_DIM:  # the controller reads entries 0-17; the error integrals are the env's, not its memory
-            obs = np.ascontiguousarray(obs[:, :OBS_DIM])
+        obs, single = policy_observations(observation, self.config.obs_dim)
         n = obs.shape[0]
-        _check_observation(obs)
         mask = None if episode_start is None else _episode_start_mask(episode_start, n)
         if self._n != n:
             self.controller.reset()
@@ -386,17 +393,12 @@ class ExtendedPolicy:
         self._n = None
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        """(action, state) for observations (18,) or (N, 18); ``episode_start``: None, a bool or N bools
+        """(action, state) for observations (18,) or (N, 18) (21 with ``observe_error_integral``: entries
+        0-17 are read); ``episode_start``: None, a bool or N bools
         (the entries whose memory is reset). ValueError for observations that are not finite or outside
         the model's validity."""
-        obs = real_array("observation", observation, _OBS_EXPECTED)
-        single = obs.ndim == 1
-        if obs.ndim not in (1, 2) or obs.shape[-1] != OBS_DIM or obs.shape[0] == 0:
-            raise ValueError(f"observation must have shape ({OBS_DIM},) or (N, {OBS_DIM}) with N >= 1, got shape "
-                             f"{obs.shape}")
-        obs = np.ascontiguousarray(obs.reshape(-1, OBS_DIM), dtype=np.float64)
+        obs, single = policy_observations(observation, self.config.obs_dim)
         n = obs.shape[0]
-        _check_observation(obs)
         mask = None if episode_start is None else _episode_start_mask(episode_start, n)
         if self._n != n:
             self.controller.reset()

@@ -6,16 +6,14 @@ import time
 
 import numpy as np
 
-from ...envs._validation import real_array, short_repr
+from ...envs._validation import short_repr
 from ...envs.config import EnvConfig
-from ...envs.observation import OBS_DIM
 from ...policies import (
-    _OBS_EXPECTED,
     PassivityPolicy,
-    _check_observation,
     _episode_start_mask,
     actuator_action,
     env_config,
+    policy_observations,
 )
 from ._casadi import import_casadi
 from .ocp import NU, NX, MPCOptions, TrackingOCP, hover_input
@@ -159,17 +157,12 @@ class MPCPolicy:
         return u
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        """(action, state) for observations (18,) or (N, 18) of the env; ``episode_start``: None, a bool
+        """(action, state) for observations (18,) or (N, 18) of the env (21 with its ``observe_error_integral``:
+        entries 0-17 are read); ``episode_start``: None, a bool
         or a bool array of N entries (the entries whose plan is reset). Observations must be finite and
         inside the model's validity (arm curvatures |q_l|, |q_r| <= 2 pi); ValueError otherwise."""
-        obs = real_array("observation", observation, _OBS_EXPECTED)
-        single = obs.ndim == 1
-        if obs.ndim not in (1, 2) or obs.shape[-1] != OBS_DIM or obs.shape[0] == 0:
-            raise ValueError(f"observation must have shape ({OBS_DIM},) or (N, {OBS_DIM}) with N >= 1, got shape "
-                             f"{obs.shape}")
-        obs = obs.reshape(-1, OBS_DIM)
+        obs, single = policy_observations(observation, self.config.obs_dim)
         n = obs.shape[0]
-        _check_observation(obs)
         mask = None if episode_start is None else _episode_start_mask(episode_start, n)
         if self._n != n:
             self._plans = np.empty((n, self.options.horizon, NU))
