@@ -96,6 +96,32 @@ def test_window_metrics_match_a_hand_computation_and_a_crashed_episode_has_crash
     assert list(window_scores(got, "rms_position_error_steady")) == [got[0]["rms_position_error_steady"], np.inf]
 
 
+class Recording(FallsAfter):
+    """FallsAfter that keeps a copy of every observation batch it is given."""
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        self.seen = []
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        self.seen.append(np.array(obs, copy=True))
+        return super().predict(obs, episode_start=episode_start)
+
+
+def test_a_finished_episode_s_entry_gets_its_last_running_observation_not_the_terminal_one():
+    # the policy acts on the whole batch until every episode ends; a finished entry's terminal observation
+    # (a diverged one may be outside what an analytic controller accepts) is replaced by its last observation
+    # of the running episode, and that entry is never scored again
+    probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task="hover")
+    policy = Recording(probe, 250, [1])
+    got = run_episodes(policy, "actuators", "hover", "nominal", 2, 1_000_000)
+    end = got[1]["length"]  # the call that got the terminal observation without the replacement
+    assert got[1]["crashed"] and end < got[0]["length"] == len(policy.seen)
+    last = policy.seen[end - 1][1]
+    assert all(np.array_equal(seen[1], last) for seen in policy.seen[end:])
+    assert not np.array_equal(policy.seen[end][0], policy.seen[end - 1][0])  # the running entry moves on
+
+
 class Sleepy:
     """Sleeps 2 ms per predict call (for the whole batch): the evaluator's compute per step is its per-env share."""
 

@@ -92,6 +92,7 @@ def run_episodes(policy, action_mode: str, task: str, tier: str, episodes: int, 
         action, _ = policy.predict(obs, episode_start=start, deterministic=True)
         seconds.append(time.perf_counter() - tic)
         start[:] = False
+        previous = obs
         obs, reward, term, trunc, info = env.step(action)
         live = ~done
         q = sim.q
@@ -110,6 +111,11 @@ def run_episodes(policy, action_mode: str, task: str, tier: str, episodes: int, 
         length[live] += 1
         crashed |= term & live
         done |= term | trunc
+        if done.any() and not done.all():
+            # a finished episode's entry is never scored again; the policy (which acts on the whole batch) gets
+            # its last observation of a running episode instead of the terminal one, which may lie outside
+            # what an analytic controller accepts (a diverged episode's arms bent past 2 pi)
+            obs = np.where(done[:, None], previous, obs)
     env.close()
     steps = np.maximum(length, 1)
     per_env_us = np.asarray(seconds) / n * 1e6
