@@ -107,6 +107,18 @@ def test_controller_memory_is_the_extension_and_resets():
         c(np.stack([q, q]), np.zeros(5), q_ref, qd_ref, qdd_ref)
 
 
+def test_a_midpoint_predicted_outside_the_model_holds_the_start_command():
+    # a diverging episode: the arms at 3 rad bending at 1000 rad/s would be predicted past pi at the step's
+    # midpoint; the held command is then the law at the step's start (the model is not evaluated out of range)
+    q_ref, qd_ref, qdd_ref, q3, q4 = paper_reference(0.0, order=4)
+    q, qd = np.array([[0.1, 0.2, 0.1, 3.0, -0.2]]), np.array([[0.0, 0.0, 0.0, 1000.0, 0.0]])
+    xi = np.array([[70.0, 0.0]])
+    ref = np.stack([r.reshape(1, 5) for r in (q_ref, qd_ref, qdd_ref, q3, q4)])
+    mid, _ = ExtendedController(dt=0.01).held_step(q, qd, xi, ref)
+    start, _ = ExtendedController(dt=0.01, held_command="start").held_step(q, qd, xi, ref)
+    np.testing.assert_array_equal(mid.actuators, start.actuators)
+
+
 @pytest.mark.parametrize("kwargs, match", [
     (dict(params=SoftPVTOLParams(m_r=1.5)), "equal arms"),
     (dict(params=SoftPVTOLParams(l_l=0.4)), "equal arms"),

@@ -367,6 +367,13 @@ class ExtendedController:
             fact = (1.0, m, m * m / 2.0, m**3 / 6.0, m**4 / 24.0)
             refm = ref_mid if ref_mid is not None else np.stack(
                 [sum(fact[j] * ref[i + j] for j in range(5 - i)) for i in range(5)])
+            # a row whose predicted midpoint leaves the model's range (a diverging episode: arms predicted past
+            # pi, or non-finite) holds the start's command instead
+            bad = ~(np.isfinite(qm).all(-1) & np.isfinite(vm).all(-1) & (np.abs(qm[..., 3:5]) <= math.pi).all(-1))
+            if bad.any():
+                qm, vm, xim = np.where(bad[:, None], q, qm), np.where(bad[:, None], qdot, vm), np.where(
+                    bad[:, None], xi, xim)
+                refm = np.where(bad[None, :, None], ref, refm)
             out = self.evaluate(qm, vm, xim, refm)
         u1 = out.thrust_accel
         return out, np.stack([xi[:, 0] + h * xi[:, 1] + 0.5 * h * h * u1, xi[:, 1] + h * u1], axis=-1)
