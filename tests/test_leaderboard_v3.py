@@ -198,14 +198,16 @@ def test_the_older_passivity_list_still_works_and_shares_the_names(tmp_path):
         load_jobs(path)
 
 
-def test_an_mpc_job_without_mpc_policy_fails_with_a_clear_error():
-    import softpvtol_gym
+def test_an_mpc_job_without_the_mpc_extra_fails_with_a_clear_error(monkeypatch):
+    from softpvtol_gym.control.mpc import _casadi
 
-    if hasattr(softpvtol_gym, "MPCPolicy"):
-        pytest.skip("softpvtol_gym.MPCPolicy exists: the mpc job runs (checked by the leaderboard run)")
+    def missing(name, *args, **kwargs):
+        raise ImportError(f"No module named {name!r}")
+
+    monkeypatch.setattr(_casadi.importlib, "import_module", missing)
     job = Job(policy="mpc", action_mode="actuators", task="hover", train_tier=None, seed=0, eval_tiers=("nominal",),
               eval_episodes=1, eval_seed=1_000_000, kind="mpc")
-    with pytest.raises(ConfigError, match="softpvtol_gym.MPCPolicy is not available"):
+    with pytest.raises(ConfigError, match=r"job mpc_hover: the nonlinear MPC .* needs CasADi .*softpvtol-gym\[mpc\]"):
         analytic_policy(job)
 
 

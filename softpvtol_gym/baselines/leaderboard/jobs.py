@@ -259,12 +259,12 @@ def analytic_policy(job: Job) -> tuple:
         probe = SoftPVTOLVectorEnv(num_envs=1, action_mode=job.action_mode, task=job.task, **env_kwargs)
         return PassivityPolicy.from_env(probe), env_kwargs
     if job.kind == "mpc":
-        mpc = getattr(softpvtol_gym, "MPCPolicy", None)
-        if mpc is None:
-            raise ConfigError(f"job {job.name}: softpvtol_gym.MPCPolicy is not available in this version of the "
-                              f"package; remove the mpc entry from the spec or install a version that has it")
         probe = SoftPVTOLVectorEnv(num_envs=1, action_mode=job.action_mode, task=job.task)
-        return mpc.from_env(probe, **{k: list(v) if isinstance(v, tuple) else v for k, v in job.options}), {}
+        options = {k: list(v) if isinstance(v, tuple) else v for k, v in job.options}
+        try:
+            return softpvtol_gym.MPCPolicy.from_env(probe, **options), {}
+        except ImportError as exc:  # the mpc extra (CasADi) is missing: the message names it
+            raise ConfigError(f"job {job.name}: {exc}; or remove the mpc entry from the spec") from None
     raise ConfigError(f"job {job.name}: unknown analytic kind {job.kind!r}; expected one of {list(ANALYTIC_KINDS)}")
 
 
