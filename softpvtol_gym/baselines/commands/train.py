@@ -8,6 +8,8 @@ source checkout ``python train.py``, with the same options).
     python train.py --device cuda            # the policy on a GPU (the env steps on the CPU)
     python train.py --hp frame_stack=4       # the policy sees the last 4 observations (SB3's VecFrameStack)
     python train.py --env residual_scale=0.4 # an env option, for training and evaluation (docs/baselines.md)
+    python train.py --train-env precision_reward_weight=1   # a training-only env option (reward terms, starts)
+    python train.py --recipe residual-gated-integral --task track_random   # a named recipe (recipes.yml)
 
 Hyperparameters come from ``softpvtol_gym/baselines/data/hyperparams/<algo>.yml`` (the entry of the mode's env id:
 ``SoftPVTOLResidual-v0``, ``SoftPVTOLVirtual-v0``, ``SoftPVTOLActuators-v0``; rl-baselines3-zoo's format);
@@ -41,10 +43,12 @@ from softpvtol_gym.baselines.config.hyperparams import (
     MAX_N_ENVS,
     MAX_TIMESTEPS,
     TRAIN_SEED_LIMIT,
+    TRAINING_ENV_OPTION_KEYS,
     apply_overrides,
     load_hyperparams,
     parse_env_options,
 )
+from softpvtol_gym.baselines.config.recipes import RECIPES_FILE, load_recipe, recipe_config_fields
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, evaluate
@@ -55,6 +59,7 @@ from softpvtol_gym.baselines.util.args import Parser, check_output_dir, command_
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.locks import DirectoryLock
 from softpvtol_gym.baselines.util.paths import Layout
+from softpvtol_gym.control import LOOPS
 from softpvtol_gym.envs.actions import ACTION_MODES
 from softpvtol_gym.envs.tiers import registered_tiers
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
@@ -87,6 +92,17 @@ def build_parser(prog: str = "train.py") -> Parser:
     ap.add_argument("--env", action="append", default=[], metavar="KEY=VALUE", dest="env_options",
                     help=f"an env argument of the run's training and evaluation envs, one of {list(ENV_OPTION_KEYS)} "
                          f"(residual mode; recorded in config.yaml as env_options)")
+    ap.add_argument("--train-env", action="append", default=[], metavar="KEY=VALUE", dest="train_env_options",
+                    help=f"an env argument of the training env only, one of {list(TRAINING_ENV_OPTION_KEYS)} "
+                         f"(reward terms and starts; evaluations keep the task's own; recorded as train_env_options)")
+    ap.add_argument("--controller-loop", default=None, choices=list(LOOPS),
+                    help="the analytic loop under the residual action (residual mode; default: the env's)")
+    ap.add_argument("--start-error-curriculum", default=None, metavar="S0,STEPS",
+                    help="scale the starts' deviation from the reference from S0 at step 0 linearly to the run's "
+                         "start_error_scale (default 1) at STEPS (e.g. 0.2,500000)")
+    ap.add_argument("--recipe", default=None, metavar="NAME",
+                    help=f"a training recipe of {RECIPES_FILE.name} (algo, action mode, base loop, env and training "
+                         f"options, hyperparameter overrides); the other options change it")
     ap.add_argument("--checkpoint-freq", type=int_arg(), default=None, help="env steps between checkpoints (100,000)")
     ap.add_argument("--eval-freq", type=int_arg(), default=None,
                     help="env steps between periodic evaluations (50,000)")
@@ -121,11 +137,26 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
         ap.error(f"--seed must be in [0, {TRAIN_SEED_LIMIT}) (evaluation seeds start at {EVAL_SEED_OFFSET}), "
                  f"got {args.seed}")
     given = {k: getattr(args, k) for k in DEFAULTS if getattr(args, k) is not None}
-    pick = {**DEFAULTS, **given}
-    out = args.out or Path("runs") / "{algo}_{action_mode}_{task}_{tier}_s{seed}".format(**pick)
+    recipe = load_recipe(args.recipe) if args.recipe is not None else None
+    base = dict(DEFAULTS)
+    if recipe is not None:
+        base.update(algo=recipe["algo"], action_mode=recipe["action_mode"])
+        for key in ("algo", "action_mode"):
+            if key in given and given[key] != recipe[key]:
+                ap.error(f"--{key.replace('_', '-')} {given[key]} contradicts --recipe {args.recipe} ({key} "
+                         f"{recipe[key]}); leave it out")
+    pick = {**base, **given}
+    default_name = ("{algo}_{action_mode}_{task}_{tier}_s{seed}" if args.recipe is None
+                    else f"{args.recipe}_{{task}}_{{tier}}_s{{seed}}")
+    out = args.out or Path("runs") / default_name.format(**pick)
     if out.exists() and not out.is_dir():
         ap.error(f"--out {out} is a file; expected a run directory")
     env_options = parse_env_options(args.env_options)
+    train_env_options = parse_env_options(args.train_env_options, TRAINING_ENV_OPTION_KEYS, "--train-env")
+    curriculum = _parse_curriculum(args.start_error_curriculum, ap)
+    fields = recipe_config_fields(recipe) if recipe is not None else {
+        "controller_loop": None, "env_options": {}, "train_env_options": {}, "start_error_curriculum": None}
+    recipe_hp = list(recipe["hp"]) if recipe is not None else []
     saved = None
     if args.resume:
         if not out.is_dir():
@@ -146,9 +177,17 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
             overrides.append(f"n_timesteps={args.timesteps}")
         n_envs = args.n_envs if args.n_envs is not None else saved.n_envs
         env_options = {**saved.env_options, **env_options}  # a different value is refused below, naming both
+        train_env_options = {**saved.train_env_options, **train_env_options}
+        curriculum = saved.start_error_curriculum if curriculum is None else curriculum
+        controller_loop = args.controller_loop or saved.controller_loop
     else:
-        hp = apply_overrides(load_hyperparams(pick["algo"], pick["action_mode"], args.hyperparams), args.hp)
-        overrides = list(args.hp)
+        hp = apply_overrides(load_hyperparams(pick["algo"], pick["action_mode"], args.hyperparams),
+                             recipe_hp + args.hp)
+        overrides = recipe_hp + list(args.hp)
+        env_options = {**fields["env_options"], **env_options}
+        train_env_options = {**fields["train_env_options"], **train_env_options}
+        curriculum = fields["start_error_curriculum"] if curriculum is None else curriculum
+        controller_loop = args.controller_loop or fields["controller_loop"]
         if args.n_envs is not None:
             overrides.append(f"n_envs={args.n_envs}")
             hp["n_envs"] = args.n_envs
@@ -159,8 +198,27 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
     config = RunConfig(algo=pick["algo"], action_mode=pick["action_mode"], task=pick["task"], tier=pick["tier"],
                        timesteps=timesteps, seed=pick["seed"], n_envs=n_envs, hyperparams=hp, overrides=overrides,
                        checkpoint_freq=pick["checkpoint_freq"], eval_freq=pick["eval_freq"],
-                       eval_episodes=pick["eval_episodes"], env_options=env_options)
+                       eval_episodes=pick["eval_episodes"], env_options=env_options,
+                       train_env_options=train_env_options, start_error_curriculum=curriculum,
+                       controller_loop=controller_loop)
+    if saved is not None and config.controller_loop != saved.controller_loop:
+        raise ConfigError(f"--resume: controller_loop of the run in {out} is {saved.controller_loop!r}, the command "
+                          f"asks for {config.controller_loop!r}; resume with the run's own settings")
     return config, out
+
+
+def _parse_curriculum(raw: str | None, ap: Parser) -> list | None:
+    """``"0.2,500000"`` as ``[0.2, 500000]`` (RunConfig checks the ranges), None for None."""
+    if raw is None:
+        return None
+    parts = raw.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        return [float(parts[0]), int(parts[1])]
+    except ValueError:
+        ap.error(f"--start-error-curriculum must look like S0,STEPS (a number and an integer, e.g. 0.2,500000), "
+                 f"got {raw!r}")
 
 
 def _print_comparison(config: RunConfig, out: Path, report: dict) -> None:

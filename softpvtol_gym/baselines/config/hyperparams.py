@@ -37,10 +37,16 @@ MAX_FRAME_STACK = 64
 #: env arguments a run may set besides mode, task, tier and base loop (RunConfig.env_options, train.py --env):
 #: the residual mode's residual scale, the space the residual acts in and its gate, and the error-integral
 #: observation (softpvtol_gym EnvConfig fields). They define the policy's interface, so the run's training and
-#: evaluation envs both get them; the training-only aids (precision and action-rate reward terms, wider starts)
-#: are not run options yet (issue 25, part 2)
+#: evaluation envs both get them
 ENV_OPTION_KEYS = ("residual_scale", "residual_space", "residual_gate", "observe_error_integral",
                    "error_integral_limit")
+#: the env options that shape the residual action (residual mode only); the others apply in every mode
+RESIDUAL_ONLY_ENV_OPTIONS = ("residual_scale", "residual_space", "residual_gate")
+#: env arguments of the run's training env only (RunConfig.train_env_options, train.py --train-env): the
+#: training aids of issue 25 (extra reward terms, wider starts) that change what the agent is trained on but
+#: not its interface; evaluations (periodic, leaderboard) use the task's own reward and starts
+TRAINING_ENV_OPTION_KEYS = ("precision_reward_weight", "precision_reward_scale", "action_rate_penalty",
+                            "start_error_scale", "start_distribution")
 #: the env options a run saved before RunConfig had ``env_options`` trained with (none: the env's defaults)
 LEGACY_ENV_OPTIONS: dict = {}
 #: constructor arguments of the SB3 algorithms that a run sets itself (not hyperparameters)
@@ -114,17 +120,22 @@ def apply_overrides(hyperparams: dict, overrides: list[str]) -> dict:
     return out
 
 
-def parse_env_options(items: list[str]) -> dict:
+def parse_env_options(items: list[str], valid: tuple = ENV_OPTION_KEYS, flag: str = "--env") -> dict:
     """``["residual_scale=0.4"]`` as ``{"residual_scale": 0.4}`` (values as YAML, numbers as numbers; nothing is
-    evaluated); the keys must be in :data:`ENV_OPTION_KEYS` (the values are checked by :class:`RunConfig`)."""
+    evaluated); the keys must be in ``valid`` (default :data:`ENV_OPTION_KEYS`; the values are checked by
+    :class:`RunConfig`). ``flag`` names the command-line option in errors."""
     out = {}
     for item in items:
         key, sep, raw = item.partition("=")
         key = key.strip()
         if not sep or not key:
-            raise ConfigError(f"an env option must look like key=value, got {item!r}")
-        if key not in ENV_OPTION_KEYS:
-            raise ConfigError(f"unknown env option {key!r}; a run may set {list(ENV_OPTION_KEYS)}")
+            raise ConfigError(f"{flag}: an env option must look like key=value, got {item!r}")
+        if key not in valid:
+            other = {"--env": ("--train-env", TRAINING_ENV_OPTION_KEYS), "--train-env": ("--env", ENV_OPTION_KEYS)}
+            hint = ""
+            if flag in other and key in other[flag][1]:
+                hint = f" ({key} belongs to {other[flag][0]})"
+            raise ConfigError(f"{flag}: unknown env option {key!r}; it takes {list(valid)}{hint}")
         out[key] = _parse_value(raw, f"env option {key}")
     return out
 

@@ -16,7 +16,9 @@ from softpvtol_gym.baselines.config.hyperparams import (
     MAX_EPISODES,
     MAX_N_ENVS,
     MAX_TIMESTEPS,
+    RESIDUAL_ONLY_ENV_OPTIONS,
     TRAIN_SEED_LIMIT,
+    TRAINING_ENV_OPTION_KEYS,
     read_yaml,
 )
 from softpvtol_gym.baselines.config.validation import is_int, validate_hyperparams
@@ -58,6 +60,13 @@ class RunConfig:
     #: env arguments of the run's training and evaluation envs besides the above (:data:`ENV_OPTION_KEYS`,
     #: e.g. ``{"residual_scale": 0.4}``; train.py ``--env key=value``); empty: the env's defaults
     env_options: dict = dataclasses.field(default_factory=dict)
+    #: env arguments of the training env only (:data:`TRAINING_ENV_OPTION_KEYS`: extra reward terms, wider
+    #: starts; train.py ``--train-env key=value``); evaluations use the task's own reward and starts
+    train_env_options: dict = dataclasses.field(default_factory=dict)
+    #: a curriculum over the starting error: ``[s0, ramp_steps]`` scales the starts' deviation from the
+    #: reference (``start_error_scale``) from s0 at step 0 linearly to the run's scale (train_env_options'
+    #: ``start_error_scale``, default 1) at ``ramp_steps``, set at every rollout's start; None: no curriculum
+    start_error_curriculum: list | None = None
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -86,24 +95,54 @@ class RunConfig:
         except (ValueError, TypeError) as exc:
             raise ConfigError(f"controller_loop: {exc}") from None
         self.controller_loop = env_config.resolved_controller_loop
-        self._check_env_options(EnvConfig)
+        self._check_env_options(EnvConfig, "env_options", ENV_OPTION_KEYS)
+        self._check_env_options(EnvConfig, "train_env_options", TRAINING_ENV_OPTION_KEYS)
+        try:  # the two together, as the training env gets them
+            EnvConfig(action_mode=self.action_mode, controller_loop=self.controller_loop, **self.env_options,
+                      **self.train_env_options)
+        except (ValueError, TypeError) as exc:
+            raise ConfigError(f"env_options with train_env_options: {exc}") from None
+        self._check_curriculum()
 
-    def _check_env_options(self, env_config_class) -> None:
-        """env_options: a mapping of :data:`ENV_OPTION_KEYS` that the env accepts (each value checked by
-        EnvConfig; a ConfigError names the key), each of which has an effect in the run's action mode."""
-        opts = self.env_options
+    def _check_env_options(self, env_config_class, field: str, valid: tuple) -> None:
+        """``field``: a mapping of ``valid`` keys that the env accepts (each value checked by EnvConfig; a
+        ConfigError names the key), each of which has an effect in the run's action mode."""
+        opts = getattr(self, field)
+        flag = "--env" if field == "env_options" else "--train-env"
         if not isinstance(opts, dict):
-            raise ConfigError(f"env_options must be a mapping of {list(ENV_OPTION_KEYS)} to values, got {opts!r}")
+            raise ConfigError(f"{field} must be a mapping of {list(valid)} to values, got {opts!r}")
         for key, value in opts.items():
-            if key not in ENV_OPTION_KEYS:
-                raise ConfigError(f"unknown env option {key!r}; a run may set {list(ENV_OPTION_KEYS)}")
-            if self.action_mode != "residual":  # both options shape the residual action only
+            if key not in valid:
+                other = TRAINING_ENV_OPTION_KEYS if field == "env_options" else ENV_OPTION_KEYS
+                hint = (f" ({key} is a{' training-only' if field == 'env_options' else 'n interface'} option: pass "
+                        f"it as {'--train-env' if flag == '--env' else '--env'})" if key in other else "")
+                raise ConfigError(f"unknown {field} key {key!r} ({flag}); a run may set {list(valid)}{hint}")
+            if key in RESIDUAL_ONLY_ENV_OPTIONS and self.action_mode != "residual":
                 raise ConfigError(f"env option {key} acts on the residual action mode only; this run's action mode "
                                   f"is {self.action_mode!r} (leave {key} out)")
             try:
                 env_config_class(action_mode=self.action_mode, controller_loop=self.controller_loop, **{key: value})
             except (ValueError, TypeError) as exc:
-                raise ConfigError(f"env option {key}: {exc}") from None
+                raise ConfigError(f"{field} {key}: {exc}") from None
+
+    def _check_curriculum(self) -> None:
+        c = self.start_error_curriculum
+        if c is None:
+            return
+        ok = (isinstance(c, list) and len(c) == 2 and isinstance(c[0], (int, float)) and not isinstance(c[0], bool)
+              and 0.0 <= c[0] <= 10.0 and is_int(c[1]) and 1 <= c[1] <= MAX_TIMESTEPS)
+        if not ok:
+            raise ConfigError(f"start_error_curriculum must be [s0, ramp_steps] with 0 <= s0 <= 10 (the starting "
+                              f"error's scale at step 0) and an integer ramp_steps in [1, {MAX_TIMESTEPS:,}], or "
+                              f"None; got {c!r}")
+
+    def start_error_scale_at(self, step: int) -> float:
+        """The curriculum's starting-error scale at training step ``step`` (the run's scale without one)."""
+        target = float(self.train_env_options.get("start_error_scale", 1.0))
+        if self.start_error_curriculum is None:
+            return target
+        s0, ramp = self.start_error_curriculum
+        return float(s0) + (target - float(s0)) * min(1.0, max(0, step) / ramp)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -124,6 +163,8 @@ class RunConfig:
         if strict and "env_options" not in data:
             # saved before the field existed (2026-12-01, issue 16): those runs used the env's defaults
             data = {**data, "env_options": dict(LEGACY_ENV_OPTIONS)}
+        if strict:  # saved before the fields existed (2026-12-02, issue 25): no training aids
+            data = {"train_env_options": {}, "start_error_curriculum": None, **data}
         if strict:
             lost = [n for n in names if n not in data]
             if lost:
@@ -143,7 +184,8 @@ class RunConfig:
 
     def env_kwargs(self) -> dict:
         """Env arguments of this run's training env."""
-        return {"action_mode": self.action_mode, "task": self.task, "tier": self.tier, **self.eval_env_kwargs()}
+        return {"action_mode": self.action_mode, "task": self.task, "tier": self.tier, **self.eval_env_kwargs(),
+                **self.train_env_options}
 
     def eval_env_kwargs(self) -> dict:
         """Env arguments of this run's evaluations besides mode, task and tier (the base loop and the env

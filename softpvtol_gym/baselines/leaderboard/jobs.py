@@ -57,6 +57,7 @@ from softpvtol_gym.baselines.config.hyperparams import (
     apply_overrides,
     load_hyperparams,
 )
+from softpvtol_gym.baselines.config.recipes import load_recipe, recipe_config_fields, recipe_hyperparams
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import EPISODE_METRICS, TIMING_METRICS, run_episodes
@@ -96,6 +97,7 @@ class Job:
     hp: tuple = ()                  # learned cells: "key=value" overrides of the mode's PPO entry (train.py --hp)
     kind: str = "passivity"         # analytic entries: "passivity" or "mpc" (ANALYTIC_KINDS); ignored for "ppo"
     options: tuple = ()             # mpc entries: (name, value) pairs passed to MPCPolicy.from_env
+    recipe: str | None = None       # learned cells: the training recipe (data/hyperparams/recipes.yml), or None
 
     @property
     def eval_tasks(self) -> tuple:
@@ -108,6 +110,9 @@ class Job:
         if self.policy == "ppo":
             for what, v in (("action mode", self.action_mode), ("task", self.task), ("tier", self.train_tier)):
                 check_slug(v, f"the {what} of a job")
+            if self.recipe is not None:
+                check_slug(self.recipe, "the recipe of a job")
+                return f"ppo-{self.recipe}_{self.task}_{self.train_tier}/seed_{int(self.seed)}"
             return f"ppo_{self.action_mode}_{self.task}_{self.train_tier}/seed_{int(self.seed)}"
         check_slug(self.policy, "a passivity entry's name")
         check_slug(self.task, "the task of a job")
@@ -144,7 +149,7 @@ def load_jobs(spec_path: Path = SPEC_FILE) -> list[Job]:
             jobs.append(Job(policy="ppo", action_mode=cell["action_mode"], task=cell["task"], train_tier=cell["tier"],
                             seed=int(seed), timesteps=int(cell["timesteps"]),
                             other_eval_tasks=tuple(cell.get("also_evaluated_on", ())),
-                            hp=tuple(cell.get("hp", ())), **common))
+                            hp=tuple(cell.get("hp", ())), recipe=cell.get("recipe"), **common))
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
@@ -208,10 +213,16 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
                               f"it once with python baselines/export.py from-sb3 --trust-pickle {out} if you trust it")
         run_dir = under(root, job.name + ".run", "job training folder")
 
-        hp = apply_overrides(load_hyperparams("ppo", job.action_mode), list(job.hp))
-        config = RunConfig(algo="ppo", action_mode=job.action_mode, task=job.task, tier=job.train_tier,
+        if job.recipe is None:
+            hp = apply_overrides(load_hyperparams("ppo", job.action_mode), list(job.hp))
+            fields, recipe_hp = {"algo": "ppo", "action_mode": job.action_mode}, []
+        else:
+            recipe = load_recipe(job.recipe)
+            hp = apply_overrides(recipe_hyperparams(recipe), list(job.hp))
+            fields, recipe_hp = recipe_config_fields(recipe), list(recipe["hp"])
+        config = RunConfig(**fields, task=job.task, tier=job.train_tier,
                            timesteps=job.timesteps, seed=job.seed, n_envs=int(hp.get("n_envs", 16)), hyperparams=hp,
-                           overrides=list(job.hp),
+                           overrides=recipe_hp + list(job.hp),
                            checkpoint_freq=max(job.timesteps // 4, 1), eval_episodes=5,
                            eval_freq=max(job.timesteps // 10, 1))  # ten points of the learning curves
         run = train(config, run_dir, resume=True)

@@ -20,6 +20,7 @@ from softpvtol_gym.baselines.config.hyperparams import (
     load_hyperparams,
     read_yaml,
 )
+from softpvtol_gym.baselines.config.recipes import load_recipe, recipe_hyperparams
 from softpvtol_gym.baselines.config.validation import validate_hyperparams
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET
@@ -41,7 +42,9 @@ PASSIVITY_KEYS = ("name", "allocation", "loop", "episodes")
 ANALYTIC_KINDS = {"passivity": ("name", "kind", "allocation", "loop", "episodes"),
                   "mpc": ("name", "kind", "episodes", "options")}
 ANALYTIC_KEYS = ("name", "kind", "allocation", "loop", "episodes", "options")
-TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps", "also_evaluated_on", "hp")  # the last two optional
+# the last three optional; recipe: a training recipe of data/hyperparams/recipes.yml (its action mode must be the
+# cell's; hp overrides apply on top of the recipe's)
+TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps", "also_evaluated_on", "hp", "recipe")
 ALLOCATIONS = ("paper", "exact")
 
 
@@ -118,12 +121,23 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
         hp = _list(c.get("hp", []), f"{source}: trained[{i}].hp")
         if not all(isinstance(h, str) for h in hp):
             raise ConfigError(f"{source}: trained[{i}].hp must be a list of 'key=value' strings, got {hp!r}")
-        if hp:
+        recipe = None
+        if c.get("recipe") is not None:
+            try:
+                recipe = load_recipe(c["recipe"])
+            except ConfigError as exc:
+                raise ConfigError(f"{source}: trained[{i}].recipe: {exc}") from None
+            if recipe["action_mode"] != c["action_mode"]:
+                raise ConfigError(f"{source}: trained[{i}].action_mode is {c['action_mode']!r}, its recipe "
+                                  f"{c['recipe']!r} trains the {recipe['action_mode']!r} mode; make them agree")
+        if hp or recipe is not None:
             try:  # validated as train.py --hp would be, before anything runs
-                validate_hyperparams("ppo", apply_overrides(load_hyperparams("ppo", c["action_mode"]), hp))
+                algo = "ppo" if recipe is None else recipe["algo"]
+                base = load_hyperparams("ppo", c["action_mode"]) if recipe is None else recipe_hyperparams(recipe)
+                validate_hyperparams(algo, apply_overrides(base, hp))
             except ConfigError as exc:
                 raise ConfigError(f"{source}: trained[{i}].hp: {exc}") from None
-        key = (c["action_mode"], c["task"], c["tier"])
+        key = (c["action_mode"], c["task"], c["tier"], c.get("recipe"))
         if key in cells:
             raise ConfigError(f"{source}: trained[{i}] repeats the cell {key}")
         cells.add(key)

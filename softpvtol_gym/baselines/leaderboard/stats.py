@@ -70,6 +70,8 @@ def entry_label(job: dict, task: str | None = None) -> str:
     trained on, and the task too where that is not the one evaluated."""
     if job["policy"] == "ppo":
         where = job["train_tier"] if task in (None, job["task"]) else f"{job['task']}, {job['train_tier']}"
+        if job.get("recipe"):
+            return f"PPO {job['recipe']} (trained on {where})"
         return f"PPO-{job['action_mode']} (trained on {where})"
     return job["policy"]
 
@@ -105,6 +107,7 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> tuple[list[dict], 
                     continue
                 cells.append({
                     "entry": entry_label(j, task), "policy": j["policy"], "action_mode": j["action_mode"],
+                    "recipe": j.get("recipe"),
                     "task": task, "train_task": j["task"], "train_tier": j["train_tier"], "tier": tier,
                     "seed": j["seed"], "timesteps": j.get("timesteps") or None, "checkpoint": rec["checkpoint"],
                     "train_seconds": rec["train_seconds"],
@@ -134,6 +137,8 @@ def check_result(rec: dict, path: Path) -> dict:
             bad(f"job.{key} is missing")
         if not isinstance(job[key], types) or isinstance(job[key], bool):
             bad(f"job.{key} must be {' or '.join(t.__name__ for t in types)}, got {job[key]!r}")
+    if job.get("recipe") is not None and not isinstance(job["recipe"], str):
+        bad(f"job.recipe must be a recipe name or null, got {job['recipe']!r}")
     if job.get("timesteps") is not None and not (_number(job["timesteps"]) and isinstance(job["timesteps"], int)):
         bad(f"job.timesteps must be an integer, got {job['timesteps']!r}")
     if rec["checkpoint"] is not None and not isinstance(rec["checkpoint"], str):
@@ -284,7 +289,7 @@ def aggregate(cells: list[dict]) -> list[dict]:
         det = (task, tier) in fixed
         row = {"task": task, "tier": tier, "entry": entry, "policy": group[0]["policy"],
                "action_mode": group[0]["action_mode"], "train_task": group[0].get("train_task", task),
-               "train_tier": group[0]["train_tier"],
+               "train_tier": group[0]["train_tier"], "recipe": group[0].get("recipe"),
                "runs": len(group), "episodes": len(group[0]["episodes"]), "deterministic": det,
                "ci_over": ("none (one run of a deterministic task and tier)" if det and len(group) == 1 else
                            "training seeds only (a deterministic task and tier)" if det else
@@ -327,8 +332,8 @@ HEADLINE_TASKS = ("track_paper", "track_random")  # the tracking tasks of issue 
 
 
 def _policy_key(row: dict) -> tuple:
-    """A learned policy across the tasks it is evaluated on: (action mode, training task, training tier)."""
-    return (row["action_mode"], row.get("train_task", row["task"]), row["train_tier"])
+    """A learned policy across the tasks it is evaluated on: (action mode, training task, training tier, recipe)."""
+    return (row["action_mode"], row.get("train_task", row["task"]), row["train_tier"], row.get("recipe") or "")
 
 
 def _disjoint_below(a: list[float], b: list[float]) -> bool:
@@ -370,8 +375,9 @@ def headline(data: dict) -> dict | None:
                     "lower": b["rms_position_error_iqm"] < a["rms_position_error_iqm"],
                     "disjoint": _disjoint_below(b["rms_position_error_ci"], a["rms_position_error_ci"]),
                     "crash_no_higher": b["crash_rate"] <= a["crash_rate"]})
-    mode, train_task, train_tier = best
-    return {"policy": f"PPO-{mode} trained on {train_task} ({train_tier} tier)", "rows": out}
+    mode, train_task, train_tier, recipe = best
+    name = f"PPO {recipe}" if recipe else f"PPO-{mode}"
+    return {"policy": f"{name} trained on {train_task} ({train_tier} tier)", "rows": out}
 
 
 def _key(v: float | None) -> float:

@@ -155,6 +155,27 @@ def _callbacks(run_dir: Path, config: RunConfig, vecnorm, start_step: int):
     return CheckpointAndEval()
 
 
+def _set_start_error_scale(venv, scale: float) -> None:
+    """The native vector env's starting-error scale for every later reset (through the SB3 wrappers)."""
+    venv.env_method("set_start_error_scale", scale, indices=[0])
+
+
+def _curriculum_callback(config: RunConfig):
+    """At every rollout's start: the curriculum's starting-error scale (RunConfig.start_error_curriculum)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class StartErrorCurriculum(BaseCallback):
+        def _on_step(self) -> bool:
+            return True
+
+        def _on_rollout_start(self) -> None:
+            scale = config.start_error_scale_at(self.model.num_timesteps)
+            _set_start_error_scale(self.training_env, scale)
+            self.logger.record("train/start_error_scale", scale)
+
+    return StartErrorCurriculum()
+
+
 def finished_run(run_dir: Path) -> dict | None:
     """The verified manifest of a run directory's final model, or None if the run is not finished."""
     run_dir = Path(run_dir)
@@ -171,7 +192,8 @@ def finished_run(run_dir: Path) -> dict | None:
 
 
 def _check_same_run(saved: RunConfig, config: RunConfig, where: str) -> None:
-    for key in ("algo", "action_mode", "task", "tier", "seed", "n_envs", "hyperparams", "env_options"):
+    for key in ("algo", "action_mode", "task", "tier", "seed", "n_envs", "hyperparams", "env_options",
+                "train_env_options", "start_error_curriculum"):
         if getattr(saved, key) != getattr(config, key):
             raise ConfigError(f"--resume: {key} of {where} is {getattr(saved, key)!r}, the command asks for "
                               f"{getattr(config, key)!r}; resume with the run's own settings (or leave the option "
@@ -298,6 +320,10 @@ def train(config: RunConfig, run_dir: Path, resume: bool = False, progress_bar: 
         t0 = time.perf_counter()
         if remaining > 0:
             callbacks = [_callbacks(run_dir, config, vecnorm, start)]
+            if config.start_error_curriculum is not None:
+                # the first rollout's starts too (SB3 resets the env before the callbacks run)
+                _set_start_error_scale(model.get_env(), config.start_error_scale_at(start))
+                callbacks.append(_curriculum_callback(config))
             planned = _ProgressBar.planned_steps(model, remaining)
             if progress_bar:
                 if planned != remaining:
