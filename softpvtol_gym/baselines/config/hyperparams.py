@@ -135,7 +135,7 @@ def parse_env_options(items: list[str], valid: tuple = ENV_OPTION_KEYS, flag: st
             hint = ""
             if flag in other and key in other[flag][1]:
                 hint = f" ({key} belongs to {other[flag][0]})"
-            raise ConfigError(f"{flag}: unknown env option {key!r}; it takes {list(valid)}{hint}")
+            raise ConfigError(f"unknown env option {key!r}; a run may set {list(valid)} ({flag}){hint}")
         out[key] = _parse_value(raw, f"env option {key}")
     return out
 

@@ -109,6 +109,7 @@ class RunConfig:
         ConfigError names the key), each of which has an effect in the run's action mode."""
         opts = getattr(self, field)
         flag = "--env" if field == "env_options" else "--train-env"
+        what = "env option" if field == "env_options" else "training env option"
         if not isinstance(opts, dict):
             raise ConfigError(f"{field} must be a mapping of {list(valid)} to values, got {opts!r}")
         for key, value in opts.items():
@@ -116,14 +117,14 @@ class RunConfig:
                 other = TRAINING_ENV_OPTION_KEYS if field == "env_options" else ENV_OPTION_KEYS
                 hint = (f" ({key} is a{' training-only' if field == 'env_options' else 'n interface'} option: pass "
                         f"it as {'--train-env' if flag == '--env' else '--env'})" if key in other else "")
-                raise ConfigError(f"unknown {field} key {key!r} ({flag}); a run may set {list(valid)}{hint}")
+                raise ConfigError(f"unknown {what} {key!r} ({flag}); a run may set {list(valid)}{hint}")
             if key in RESIDUAL_ONLY_ENV_OPTIONS and self.action_mode != "residual":
                 raise ConfigError(f"env option {key} acts on the residual action mode only; this run's action mode "
                                   f"is {self.action_mode!r} (leave {key} out)")
             try:
                 env_config_class(action_mode=self.action_mode, controller_loop=self.controller_loop, **{key: value})
             except (ValueError, TypeError) as exc:
-                raise ConfigError(f"{field} {key}: {exc}") from None
+                raise ConfigError(f"{what} {key}: {exc}") from None
 
     def _check_curriculum(self) -> None:
         c = self.start_error_curriculum

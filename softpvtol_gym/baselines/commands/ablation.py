@@ -1,0 +1,57 @@
+"""Score the learned controller's ablation (issue 25) and render its table.
+
+    softpvtol ablation --spec ablation.yml --root results/ablation_runs
+
+In a source checkout, ``python baselines/ablation.py`` reads ``baselines/ablation.yml`` and its runs under
+``baselines/results/ablation_runs`` (made by ``python baselines/run_jobs.py --spec baselines/ablation.yml --root
+baselines/results/ablation_runs``), takes its first row from the leaderboard's runs, and writes
+``baselines/results/ablation.json`` and the table in docs/baselines.md ("Ablation"). ``--from-json`` only
+re-renders the table. Exit codes as the other commands: 0 done, 2 bad input (a missing run names itself).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from softpvtol_gym.baselines.leaderboard.ablation import build, render_markdown
+from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE
+from softpvtol_gym.baselines.util.args import Parser, command_main
+from softpvtol_gym.baselines.util.atomic import atomic_write_text
+from softpvtol_gym.baselines.util.blocks import write_block
+from softpvtol_gym.baselines.util.paths import Layout
+from softpvtol_gym.baselines.util.safe_load import loads_json
+
+SOURCE = "baselines/results/ablation.json"
+BLOCK = ("ablation.py table", SOURCE)
+
+
+def _main(argv, layout: Layout, prog: str) -> int:
+    ap = Parser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--spec", type=Path, default=layout.root / "baselines" / "ablation.yml" if layout.readme
+                    else Path("ablation.yml"), help="the ablation spec (default: %(default)s)")
+    ap.add_argument("--root", type=Path, default=layout.results / "ablation_runs", help="default: %(default)s")
+    ap.add_argument("--leaderboard-root", type=Path, default=layout.runs,
+                    help="the leaderboard's runs, for the reference row (default: %(default)s)")
+    ap.add_argument("--json", type=Path, default=layout.results / "ablation.json", help="default: %(default)s")
+    ap.add_argument("--from-json", action="store_true", help="only re-render the table from the JSON")
+    args = ap.parse_args(argv)
+    if args.from_json:
+        data = loads_json(args.json.read_text(), str(args.json))
+    else:
+        for path, what in ((args.root, "--root"), (args.leaderboard_root, "--leaderboard-root")):
+            if not path.is_dir():
+                ap.error(f"{what} {path} is not a directory")
+        data = build(args.spec, args.root, SPEC_FILE, args.leaderboard_root)
+        atomic_write_text(args.json, json.dumps(data, indent=1, allow_nan=False))
+    table = render_markdown(data)
+    page = layout.doc("baselines.md")
+    if page is not None and write_block(*BLOCK, table, page):
+        print(f"wrote {args.json} and the table in {page}")
+    else:
+        print(table)
+    return 0
+
+
+main = command_main("ablation.py", _main, "``softpvtol ablation``: the ablation table of the learned controller.")
