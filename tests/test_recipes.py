@@ -223,3 +223,40 @@ def test_spec_cells_with_a_recipe_are_checked_and_named_by_it(tmp_path):
 
 def test_the_shipped_recipes_file_is_the_one_the_docs_name():
     assert RECIPES_FILE.name == "recipes.yml" and RECIPES_FILE.parent.name == "hyperparams"
+
+
+# ------------------------------------------------------------------------------------------ ablation
+def test_the_committed_ablation_table_is_generated_from_its_json():
+    from softpvtol_gym.baselines.commands.ablation import BLOCK
+    from softpvtol_gym.baselines.leaderboard.ablation import render_markdown
+    from softpvtol_gym.baselines.util.blocks import read_block
+    from tests.conftest import LAYOUT
+
+    data = json.loads((LAYOUT.results / "ablation.json").read_text())
+    assert read_block(*BLOCK, LAYOUT.doc("baselines.md")) == render_markdown(data).strip()
+    spec = yaml.safe_load((LAYOUT.root / "baselines" / "ablation.yml").read_text())
+    recipes = [r["recipe"] for r in data["recipes"]]
+    # the reference row, every recipe of the spec in its order, then the leaderboard's recipe cell
+    assert recipes[0] is None and recipes[1:1 + len(spec["trained"])] == [c["recipe"] for c in spec["trained"]]
+    assert recipes[-1] == "residual-tracking"
+    for rec in data["recipes"]:
+        assert rec["seeds"] == spec["seeds"], rec["label"]
+        assert {(r["task"], r["tier"]) for r in rec["rows"]} == {(t, tier) for t in spec["tasks"]
+                                                                 for tier in spec["evaluation"]["tiers"]}
+        assert all(r["runs"] == len(spec["seeds"]) and r["episodes"] == 20 for r in rec["rows"])
+
+
+def test_the_ablation_command_refuses_bad_input_in_one_line(tmp_path, capsys):
+    from softpvtol_gym.baselines.cli import run_command
+    from softpvtol_gym.baselines.util.paths import Layout
+
+    layout = Layout(results=tmp_path)
+    cases = [(["--root", str(tmp_path / "none")], "--root"),
+             (["--from-json", "--json", str(tmp_path / "none.json")], "is not a file"),
+             (["--from-json", "--json", str(tmp_path / "bad.json")], "is not an ablation JSON")]
+    (tmp_path / "bad.json").write_text('{"tasks": 1}')
+    for argv, words in cases:
+        with pytest.raises(SystemExit) as exc:
+            run_command("ablation", argv, layout=layout, prog="ablation.py")
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and words in err and err.count("\n") <= 2, err

@@ -38,7 +38,14 @@ def _main(argv, layout: Layout, prog: str) -> int:
     ap.add_argument("--from-json", action="store_true", help="only re-render the table from the JSON")
     args = ap.parse_args(argv)
     if args.from_json:
-        data = loads_json(args.json.read_text(), str(args.json))
+        if not args.json.is_file():
+            ap.error(f"--json {args.json} is not a file (make it without --from-json first)")
+        try:
+            data = loads_json(args.json.read_text(), str(args.json))
+            render_markdown(data)
+        except (ValueError, KeyError, TypeError) as exc:
+            ap.error(f"--json {args.json} is not an ablation JSON ({type(exc).__name__}: {exc}); make it again "
+                     f"without --from-json")
     else:
         for path, what in ((args.root, "--root"), (args.leaderboard_root, "--leaderboard-root")):
             if not path.is_dir():

@@ -26,6 +26,10 @@ TABLE_TIERS = ("nominal", "wind", "hard", "model_gap")
 REFERENCE_LABEL = "v2: PPO-residual, bounded base loop, no aids"
 
 
+def _steps(n: int) -> str:
+    return f"{n / 1e6:g}M steps" if n >= 1_000_000 else f"{n:,} steps"
+
+
 def _rows_of(cells: list[dict], label: str) -> list[dict]:
     for c in cells:
         c["entry"] = label
@@ -44,8 +48,8 @@ def build(ablation_spec: Path, ablation_root: Path, leaderboard_spec: Path, lead
         raise ConfigError(f"the ablation lacks results: {missing[:5]}{' ...' if len(missing) > 5 else ''}; run "
                           f"python baselines/run_jobs.py --spec {ablation_spec} --root {ablation_root}")
     out = []
+    ref_cells = collect(leaderboard_root, leaderboard_spec)[0] if reference is not None else []
     if reference is not None:
-        ref_cells, _ = collect(leaderboard_root, leaderboard_spec)
         mode, task, tier = reference
         ref = [c for c in ref_cells if c["policy"] == "ppo" and not c.get("recipe") and c["action_mode"] == mode
                and c["train_task"] == task and c["train_tier"] == tier and c["seed"] in seeds]
@@ -53,15 +57,30 @@ def build(ablation_spec: Path, ablation_root: Path, leaderboard_spec: Path, lead
             raise ConfigError(f"the leaderboard under {leaderboard_root} holds no PPO-{mode} cell trained on {task} "
                               f"({tier}) with the seeds {seeds}")
         out.append({"label": REFERENCE_LABEL, "recipe": None, "description": "leaderboard v2's cell",
-                    "seeds": sorted({c["seed"] for c in ref}), "rows": _rows_of(ref, REFERENCE_LABEL)})
+                    "timesteps": ref[0]["timesteps"], "seeds": sorted({c["seed"] for c in ref}),
+                    "rows": _rows_of(ref, REFERENCE_LABEL)})
     for cell in spec["trained"]:
         name = cell.get("recipe")
         mine = [c for c in cells if c.get("recipe") == name and c["train_task"] == cell["task"]
                 and c["train_tier"] == cell["tier"] and c["action_mode"] == cell["action_mode"]]
-        label = name or f"PPO-{cell['action_mode']}"
+        label = f"{name or 'PPO-' + cell['action_mode']}, {_steps(cell['timesteps'])}"
         out.append({"label": label, "recipe": name, "timesteps": cell["timesteps"],
                     "description": recipes[name]["description"] if name else "the action mode's PPO entry",
                     "seeds": sorted({c["seed"] for c in mine}), "rows": _rows_of(mine, label)})
+    if reference is not None:  # the leaderboard's own recipe cells of the same mode, task and tier: their budget
+        for cell in load_spec(leaderboard_spec)["trained"]:
+            name = cell.get("recipe")
+            if name is None or (cell["action_mode"], cell["task"], cell["tier"]) != reference:
+                continue
+            mine = [c for c in ref_cells if c.get("recipe") == name and c["train_task"] == cell["task"]
+                    and c["train_tier"] == cell["tier"] and c["seed"] in seeds]
+            if not mine:
+                raise ConfigError(f"the leaderboard under {leaderboard_root} lacks the runs of its {name} cell (seeds "
+                                  f"{seeds})")
+            label = f"{name}, {_steps(cell['timesteps'])} (leaderboard)"
+            out.append({"label": label, "recipe": name, "timesteps": cell["timesteps"],
+                        "description": recipes[name]["description"], "seeds": sorted({c["seed"] for c in mine}),
+                        "rows": _rows_of(mine, label)})
     return {"spec": str(ablation_spec), "tasks": spec["tasks"], "tiers": spec["evaluation"]["tiers"],
             "episodes": spec["evaluation"]["episodes"], "recipes": out}
 
