@@ -70,8 +70,9 @@ def build(ablation_spec: Path, ablation_root: Path, leaderboard_spec: Path, lead
     if reference is not None:  # the leaderboard's own recipe cells of the same mode, task and tier: their budget
         for cell in load_spec(leaderboard_spec)["trained"]:
             name = cell.get("recipe")
-            if name is None or (cell["action_mode"], cell["task"], cell["tier"]) != reference:
-                continue
+            if name is None or (cell["action_mode"], cell["task"], cell["tier"]) != reference or any(
+                    (c.get("recipe"), c["timesteps"]) == (name, cell["timesteps"]) for c in spec["trained"]):
+                continue  # not of the reference's mode, task and tier, or the same runs as a row above
             mine = [c for c in ref_cells if c.get("recipe") == name and c["train_task"] == cell["task"]
                     and c["train_tier"] == cell["tier"] and c["seed"] in seeds]
             if not mine:

@@ -229,14 +229,14 @@ def training_budgets(data: dict) -> list[dict]:
     for c in data["cells"]:
         if c["policy"] != "ppo":
             continue
-        key = (c["action_mode"], c.get("train_task", c["task"]), c["train_tier"])
+        key = (c["action_mode"], c.get("train_task", c["task"]), c["train_tier"], c.get("recipe") or "")
         cells.setdefault(key, {})[c["seed"]] = (c.get("timesteps"), c["train_seconds"])
     out = []
-    for (mode, task, tier), seeds in sorted(cells.items()):
+    for (mode, task, tier, recipe), seeds in sorted(cells.items()):
         steps = sorted({s for s, _ in seeds.values() if s is not None})
         seconds = [t for _, t in seeds.values() if t is not None]
-        out.append({"action_mode": mode, "train_task": task, "train_tier": tier, "seeds": len(seeds),
-                    "timesteps": steps, "train_seconds": sorted(seconds)})
+        out.append({"action_mode": mode, "train_task": task, "train_tier": tier, "recipe": recipe or None,
+                    "seeds": len(seeds), "timesteps": steps, "train_seconds": sorted(seconds)})
     return out
 
 
@@ -257,14 +257,15 @@ def _budget_markdown(data: dict) -> list[str]:
         wall = f"{float(np.median(t)):.0f} [{t[0]:.0f}, {t[-1]:.0f}]" if t else "not on record"
         if t and len(t) < r["seeds"]:
             wall += f" ({len(t)} of {r['seeds']} seeds on record)"
-        lines.append(f"| PPO-{r['action_mode']} | {r['train_task']}, {r['train_tier']} | {r['seeds']} | {steps} | "
+        name = f"PPO {r['recipe']}" if r.get("recipe") else f"PPO-{r['action_mode']}"
+        lines.append(f"| {name} | {r['train_task']}, {r['train_tier']} | {r['seeds']} | {steps} | "
                      f"{wall} |")
     return lines + [""]
 
 
 def _entry_order(entry: str) -> tuple:
-    order = ["passivity-paper", "passivity-exact", "passivity-bounded", "passivity-integral", "mpc", "PPO-actuators",
-             "PPO-virtual", "PPO-residual"]
+    order = ["passivity-paper", "passivity-exact", "passivity-bounded", "passivity-integral", "passivity-extended",
+             "mpc", "PPO-actuators", "PPO-virtual", "PPO-residual", "PPO "]
     for i, prefix in enumerate(order):
         if entry.startswith(prefix):
             return (i, entry)
