@@ -25,7 +25,8 @@ learned entry of the leaderboard JSON with the lowest IQM RMS position error on 
 the median of the entry's seeds (the lower middle one for an even count): a typical seed, not the best.
 
 ``curves`` (``tracking/learning_curves.png``): for every learned cell under ``--runs``
-(``ppo_*/seed_*/evaluations.json``), the periodic held-out evaluation's mean RMS position error against
+(``ppo_*/seed_*/evaluations.json``, recipe cells ``ppo-<recipe>_*/seed_*``), the periodic held-out
+evaluation's mean RMS position error against
 the run's training wall-clock time, per seed thin lines and their median thick, one panel per training
 task. Runs saved before ``train_seconds`` was recorded are drawn against environment steps (the panel says
 so). Reference: ``--curve-reference heldout`` (default) evaluates passivity-bounded on the same held-out

@@ -241,7 +241,7 @@ def read_curves(runs_dir: Path) -> list[dict]:
     """Every learned run under ``runs_dir`` with an evaluations.json: its config and curve."""
 
     out = []
-    for path in sorted(Path(runs_dir).glob(f"ppo_*/seed_*/{EVALUATIONS_FILE}")):
+    for path in sorted(Path(runs_dir).glob(f"ppo[_-]*/seed_*/{EVALUATIONS_FILE}")):  # ppo-<recipe>_...: recipe cells
         config = RunConfig.load(path.parent / "config.yaml")
         try:
             history = loads_json(path.read_text(encoding="utf-8"), str(path))
@@ -255,6 +255,14 @@ def read_curves(runs_dir: Path) -> list[dict]:
         raise ConfigError(f"no learned run with an evaluations.json under {runs_dir} (expected "
                           f"ppo_*/seed_*/evaluations.json)")
     return out
+
+
+def _cell_name(cell: str, cfg) -> str:
+    """A learned cell's legend name: its recipe (job folder ``ppo-<recipe>_<task>_<tier>``) or its action mode."""
+    suffix = f"_{cfg.task}_{cfg.tier}"
+    if cell.startswith("ppo-") and cell.endswith(suffix):
+        return f"PPO {cell[len('ppo-'):-len(suffix)]}"
+    return f"PPO-{cfg.action_mode}"
 
 
 def heldout_reference(task: str, tier: str, configs: list, passivity_kwargs: dict) -> float:
@@ -303,7 +311,7 @@ def curves_figure(curves: list[dict], reference: str, passivity_kwargs: dict, le
             med_x = [float(np.median([x_of(r["points"][k]) for r in runs])) for k in range(n)]
             med_y = [float(np.median([r["points"][k][2] for r in runs])) for k in range(n)]
             ax.plot(med_x, med_y, color=colors[cell], lw=2.2, marker="o", ms=3,
-                    label=f"PPO-{cfg.action_mode}, {cfg.tier} (median of {len(runs)} seeds)")
+                    label=f"{_cell_name(cell, cfg)}, {cfg.tier} (median of {len(runs)} seeds)")
         for style, tier in zip(("--", "-.", ":"), sorted({c["config"].tier for c in mine})):
             configs = [c["config"] for c in mine if c["config"].tier == tier]
             if reference == "heldout":
