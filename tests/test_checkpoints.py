@@ -447,8 +447,11 @@ def test_committed_checkpoints_are_in_the_safe_format():
     from softpvtol_gym.baselines.leaderboard.jobs import load_jobs
 
     models = sorted(RUNS_DIR.glob("*/seed_*/model.safetensors"))
-    assert len(models) == sum(job.learned for job in load_jobs()) == 50  # one per learned job of the spec (v2)
-    for m in models:
+    # one per learned job of the spec: v2's 50 and leaderboard v4's four recipe cells x 5 seeds
+    assert len(models) == sum(job.learned for job in load_jobs()) == 70
+    ablation = sorted((RUNS_DIR.parent / "ablation_runs").glob("*/seed_*/model.safetensors"))
+    assert len(ablation) == 18  # baselines/ablation.yml: 6 recipes x 3 seeds
+    for m in models + ablation:
         assert find_checkpoint(m) == m.parent and not list(m.parent.glob("*.pkl")) and not list(m.parent.glob("*.zip"))
 
 
