@@ -45,6 +45,7 @@ class BatchSim:
         self.cfg = cfg
         self.n = n
         self.task = cfg.task_spec  # resolved once: the registry may change later
+        self._custom_reference = not self.task.is_compiled
         self.action_dim = cfg.action_dim
         self.max_steps = cfg.max_steps
         self.dt = cfg.dt
@@ -103,6 +104,7 @@ class BatchSim:
         state.setdefault("aids", None)  # (state saved before the training aids)
         state.setdefault("start_error_scale", np.array(float(state["cfg"].start_error_scale)))
         self.__dict__.update(state)
+        self._custom_reference = not self.task.is_compiled
         self._make_views()
         self._step_serial = serial_step_kernel(self.n, self.cfg.action_mode == "residual")
 
@@ -146,7 +148,10 @@ class BatchSim:
         a = action
         # the kernels get C-contiguous, writeable float64 (one compiled signature); anything else is
         # converted (real numbers only: str, bool, complex values are refused, never cast)
-        if not (type(a) is np.ndarray and a.dtype is _F64 and a.flags.c_contiguous and a.flags.writeable):
+        if type(a) is np.ndarray and a.dtype.kind == "f":  # the common case (float32 from the action space)
+            if not (a.dtype is _F64 and a.flags.c_contiguous and a.flags.writeable):
+                a = a.astype(_F64)  # (a C-contiguous copy)
+        else:
             a = real_array("action", action, self._expected[batched])
         if a.shape != expected:
             raise ValueError(
@@ -155,7 +160,7 @@ class BatchSim:
             )
         if not batched:
             a = a.reshape(1, self.action_dim)
-        if not self.task.is_compiled:  # a registered task: its reference at the end of the step, from Python
+        if self._custom_reference:  # a registered task: its reference at the end of the step, from Python
             self.qr_custom[:] = np.concatenate(self.task.evaluate((self.steps + 1) * self.dt, self.refp), axis=1)
         aids = self.aids
         given = a

@@ -13,6 +13,7 @@ from .batch_sim import BatchSim
 from .config import RENDER_MODES, EnvConfig
 from .episodes import N_UNIFORMS, check_reset_options
 from .info import single_info
+from .layout import SI, S
 from .observation import OBS_CLIP
 from .termination import R_NONE, REASONS
 
@@ -327,15 +328,17 @@ class SoftPVTOLEnv(gym.Env):
             )
         sim = self._sim
         sim.step(action, batched=False)
-        code = int(sim.reason[0])
+        code = sim.I[0, SI.reason]
         terminated = code != R_NONE
-        truncated = bool(sim.steps[0] >= sim.max_steps) and not terminated
+        truncated = not terminated and sim.I[0, SI.steps] >= sim.max_steps
+        reason = None
         if terminated or truncated:
             self._episode_over = True
-        info = single_info(sim, REASONS[code] if terminated else ("time_limit" if truncated else None))
+            reason = REASONS[code] if terminated else "time_limit"
+        info = single_info(sim, reason)
         if self.render_mode == "human":
             self.render()
-        return sim.obs[0].copy(), float(sim.reward[0]), terminated, truncated, info
+        return sim.obs[0].copy(), float(sim.F[0, S.reward]), bool(terminated), bool(truncated), info
 
     def set_start_error_scale(self, scale: float) -> None:
         """Scale the starting deviations of the next resets (``start_error_scale``, in [0, 10]) that do not

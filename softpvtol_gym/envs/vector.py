@@ -17,6 +17,7 @@ from .episodes import N_UNIFORMS, check_reset_options
 from .info import batch_info
 from .soft_pvtol import make_spaces
 from .termination import R_NONE, REASONS
+from .uniforms import UniformDraws
 
 _REASON_NAMES = np.array(REASONS, dtype=object)
 
@@ -107,6 +108,7 @@ class SoftPVTOLVectorEnv(VectorEnv):
             raise MemoryError(f"num_envs={self.num_envs} does not fit in memory (about 2.3 kB of state per env): "
                               f"{e}; use fewer envs") from None
         self._rngs: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(self.num_envs)]
+        self._uniforms = UniformDraws()
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._all = np.arange(self.num_envs)
         self._renderer = None
@@ -119,11 +121,8 @@ class SoftPVTOLVectorEnv(VectorEnv):
 
     # ------------------------------------------------------------------------------ seeding
     def _draw(self, idx: np.ndarray) -> np.ndarray:
-        u = np.empty((idx.size, N_UNIFORMS))
-        rngs = self._rngs
-        for j, i in enumerate(idx.tolist()):
-            rngs[i].random(out=u[j])  # = rngs[i].random(N_UNIFORMS), without a temporary
-        return u
+        """``self._rngs[i].random(N_UNIFORMS)`` for i in idx, stacked (a compiled loop: :mod:`.uniforms`)."""
+        return self._uniforms.draw(self._rngs, idx, N_UNIFORMS)
 
     def reset(self, *, seed: int | list | None = None, options: dict | None = None):
         """Reset every sub-env, or (gymnasium's ``options={"reset_mask": mask}``, a bool array of shape
@@ -136,6 +135,7 @@ class SoftPVTOLVectorEnv(VectorEnv):
         if seeds is not None:
             for i in idx.tolist():
                 self._rngs[i] = seeding.np_random(seeds[i])[0]
+            self._uniforms.invalidate()
             if mask is None or mask[0]:
                 self._np_random, self._np_random_seed = seeding.np_random(seeds[0])
         self._sim.reset_entries(idx, self._draw(idx), state_options)

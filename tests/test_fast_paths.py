@@ -1,0 +1,99 @@
+"""The fast paths of the env's Python side, each checked against its readable reference: the reset
+uniforms drawn in a compiled loop, and the info dicts built from a slice of the packed state."""
+
+from __future__ import annotations
+
+import copy
+import pickle
+
+import numpy as np
+import pytest
+from gymnasium.utils import seeding
+
+from softpvtol_gym import SoftPVTOLEnv, SoftPVTOLVectorEnv
+from softpvtol_gym.envs.info import FLAG_ENTRIES, FLOAT_ENTRIES, batch_info, single_info
+from softpvtol_gym.envs.layout import SI, S
+from softpvtol_gym.envs.reward import REWARD_TERMS
+from softpvtol_gym.envs.uniforms import UniformDraws, python_draws
+
+
+def _generators(n, seed=0):
+    return [seeding.np_random(seed + i)[0] for i in range(n)]
+
+
+@pytest.mark.parametrize("rows", [[0], [1, 3, 5], list(range(0, 40, 3)), list(range(40))])
+def test_compiled_draws_equal_the_python_loop_and_advance_the_same_streams(rows):
+    fast, ref = _generators(40), _generators(40)
+    draws = UniformDraws()
+    idx = np.array(rows, dtype=np.int64)
+    for _ in range(3):  # consecutive draws continue the same streams
+        np.testing.assert_array_equal(draws.draw(fast, idx, 23), python_draws(ref, idx, 23))
+    for g, h in zip(fast, ref):  # every generator left exactly where the Python loop leaves it
+        assert g.bit_generator.state == h.bit_generator.state
+
+
+def test_compiled_draws_follow_a_replaced_generator_after_invalidate():
+    fast, ref = _generators(16), _generators(16)
+    draws = UniformDraws()
+    idx = np.arange(16)
+    draws.draw(fast, idx, 5), python_draws(ref, idx, 5)
+    fast[3], ref[3] = seeding.np_random(99)[0], seeding.np_random(99)[0]
+    draws.invalidate()
+    np.testing.assert_array_equal(draws.draw(fast, idx, 5), python_draws(ref, idx, 5))
+    new_list = _generators(16, seed=7)  # another list: its own states, no invalidate needed
+    np.testing.assert_array_equal(draws.draw(new_list, idx, 5), python_draws(_generators(16, seed=7), idx, 5))
+
+
+def test_generators_that_are_not_pcg64_take_the_python_loop():
+    fast = [np.random.Generator(np.random.MT19937(i)) for i in range(12)]
+    ref = [np.random.Generator(np.random.MT19937(i)) for i in range(12)]
+    idx = np.arange(12)
+    np.testing.assert_array_equal(UniformDraws().draw(fast, idx, 9), python_draws(ref, idx, 9))
+
+
+def test_vector_env_copies_draw_from_their_own_generators():
+    env = SoftPVTOLVectorEnv(num_envs=32)
+    env.reset(seed=5)
+    idx = np.arange(32)
+    twin = copy.deepcopy(env)
+    restored = pickle.loads(pickle.dumps(env))
+    want = python_draws(copy.deepcopy(env._rngs), idx, 11)
+    np.testing.assert_array_equal(twin._draw(idx)[:, :11], want)
+    np.testing.assert_array_equal(restored._draw(idx)[:, :11], want)
+    np.testing.assert_array_equal(env._draw(idx)[:, :11], want)  # the original's streams untouched by its copies
+
+
+def _reference_info(sim, n, reason):
+    """The info of entry n read from the whole packed state (the readable reference)."""
+    f = sim.F[n]
+    info = {"reward_terms": {k: float(f[S.terms + i]) for i, k in enumerate(REWARD_TERMS)}}
+    info.update({k: float(f[c]) for k, c in FLOAT_ENTRIES})
+    info.update({k: bool(f[c] > 0.5) for k, c in FLAG_ENTRIES})
+    info.update(action_clipped=bool(sim.I[n, SI.clipped]), termination_reason=reason, time=float(f[S.t]))
+    return info
+
+
+def test_info_dicts_equal_the_reference_read_from_the_whole_state():
+    env = SoftPVTOLEnv(task="track_random", tier="hard")
+    env.reset(seed=1)
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        _, _, term, trunc, info = env.step(rng.uniform(-1.2, 1.2, 4))
+        assert info == _reference_info(env.sim, 0, info["termination_reason"])
+        assert single_info(env.sim, None) == _reference_info(env.sim, 0, None)
+        if term or trunc:
+            env.reset()
+    venv = SoftPVTOLVectorEnv(num_envs=7, task="track_random", tier="hard")
+    venv.reset(seed=2)
+    for _ in range(5):
+        venv.step(rng.uniform(-1.2, 1.2, (7, 4)))
+    infos = batch_info(venv.sim, None)
+    for n in range(7):
+        ref = _reference_info(venv.sim, n, None)
+        assert {k: float(v[n]) for k, v in infos["reward_terms"].items()} == ref["reward_terms"]
+        for k, _ in FLOAT_ENTRIES + (("time", None),):
+            assert float(infos[k][n]) == ref[k]
+        for k, _ in FLAG_ENTRIES:
+            assert bool(infos[k][n]) == ref[k]
+    venv.sim.F[:] = 0.0  # the info holds copies, not views of the state
+    assert infos["time"].max() > 0.0 and max(v.max() for v in infos["reward_terms"].values()) > 0.0
