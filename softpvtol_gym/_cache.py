@@ -17,7 +17,11 @@ import hashlib
 import os
 import sys
 import tempfile
+import threading
+import time
 from pathlib import Path
+
+from numba.core import event as _numba_event
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 
@@ -56,8 +60,8 @@ def _writable(path: Path) -> bool:
 
 
 def configure_numba_cache() -> Path:
-    """Point numba's cache at this source version's directory (before any kernel module is imported);
-    if it holds no compiled kernel yet, the first compile says so on stderr (:func:`announce_first_compile`)."""
+    """Point numba's cache at this source version's directory (before any kernel module is imported)
+    and announce every compile of this package's kernels on stderr (:func:`announce_compiles`)."""
     from numba.core import config
 
     name = f"numba-{source_digest()}"
@@ -66,8 +70,7 @@ def configure_numba_cache() -> Path:
         path = Path(tempfile.gettempdir()) / f"softpvtol-gym-{os.getuid() if hasattr(os, 'getuid') else 0}" / name
         path.mkdir(parents=True, exist_ok=True)
     config.CACHE_DIR = str(path)
-    if cache_is_empty(path):
-        announce_first_compile()
+    announce_compiles(first_run=cache_is_empty(path))
     return path
 
 
@@ -78,25 +81,82 @@ def cache_is_empty(path: Path) -> bool:
 
 FIRST_RUN_MESSAGE = (f"softpvtol_gym: compiling kernels (first run only, about {COLD_COMPILE_SECONDS} s; "
                      "later runs load them from the cache) ...")
+#: the lines of every compile (a kernel's first use in this source version; a cached kernel loads silently)
+COMPILE_START = "softpvtol_gym: compiling {name} (once; later runs load it from the cache) ..."
+COMPILE_PROGRESS = "softpvtol_gym: ... still compiling {name} ({seconds:.0f} s)"
+COMPILE_END = "softpvtol_gym: compiled {name} in {seconds:.1f} s"
+#: seconds between the progress lines of a long compile (issue 26: no silence over 10 s)
+PROGRESS_SECONDS = 5.0
 
 
-def announce_first_compile() -> None:
-    """Print :data:`FIRST_RUN_MESSAGE` to stderr when numba first compiles a kernel of this package in
-    this process (a numba compile event: a kernel loaded from the cache raises none)."""
-    from numba.core import event
+def _say(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
 
-    class _FirstCompile(event.Listener):
-        done = False
 
-        def on_start(self, ev) -> None:
-            if self.done:
+class CompileAnnouncer(_numba_event.Listener):
+    """A numba event listener: the outermost compile of a kernel of this package says its start, a
+    progress line every :data:`PROGRESS_SECONDS`, and its end with its duration (its callees compile
+    inside it and are not announced separately). ``first_run``: an empty cache, also say
+    :data:`FIRST_RUN_MESSAGE` once before the first compile. Loading a cached kernel raises no event."""
+
+    def __init__(self, first_run: bool = False, say=_say, progress_seconds: float = PROGRESS_SECONDS):
+        self.first_run = first_run
+        self.say = say
+        self.progress_seconds = progress_seconds
+        self.depth = 0
+        self.outer = None  # (name, start time, stop event of the progress thread)
+        self.lock = threading.Lock()
+
+    @staticmethod
+    def _ours(ev):
+        disp = ev.data.get("dispatcher") if isinstance(ev.data, dict) else None
+        func = getattr(disp, "py_func", None)
+        module = getattr(func, "__module__", "") or ""
+        if module.startswith(__package__ or "softpvtol_gym"):
+            return f"{module.rsplit('.', 1)[-1]}.{func.__name__}"
+        return None
+
+    def on_start(self, ev) -> None:
+        name = self._ours(ev)
+        if name is None:
+            return
+        with self.lock:
+            self.depth += 1
+            if self.depth > 1:
                 return
-            disp = ev.data.get("dispatcher") if isinstance(ev.data, dict) else None
-            if getattr(getattr(disp, "py_func", None), "__module__", "").startswith(__package__ or "softpvtol_gym"):
-                self.done = True
-                print(FIRST_RUN_MESSAGE, file=sys.stderr, flush=True)
+            if self.first_run:
+                self.first_run = False
+                self.say(FIRST_RUN_MESSAGE)
+            stop = threading.Event()
+            self.outer = (name, time.perf_counter(), stop)
+        self.say(COMPILE_START.format(name=name))
+        threading.Thread(target=self._progress, args=(name, self.outer[1], stop), daemon=True,
+                         name="softpvtol-compile-progress").start()
 
-        def on_end(self, ev) -> None:
-            pass
+    def _progress(self, name: str, t0: float, stop: threading.Event) -> None:
+        while not stop.wait(self.progress_seconds):
+            self.say(COMPILE_PROGRESS.format(name=name, seconds=time.perf_counter() - t0))
 
-    event.register("numba:compile", _FirstCompile())
+    def on_end(self, ev) -> None:
+        if self._ours(ev) is None:
+            return
+        with self.lock:
+            self.depth = max(0, self.depth - 1)
+            if self.depth or self.outer is None:
+                return
+            name, t0, stop = self.outer
+            self.outer = None
+        stop.set()
+        self.say(COMPILE_END.format(name=name, seconds=time.perf_counter() - t0))
+
+
+_ANNOUNCER: CompileAnnouncer | None = None
+
+
+def announce_compiles(first_run: bool = False) -> CompileAnnouncer:
+    """Register (once per process) the :class:`CompileAnnouncer` of this package's kernels."""
+    global _ANNOUNCER
+    if _ANNOUNCER is None:
+        _ANNOUNCER = CompileAnnouncer(first_run)
+        _numba_event.register("numba:compile", _ANNOUNCER)
+    return _ANNOUNCER

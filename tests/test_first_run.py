@@ -25,12 +25,19 @@ def _run(code: str, cache_dir, timeout=600) -> subprocess.CompletedProcess:
 def test_first_run_message_once_then_silent(tmp_path):
     first = _run(_LIGHT, tmp_path)
     assert first.returncode == 0, first.stderr
-    lines = [ln for ln in first.stderr.splitlines() if ln.startswith("softpvtol_gym: compiling kernels")]
-    assert lines == [_cache.FIRST_RUN_MESSAGE]
+    lines = [ln for ln in first.stderr.splitlines() if ln.startswith("softpvtol_gym: compil")]
+    assert lines[0] == _cache.FIRST_RUN_MESSAGE
     assert f"first run only, about {_cache.COLD_COMPILE_SECONDS} s" in lines[0]
+    assert sum(ln == _cache.FIRST_RUN_MESSAGE for ln in lines) == 1
+    # every compile of a kernel: its start and its end with the seconds it took
+    starts = [ln for ln in lines if ln.startswith("softpvtol_gym: compiling ") and ln != _cache.FIRST_RUN_MESSAGE]
+    ends = [ln for ln in lines if ln.startswith("softpvtol_gym: compiled ")]
+    assert starts and len(starts) == len(ends), lines
+    assert starts[0] == _cache.COMPILE_START.format(name="batched.batch_gravity_vector")
+    assert ends[-1].startswith("softpvtol_gym: compiled batched.batch_gravity_vector in ") and ends[-1].endswith(" s")
     second = _run(_LIGHT, tmp_path)  # the kernel is in the cache now
     assert second.returncode == 0, second.stderr
-    assert "compiling kernels" not in second.stderr
+    assert "softpvtol_gym: compil" not in second.stderr
 
 
 def test_no_message_with_a_warm_cache():
@@ -39,7 +46,53 @@ def test_no_message_with_a_warm_cache():
     out = _run(_LIGHT + "; e = softpvtol_gym.SoftPVTOLEnv(); e.reset(seed=0); e.step(np.zeros(4))",
                softpvtol_gym.NUMBA_CACHE_DIR.parent)
     assert out.returncode == 0, out.stderr
-    assert "compiling kernels" not in out.stderr
+    assert "softpvtol_gym: compil" not in out.stderr
+
+
+class _Event:
+    def __init__(self, module, name):
+        def f():
+            pass
+
+        f.__module__, f.__name__ = module, name
+        self.data = {"dispatcher": type("D", (), {"py_func": staticmethod(f)})()}
+
+
+def test_a_compile_says_its_start_progress_and_end_once_for_its_callees():
+    import time
+
+    said = []
+    ann = _cache.CompileAnnouncer(first_run=False, say=said.append, progress_seconds=0.05)
+    outer, inner = _Event("softpvtol_gym.envs.step", "step_serial"), _Event("softpvtol_gym.model.rk4", "rk4_lanes")
+    other = _Event("numpy.linalg", "solve")  # another package's compile: not ours to announce
+    ann.on_start(outer)
+    ann.on_start(inner)
+    ann.on_start(other)
+    time.sleep(0.3)
+    ann.on_end(other)
+    ann.on_end(inner)
+    ann.on_end(outer)
+    time.sleep(0.1)  # the progress thread has stopped: nothing after the end line
+    assert said[0] == _cache.COMPILE_START.format(name="step.step_serial")
+    assert said[-1].startswith("softpvtol_gym: compiled step.step_serial in ")
+    progress = said[1:-1]
+    assert len(progress) >= 2
+    assert all(ln.startswith("softpvtol_gym: ... still compiling step.step_serial (") for ln in progress)
+    assert not any("rk4_lanes" in ln or "solve" in ln for ln in said)
+    ann.on_start(inner)  # the next outermost compile is announced again
+    ann.on_end(inner)
+    assert said[-2] == _cache.COMPILE_START.format(name="rk4.rk4_lanes")
+
+
+def test_the_first_run_message_precedes_the_first_compile_only():
+    said = []
+    ann = _cache.CompileAnnouncer(first_run=True, say=said.append)
+    for _ in range(2):
+        ev = _Event("softpvtol_gym.envs.step", "step_serial")
+        ann.on_start(ev)
+        ann.on_end(ev)
+    assert said[0] == _cache.FIRST_RUN_MESSAGE and said.count(_cache.FIRST_RUN_MESSAGE) == 1
+    assert len(said) == 5
 
 
 def test_cache_is_empty_looks_for_numba_index_files(tmp_path):

@@ -218,6 +218,20 @@ N_AW = WORK.size
 
 
 @_jit
+def lever_poly_lanes(A, ll, lr, eps, input_map):
+    """The lever polynomials of :func:`allocate_exact_lanes` for every lane of its work block A
+    (finished and unused lanes too): one SIMD loop."""
+    L = CTRL_LANES
+    x_, uz_, h_ = AW_X * L, AW_UZ * L, AW_H * L
+    ql_, tl_, qr_, tr_ = AW_QL * L, AW_TL * L, AW_QR * L, AW_TR * L
+    gl_, dgl_, gr_, dgr_ = AW_GL * L, AW_DGL * L, AW_GR * L, AW_DGR * L
+    for j in range(L):
+        x, h = A[x_ + j], A[h_ + j]
+        A[gl_ + j], A[dgl_ + j] = _lever_poly(x, h, A[ql_ + j], A[tl_ + j], ll, eps, input_map)
+        A[gr_ + j], A[dgr_ + j] = _lever_poly(A[uz_ + j] - x, -h, A[qr_ + j], A[tr_ + j], lr, eps, input_map)
+
+
+@_jit
 def allocate_exact_lanes(m, X, r_tau, r_theta, r_warm, r_active, r_out, r_info, A, use_warm, p, input_map, qmax):
     """:func:`allocate_exact` for the m problems of a lane block at once, every lane's arithmetic
     that of allocate_exact, bit for bit.
@@ -262,10 +276,7 @@ def allocate_exact_lanes(m, X, r_tau, r_theta, r_warm, r_active, r_out, r_info, 
                 A[tl_ + j] = math.hypot(h, x)
                 A[qr_ + j] = math.atan2(-h, vr)
                 A[tr_ + j] = math.hypot(-h, vr)
-        for j in range(L):  # polynomials of every lane (finished and unused ones too: SIMD)
-            x, h = A[x_ + j], A[h_ + j]
-            A[gl_ + j], A[dgl_ + j] = _lever_poly(x, h, A[ql_ + j], A[tl_ + j], ll, eps, input_map)
-            A[gr_ + j], A[dgr_ + j] = _lever_poly(A[uz_ + j] - x, -h, A[qr_ + j], A[tr_ + j], lr, eps, input_map)
+        lever_poly_lanes(A, ll, lr, eps, input_map)
         for j in range(m):
             if A[live_ + j] != 1.0:
                 continue

@@ -70,7 +70,7 @@ def _arm_derivatives(h0, h1, h2, h3, dt, vmax, amax):
 
 
 
-@MK.inline
+@MK.accessor
 def lane_index(row, lane):
     """Index of (row, lane) in a flat lane block."""
     return row * CTRL_LANES + lane
@@ -98,51 +98,51 @@ def controller_work():
     return np.zeros(CB_LEN * CTRL_LANES), np.zeros(N_AW * CTRL_LANES)
 
 
-@MK.inline
+@MK.accessor
 def lane3(B, c, j):
     """Rows c .. c + 2 of lane j as a tuple (lane4 ... lane8 likewise)."""
     return B[lane_index(c, j)], B[lane_index(c + 1, j)], B[lane_index(c + 2, j)]
 
 
-@MK.inline
+@MK.accessor
 def lane4(B, c, j):
     return lane3(B, c, j) + (B[lane_index(c + 3, j)],)
 
 
-@MK.inline
+@MK.accessor
 def lane5(B, c, j):
     return lane4(B, c, j) + (B[lane_index(c + 4, j)],)
 
 
-@MK.inline
+@MK.accessor
 def lane6(B, c, j):
     return lane3(B, c, j) + lane3(B, c + 3, j)
 
 
-@MK.inline
+@MK.accessor
 def lane8(B, c, j):
     return lane4(B, c, j) + lane4(B, c + 4, j)
 
 
-@MK.inline
+@MK.accessor
 def put_lane3(B, c, j, t):
     """Rows c .. c + 2 of lane j from a tuple (put_lane4, put_lane5 likewise)."""
     B[lane_index(c, j)], B[lane_index(c + 1, j)], B[lane_index(c + 2, j)] = t[0], t[1], t[2]
 
 
-@MK.inline
+@MK.accessor
 def put_lane4(B, c, j, t):
     put_lane3(B, c, j, t)
     B[lane_index(c + 3, j)] = t[3]
 
 
-@MK.inline
+@MK.accessor
 def put_lane5(B, c, j, t):
     put_lane4(B, c, j, t)
     B[lane_index(c + 4, j)] = t[4]
 
 
-@MK.inline
+@MK.accessor
 def put_lane_inputs(B, j, q, qd, qr, qdr, qddr, res, S, n):
     """Inputs of lane j (5-tuples) and its memory S[n] into the block."""
     put_lane5(B, CB_Q, j, q)
@@ -158,7 +158,7 @@ def put_lane_inputs(B, j, q, qd, qr, qdr, qddr, res, S, n):
     put_lane3(B, CB_ST + 13, j, (S[n, 13], S[n, 14], S[n, 15]))
 
 
-@MK.inline
+@MK.accessor
 def put_lane_memory(B, j, S_new, n):
     """The memory of lane j after the step into S_new[n]."""
     S_new[n, 0], S_new[n, 1], S_new[n, 2], S_new[n, 3], S_new[n, 4] = lane5(B, CB_STN, j)
@@ -167,7 +167,7 @@ def put_lane_memory(B, j, S_new, n):
     S_new[n, 13], S_new[n, 14], S_new[n, 15] = lane3(B, CB_STN + 13, j)
 
 
-@MK.inline
+@MK.accessor
 def _lane_inputs(B, j):
     """(D, C, g entries, q, qdot, body reference rows (3 each of qr, qdr, qddr), arm references with
     their derivatives (6), residual) of lane j. (Helpers that take the block array stay branch-free:
@@ -232,6 +232,18 @@ def _integral_update(B, j, dt, integ):
 
 
 @_jit
+def controller_model_lanes(B, p):
+    """D, C, g entries of every lane of a controller block (unused ones too): polynomials only, SIMD."""
+    for j in range(CTRL_LANES):
+        d, cor, g = model_entries(lane5(B, CB_Q, j), lane5(B, CB_QD, j), p)
+        put_lane4(B, CB_ENTS, j, d[:4])
+        put_lane4(B, CB_ENTS + 4, j, d[4:])
+        put_lane3(B, CB_ENTS + 8, j, cor[:3])
+        put_lane3(B, CB_ENTS + 11, j, cor[3:])
+        put_lane3(B, CB_ENTS + 14, j, g)
+
+
+@_jit
 def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg, integ):
     """One step of the actuated passivity controller for the rows of a block: lanes 0 .. m - 1 of
     B (``CB_*`` rows, inputs filled, see :func:`put_lane_inputs`); A: the allocation's work.
@@ -247,13 +259,7 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg, integ):
     tau_l, tau_r), arm references (2) and allocation info (N_INFO).
     """
     method, imap, iters, tol, ff, dt, vmax, amax, qmax = cfg
-    for j in range(CTRL_LANES):  # D, C, g of every lane (unused ones too): polynomials only, SIMD
-        d, cor, g = model_entries(lane5(B, CB_Q, j), lane5(B, CB_QD, j), p)
-        put_lane4(B, CB_ENTS, j, d[:4])
-        put_lane4(B, CB_ENTS + 4, j, d[4:])
-        put_lane3(B, CB_ENTS + 8, j, cor[:3])
-        put_lane3(B, CB_ENTS + 11, j, cor[3:])
-        put_lane3(B, CB_ENTS + 14, j, g)
+    controller_model_lanes(B, p)
     for j in range(m):
         # arm references of the body rows: the last allocated curvatures with their feedforward
         # derivatives, or (no history yet / just reset) the measured curvatures at rest
@@ -396,7 +402,7 @@ def config_tuples(cc):
     return cfg, p, lam, kg, integ
 
 
-@MK.inline
+@MK.accessor
 def row5(A, n, c):
     """(A[n, c], ..., A[n, c + 4])."""
     return (A[n, c], A[n, c + 1], A[n, c + 2], A[n, c + 3], A[n, c + 4])

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from .. import model as MK
 from ..control import _kernels as CK
-from ..model.jit import inline, jit
+from ..model.jit import accessor, inline, jit
 from .layout import SL
 
 
@@ -24,7 +24,7 @@ def energy_storage(q, qd, qr, qdr, P, Pnom, lam, kg):
     return _energy_storage(q, qd, qr, qdr, P, Pnom, lam, kg)
 
 
-@inline
+@accessor
 def _diag_lane_in(lanes, j):
     q, qd, _u, _ext, p = MK.lane_load(lanes, j)
     L = MK.LANES

@@ -16,7 +16,7 @@ W_CURV = 0.2  # -0.2 clip((max|q_arm| - pi/2) / (pi/2), 0, 1)^2
 CRASH_PENALTY = 10.0
 
 
-@MK.inline
+@MK.accessor
 def capped(x):
     """min(x, 1) for x >= 0, and 1 for NaN: a measure that could not be computed counts as the largest
     (bit for bit min(x, 1.0) otherwise)."""

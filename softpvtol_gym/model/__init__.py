@@ -92,7 +92,7 @@ from .input_map import (
     thrust_body_forces,
     thrust_curvature_work,
 )
-from .jit import batch_jit, inline, jit
+from .jit import accessor, batch_jit, inline, jit
 from .kinematics import arm_offset, paper_tip_positions_into, tip_positions_into
 from .lanes import (
     LANE_EXT,
@@ -159,7 +159,7 @@ __all__ = [
     "consistent_mass_matrix_into", "consistent_qddot", "consistent_energies", "consistent_kinetic_energy",
     "consistent_potential_energy", "kinetic_energy", "potential_energy", "HELD_TAU", "INPUT_MAP_EXACT",
     "INPUT_MAP_PAPER", "generalized_forces", "generalized_forces_into", "generalized_forces_sc", "held_force",
-    "thrust_body_forces", "thrust_curvature_work", "batch_jit", "inline", "jit", "arm_offset",
+    "thrust_body_forces", "thrust_curvature_work", "batch_jit", "inline", "accessor", "jit", "arm_offset",
     "paper_tip_positions_into", "tip_positions_into", "LANE_EXT", "LANE_P", "LANE_Q", "LANE_QD", "LANE_ROWS_RK4",
     "LANE_SC", "LANE_U", "LANES", "RK4_LANES", "lane_load", "lane_store", "rk4_lanes", "rk4_lanes_consistent",
     "rk4_lanes_partial", "coriolis_entries", "coriolis_entries_basis", "coriolis_matrix_into",

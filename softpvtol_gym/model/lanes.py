@@ -12,7 +12,7 @@ import math
 
 from .._layout import Layout
 from ..params import N_PARAMS
-from .jit import inline, jit
+from .jit import accessor, jit
 from .rk4 import consistent_rk4_step_tuple, rk4_step_sc, rk4_step_tuple
 
 #: width of a lane block: W holds LANES states structure-of-arrays, W[row * LANES + lane]
@@ -23,7 +23,7 @@ LANE_Q, LANE_QD, LANE_U, LANE_EXT, LANE_P, LANE_SC = RK4_LANES.at
 LANE_ROWS_RK4 = RK4_LANES.size
 
 
-@inline
+@accessor
 def lane_load(W, j):
     L = LANES
     q = (W[j], W[L + j], W[2 * L + j], W[3 * L + j], W[4 * L + j])
@@ -39,7 +39,7 @@ def lane_load(W, j):
     return q, qd, u, ext, p
 
 
-@inline
+@accessor
 def lane_store(W, j, qn, vn):
     L = LANES
     W[j], W[L + j], W[2 * L + j], W[3 * L + j], W[4 * L + j] = qn

@@ -8,18 +8,18 @@ import math
 from ..params import P_EPS, P_G, P_I, P_IL, P_IR, P_LL, P_LR, P_M, P_ML, P_MR
 from .consistent import consistent_qddot
 from .input_map import held_force
-from .jit import inline, jit
+from .jit import accessor, inline, jit
 from .paper import qddot
 from .series import rotate
 
 
-@inline
+@accessor
 def _axpy5(x, c, v):
     """x + c v for 5-tuples."""
     return (x[0] + c * v[0], x[1] + c * v[1], x[2] + c * v[2], x[3] + c * v[3], x[4] + c * v[4])
 
 
-@inline
+@accessor
 def _rk4_combine(x, v, a1, a2, a3, a4, h, dt, c):
     """RK4 update of one coordinate from its four stage accelerations."""
     # position slopes of the four stages: v, v + h a1, v + h a2, v + dt a3
