@@ -49,7 +49,8 @@ def parse_config(text: str) -> tuple[str, list[str]]:
     return name, [item for item in rest.split(";") if item]
 
 
-def run_one(name: str, overrides: list[str], mode: str, timesteps: int, eval_freq: int, seed: int) -> dict:
+def run_one(name: str, overrides: list[str], mode: str, timesteps: int, eval_freq: int, seed: int,
+            task: str = "hover", tier: str = "nominal") -> dict:
     import softpvtol_gym.baselines.training.loop as training
     from softpvtol_gym import PassivityPolicy
     from softpvtol_gym.baselines.config.hyperparams import apply_overrides, load_hyperparams
@@ -58,11 +59,11 @@ def run_one(name: str, overrides: list[str], mode: str, timesteps: int, eval_fre
     from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
     hp = apply_overrides(load_hyperparams("ppo", mode), overrides)
-    config = RunConfig(algo="ppo", action_mode=mode, timesteps=timesteps, seed=seed, n_envs=int(hp["n_envs"]),
-                       hyperparams=hp, overrides=overrides, checkpoint_freq=timesteps, eval_freq=eval_freq,
-                       eval_episodes=10)
+    config = RunConfig(algo="ppo", action_mode=mode, task=task, tier=tier, timesteps=timesteps, seed=seed,
+                       n_envs=int(hp["n_envs"]), hyperparams=hp, overrides=overrides, checkpoint_freq=timesteps,
+                       eval_freq=eval_freq, eval_episodes=10)
     probe = SoftPVTOLVectorEnv(num_envs=1, **config.env_kwargs())
-    passivity = evaluate(PassivityPolicy.from_env(probe), mode, "hover", "nominal", 10, EVAL_SEED_OFFSET + seed)
+    passivity = evaluate(PassivityPolicy.from_env(probe), mode, task, tier, 10, EVAL_SEED_OFFSET + seed)
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="issue-fast-ppo-speed-") as tmp:
         run_dir = Path(tmp) / "run"
@@ -99,7 +100,8 @@ def run_one(name: str, overrides: list[str], mode: str, timesteps: int, eval_fre
              for e in history]
     first = next((e for e in curve if e["mean_return"] > line), None)
     return {
-        "name": name, "overrides": overrides, "action_mode": mode, "seed": seed, "timesteps": steps,
+        "name": name, "overrides": overrides, "action_mode": mode, "task": task, "tier": tier, "seed": seed,
+        "timesteps": steps,
         "hyperparams": hp, "wall_seconds": wall, "eval_seconds": inside["eval"], "env_seconds": inside["env"],
         "steps_per_second": steps / wall, "steps_per_second_without_evaluations": steps / (wall - inside["eval"]),
         "env_share": inside["env"] / wall,
@@ -123,7 +125,9 @@ def markdown_table(results: list[dict]) -> str:
         beat = "never" if r["steps_to_beat"] is None else f"{r['steps_to_beat']:,}"
         secs = "-" if r["seconds_to_beat"] is None else f"{r['seconds_to_beat']:.0f} s"
         load = r["loadavg_before"][0]
-        lines.append(f"| {r['action_mode']} | {config} | {r['seed']} | {beat} | {secs} ({load:.1f}) | "
+        where = (r.get("task", "hover"), r.get("tier", "nominal"))
+        mode = r["action_mode"] + ("" if where == ("hover", "nominal") else f", {where[0]} / {where[1]}")
+        lines.append(f"| {mode} | {config} | {r['seed']} | {beat} | {secs} ({load:.1f}) | "
                      f"{r['final']['mean_return']:.1f} vs {r['passivity']['mean_return']:.1f} at {r['timesteps']:,} | "
                      f"{r['steps_per_second'] / 1e3:.1f} k ({r['steps_per_second_without_evaluations'] / 1e3:.1f} k) | "
                      f"{100 * r['env_share']:.1f} % |")
@@ -133,6 +137,8 @@ def markdown_table(results: list[dict]) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mode", default="residual", choices=("residual", "virtual", "actuators"))
+    ap.add_argument("--task", default="hover", help="the training and evaluation task (default: hover)")
+    ap.add_argument("--tier", default="nominal", help="the training and evaluation tier (default: nominal)")
     ap.add_argument("--config", action="append", help="name=key=value;key=value (repeatable)")
     ap.add_argument("--table", action="store_true", help="print the Markdown table of --out and exit")
     ap.add_argument("--timesteps", type=int, default=2_000_000)
@@ -152,13 +158,15 @@ def main(argv=None) -> int:
             # each run in a fresh interpreter, as `python train.py` runs: runs in one process are not
             # independent (a second run with the same seed differs from a fresh process's)
             with multiprocessing.get_context("spawn").Pool(1) as pool:
-                r = pool.apply(run_one, (name, overrides, args.mode, args.timesteps, args.eval_freq, seed))
+                r = pool.apply(run_one, (name, overrides, args.mode, args.timesteps, args.eval_freq, seed, args.task,
+                                         args.tier))
             r["command"] = "python benchmarks/ppo_speed.py " + " ".join(sys.argv[1:] if argv is None else argv)
             results.append(r)
             atomic_write_text(args.out, json.dumps(results, indent=1) + "\n")
             beat = ("never" if r["steps_to_beat"] is None
                     else f"{r['steps_to_beat']:,} steps, {r['seconds_to_beat']:.1f} s")
-            print(f"{args.mode} {name} seed {seed}: {r['steps_per_second'] / 1e3:.1f} k steps/s "
+            print(f"{args.mode} {args.task}/{args.tier} {name} seed {seed}: "
+                  f"{r['steps_per_second'] / 1e3:.1f} k steps/s "
                   f"({r['steps_per_second_without_evaluations'] / 1e3:.1f} k without evaluations), env share "
                   f"{100 * r['env_share']:.1f} %, beats passivity ({r['passivity']['mean_return']:.1f}) after {beat}; "
                   f"best {r['best_return']:.1f}, final {r['final']['mean_return']:.1f} / "

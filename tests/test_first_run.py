@@ -33,7 +33,7 @@ def test_first_run_message_once_then_silent(tmp_path):
     starts = [ln for ln in lines if ln.startswith("softpvtol_gym: compiling ") and ln != _cache.FIRST_RUN_MESSAGE]
     ends = [ln for ln in lines if ln.startswith("softpvtol_gym: compiled ")]
     assert starts and len(starts) == len(ends), lines
-    assert starts[0] == _cache.COMPILE_START.format(name="batched.batch_gravity_vector")
+    assert _cache.COMPILE_START.format(name="batched.batch_gravity_vector") in starts  # (the import compiles others)
     assert ends[-1].startswith("softpvtol_gym: compiled batched.batch_gravity_vector in ") and ends[-1].endswith(" s")
     second = _run(_LIGHT, tmp_path)  # the kernel is in the cache now
     assert second.returncode == 0, second.stderr
