@@ -12,10 +12,8 @@ from ._validation import choice, seed_value
 from .batch_sim import BatchSim
 from .config import RENDER_MODES, EnvConfig
 from .episodes import N_UNIFORMS, check_reset_options
-from .info import single_info
-from .layout import SI, S
+from .info import single_info, single_outcome
 from .observation import OBS_CLIP
-from .termination import R_NONE, REASONS
 
 
 def make_spaces(cfg: EnvConfig) -> tuple[spaces.Box, spaces.Box]:
@@ -328,17 +326,12 @@ class SoftPVTOLEnv(gym.Env):
             )
         sim = self._sim
         sim.step(action, batched=False)
-        code = sim.I[0, SI.reason]
-        terminated = code != R_NONE
-        truncated = not terminated and sim.I[0, SI.steps] >= sim.max_steps
-        reason = None
+        reward, terminated, truncated, info = single_outcome(sim, sim.max_steps)
         if terminated or truncated:
             self._episode_over = True
-            reason = REASONS[code] if terminated else "time_limit"
-        info = single_info(sim, reason)
         if self.render_mode == "human":
             self.render()
-        return sim.obs[0].copy(), float(sim.F[0, S.reward]), bool(terminated), bool(truncated), info
+        return sim.obs[0].copy(), reward, terminated, truncated, info
 
     def set_start_error_scale(self, scale: float) -> None:
         """Scale the starting deviations of the next resets (``start_error_scale``, in [0, 10]) that do not

@@ -1,0 +1,124 @@
+"""Probes behind the before/after figures of issue 26 (docs/performance.md), each one command:
+
+    SOFTPVTOL_GYM_CACHE_DIR=$(mktemp -d) python benchmarks/issue26_probes.py compile --mode actuators
+        # a cold first step: import + reset + step, and the compile of every kernel (a tree, >= 0.25 s)
+    python benchmarks/issue26_probes.py draws      # reset uniforms: the compiled loop vs the Python loop
+    python benchmarks/issue26_probes.py single     # single env / Pendulum-v1, random actions, resets counted
+
+For a before/after pair run the same command on the older sources too (e.g. ``git stash`` or
+``git checkout <commit> -- softpvtol_gym``), back to back: absolute times on a shared machine drift between runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+import warnings
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+
+def probe_compile(mode: str) -> None:
+    from numba.core import event
+
+    records, stack = [], []
+
+    class Recorder(event.Listener):
+        def on_start(self, ev):
+            func = getattr(ev.data.get("dispatcher"), "py_func", None)
+            stack.append((f"{getattr(func, '__module__', '?')}.{getattr(func, '__name__', '?')}", time.perf_counter(),
+                          len(stack)))
+
+        def on_end(self, ev):
+            name, t0, depth = stack.pop()
+            records.append((depth, name, time.perf_counter() - t0))
+
+    event.register("numba:compile", Recorder())
+    t0 = time.perf_counter()
+    import numpy as np
+
+    import softpvtol_gym
+
+    env = softpvtol_gym.SoftPVTOLEnv(action_mode=mode)
+    env.reset(seed=0)
+    t1 = time.perf_counter()
+    env.step(np.zeros(env.action_space.shape))
+    t2 = time.perf_counter()
+    print(f"{mode}: import + reset {t1 - t0:.1f} s, first step {t2 - t1:.1f} s, total {t2 - t0:.1f} s")
+    for depth, name, seconds in records:  # (in order of completion: callees before their caller)
+        if seconds >= 0.25:
+            print(f"{'  ' * depth}{seconds:6.1f} s  {name}")
+
+
+def probe_draws() -> None:
+    import timeit
+
+    import numpy as np
+    from gymnasium.utils import seeding
+
+    from softpvtol_gym.envs.uniforms import UniformDraws, python_draws
+
+    rngs = [seeding.np_random(i)[0] for i in range(4096)]
+    idx = np.arange(0, 4096, 7)
+    draws = UniformDraws()
+    draws.draw(rngs, idx, 50)
+    fast = min(timeit.repeat(lambda: draws.draw(rngs, idx, 50), number=100, repeat=5)) / 100
+    slow = min(timeit.repeat(lambda: python_draws(rngs, idx, 50), number=100, repeat=5)) / 100
+    print(f"{idx.size} resets of 50 uniforms: compiled loop {fast * 1e6:.0f} us, Python loop {slow * 1e6:.0f} us")
+
+
+def probe_single(reps: int = 21, steps: int = 2000) -> None:
+    import gymnasium as gym
+
+    import softpvtol_gym  # noqa: F401  (registers the env)
+
+    warnings.filterwarnings("ignore")
+
+    def timer(env, seed):
+        env.action_space.seed(seed)
+        actions = [env.action_space.sample() for _ in range(256)]
+        env.reset(seed=seed)
+
+        def run():
+            t0 = time.perf_counter()
+            for k in range(steps):
+                _, _, term, trunc, _ = env.step(actions[k & 255])
+                if term or trunc:
+                    env.reset()
+            return (time.perf_counter() - t0) / steps
+
+        return run
+
+    ours, pendulum = timer(gym.make("SoftPVTOL-v0"), 0), timer(gym.make("Pendulum-v1"), 1)
+    ours(), pendulum()
+    pairs = [(ours(), pendulum()) for _ in range(reps)]
+    ratio = statistics.median(a / b for a, b in pairs)
+    ours_us, pendulum_us = (statistics.median(p[i] for p in pairs) * 1e6 for i in (0, 1))
+    print(f"SoftPVTOL-v0 / Pendulum-v1 (resets counted, median of {reps} interleaved pairs): {ratio:.3f}x; "
+          f"{ours_us:.2f} us vs {pendulum_us:.2f} us")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="probe", required=True)
+    c = sub.add_parser("compile", help="a cold first step and the compile time of every kernel")
+    c.add_argument("--mode", default="actuators", choices=("actuators", "virtual", "residual"))
+    sub.add_parser("draws", help="reset uniforms: compiled vs Python loop")
+    sub.add_parser("single", help="single env / Pendulum-v1")
+    args = ap.parse_args(argv)
+    if args.probe == "compile":
+        probe_compile(args.mode)
+    elif args.probe == "draws":
+        probe_draws()
+    else:
+        probe_single()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
