@@ -97,3 +97,16 @@ def test_info_dicts_equal_the_reference_read_from_the_whole_state():
             assert bool(infos[k][n]) == ref[k]
     venv.sim.F[:] = 0.0  # the info holds copies, not views of the state
     assert infos["time"].max() > 0.0 and max(v.max() for v in infos["reward_terms"].values()) > 0.0
+
+
+def test_the_issue_26_probe_of_the_reset_draws_runs(capsys):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "issue26_probes.py"
+    spec = importlib.util.spec_from_file_location("issue26_probes", path)
+    probes = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(probes)
+    assert probes.main(["draws"]) == 0
+    out = capsys.readouterr().out
+    assert "compiled loop" in out and "Python loop" in out
