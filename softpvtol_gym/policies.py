@@ -69,7 +69,13 @@ def policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_
 
 @njit(cache=True, nogil=True)
 def policy_step(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, X, ctl, out, err):
+    """:func:`policy_rows`; returns the number of rows lo .. hi - 1 with an error code."""
     policy_rows(lo, hi, obs, theta, kind, scale, offset, tmax, taumax, cc, S, S_new, X, ctl, out, err)
+    bad = 0
+    for n in range(lo, hi):
+        if err[n] != 0:
+            bad += 1
+    return bad
 
 
 @njit(cache=True, nogil=True)
@@ -115,7 +121,10 @@ def policy_observations(observation, dim: int) -> tuple[np.ndarray, bool]:
     entries 0-17), checked (real numbers, the shape, finite, arm curvatures inside the model's validity);
     a ValueError naming what was received otherwise."""
     obs = observation
-    if not (type(obs) is np.ndarray and obs.dtype is _F64 and obs.flags.c_contiguous and obs.flags.writeable):
+    if type(obs) is np.ndarray and obs.dtype.kind == "f":  # the common case (float32 from the env)
+        if not (obs.dtype is _F64 and obs.flags.c_contiguous and obs.flags.writeable):
+            obs = obs.astype(_F64)  # (a C-contiguous copy)
+    else:
         obs = real_array("observation", observation, f"an array of shape ({dim},) or (N, {dim})")
     single = obs.ndim == 1
     if obs.ndim not in (1, 2) or obs.shape[-1] != dim or obs.shape[0] == 0:
@@ -241,6 +250,7 @@ class PassivityPolicy:
         self._tmax = config.thrust_max
         self._taumax = config.arm_torque_max
         self._kind = ACTION_VIRTUAL if config.action_mode == "virtual" else ACTION_ACTUATORS
+        self._action_dim = config.action_dim
 
     @classmethod
     def from_env(cls, env, loop: str | None = None, gains: PassivityGains | None = None,
@@ -282,18 +292,19 @@ class PassivityPolicy:
         theta = np.arctan2(obs[:, 3], obs[:, 4])  # numpy's arctan2, as state_from_observation
         ctrl = self.controller
         S, S_new = ctrl.memory_pair(n)
-        if self._work is None or self._work[0].shape[0] != n:
-            self._work = (np.empty((n, CK.IN_LEN)), np.empty((n, CK.OUT_LEN)), np.zeros(n, dtype=np.int64))
-        X, ctl, err = self._work
-        out = np.empty((n, self.config.action_dim), dtype=np.float32)
+        if self._work is None or self._work[0].shape[0] != n:  # (per batch size: inputs, outputs, errors, ranges)
+            self._work = (np.empty((n, CK.IN_LEN)), np.empty((n, CK.OUT_LEN)), np.zeros(n, dtype=np.int64),
+                          row_ranges(n))
+        X, ctl, err, ranges = self._work
+        out = np.empty((n, self._action_dim), dtype=np.float32)
         args = (obs, theta, self._kind, self._scale, self._offset, self._tmax, self._taumax, ctrl.kernel_constants,
                 S, S_new, X, ctl, out, err)
-        ranges = row_ranges(n)
         if len(ranges) == 1:
-            policy_step(0, n, *args)
+            bad = policy_step(0, n, *args)
         else:
+            bad = 0
             run_split(lambda lo, hi: policy_step(lo, hi, *args), ranges)
-        if err.any():  # nothing changed: the new memory is not swapped in
+        if bad or (len(ranges) > 1 and err.any()):  # nothing changed: the new memory is not swapped in
             ctrl.raise_for(err, self.state_from_observation(obs)[0])
         ctrl.swap_memory()
         return out
