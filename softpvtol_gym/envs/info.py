@@ -29,6 +29,9 @@ _TERMS_LO, _TERMS_HI = S.terms - _INFO_LO, S.terms - _INFO_LO + len(REWARD_TERMS
 _FLOAT_AT = tuple((k, c - _INFO_LO) for k, c in FLOAT_ENTRIES)
 _FLAG_AT = tuple((k, c - _INFO_LO) for k, c in FLAG_ENTRIES)
 _REWARD_AT, _TIME_AT = S.reward - _INFO_LO, S.t - _INFO_LO
+#: the vector env's info copies less: the reward terms and the diagnostics (one slice), and the time
+_BATCH_LO = min(S.terms, *(c for _, c in FLOAT_ENTRIES + FLAG_ENTRIES))
+_BATCH_HI = max(S.terms + len(REWARD_TERMS), *(c + 1 for _, c in FLOAT_ENTRIES + FLAG_ENTRIES))
 
 
 def single_info(sim, reason: str | None) -> dict[str, Any]:
@@ -70,17 +73,17 @@ def single_outcome(sim, max_steps: int) -> tuple[float, bool, bool, dict[str, An
 def batch_info(sim, reasons: np.ndarray | None) -> dict[str, Any]:
     """The infos of every entry as arrays (one private copy of the state; each array a column of it);
     ``reasons``: an object array of reasons (None where not done), or None when no entry is done."""
-    F = sim.F[:, _INFO_LO:_INFO_HI].copy()  # the columns the info reads (not the whole state: a copy per step)
+    F = sim.F[:, _BATCH_LO:_BATCH_HI].copy()  # the columns the info reads (not the whole state: a copy per step)
     n = F.shape[0]
-    info: dict[str, Any] = {"reward_terms": {k: F[:, _TERMS_LO + i] for i, k in enumerate(REWARD_TERMS)}}
-    for k, c in _FLOAT_AT:
-        info[k] = F[:, c]
-    for k, c in _FLAG_AT:
-        info[k] = F[:, c] > 0.5
+    info: dict[str, Any] = {"reward_terms": {k: F[:, S.terms - _BATCH_LO + i] for i, k in enumerate(REWARD_TERMS)}}
+    for k, c in FLOAT_ENTRIES:
+        info[k] = F[:, c - _BATCH_LO]
+    for k, c in FLAG_ENTRIES:
+        info[k] = F[:, c - _BATCH_LO] > 0.5
     info["action_clipped"] = sim.I[:, SI.clipped] != 0
     # (np.empty of dtype object is None-filled)
     info["termination_reason"] = np.empty(n, dtype=object) if reasons is None else reasons
-    info["time"] = F[:, _TIME_AT]
+    info["time"] = sim.F[:, S.t].copy()
     info.update(dict.fromkeys(_MASK_KEYS, np.ones(n, dtype=bool)))
     aids = sim.aids
     if aids is not None:  # the opt-in training aids: their reward terms, the residual gate
