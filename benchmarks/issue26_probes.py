@@ -4,6 +4,7 @@
         # a cold first step: import + reset + step, and the compile of every kernel (a tree, >= 0.25 s)
     python benchmarks/issue26_probes.py draws      # reset uniforms: the compiled loop vs the Python loop
     python benchmarks/issue26_probes.py single     # single env / Pendulum-v1, random actions, resets counted
+    python benchmarks/issue26_probes.py policy     # PassivityPolicy.predict for one state (default, integral loops)
 
 For a before/after pair run the same command on the older sources too (e.g. ``git stash`` or
 ``git checkout <commit> -- softpvtol_gym``), back to back: absolute times on a shared machine drift between runs.
@@ -103,6 +104,20 @@ def probe_single(reps: int = 21, steps: int = 2000) -> None:
           f"{ours_us:.2f} us vs {pendulum_us:.2f} us")
 
 
+def probe_policy() -> None:
+    import timeit
+
+    from softpvtol_gym import PassivityPolicy, SoftPVTOLVectorEnv
+
+    env = SoftPVTOLVectorEnv(num_envs=1)
+    obs = env.reset(seed=0)[0][0]
+    for loop in (None, "integral"):
+        policy = PassivityPolicy.from_env(env, loop=loop)
+        policy.predict(obs)
+        seconds = min(timeit.repeat(lambda p=policy: p.predict(obs), number=20000, repeat=7)) / 20000
+        print(f"PassivityPolicy.predict, one state, loop {loop or 'default'}: {seconds * 1e6:.2f} us (best of 7)")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="probe", required=True)
@@ -110,11 +125,14 @@ def main(argv=None) -> int:
     c.add_argument("--mode", default="actuators", choices=("actuators", "virtual", "residual"))
     sub.add_parser("draws", help="reset uniforms: compiled vs Python loop")
     sub.add_parser("single", help="single env / Pendulum-v1")
+    sub.add_parser("policy", help="PassivityPolicy.predict for one state")
     args = ap.parse_args(argv)
     if args.probe == "compile":
         probe_compile(args.mode)
     elif args.probe == "draws":
         probe_draws()
+    elif args.probe == "policy":
+        probe_policy()
     else:
         probe_single()
     return 0
