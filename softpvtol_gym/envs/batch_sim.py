@@ -171,11 +171,13 @@ class BatchSim:
             cc, (S_mem, S_new) = ctrl.kernel_constants, ctrl.memory_pair(self.n)
         else:
             cc, S_mem, S_new = self.C, self.F, self.F  # unused (same types: no second compilation)
-        if len(self._ranges) == 1:
+        if len(self._ranges) > 1:
+            code = self._step_split(a, cc, S_mem, S_new, side)
+        elif ctrl is None:  # (the serial kernels without the controller take fewer arguments)
+            code = self._step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, self._ctl)
+        else:
             code = self._step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, cc, S_mem, S_new,
                                      self._ctl_in, self._ctl, self._ctl_err)
-        else:
-            code = self._step_split(a, cc, S_mem, S_new, side)
         if code == STEP_BAD_ACTION:
             raise ValueError(f"action must be finite (in [-1, 1]; out-of-range values are clipped), got "
                              f"{short_repr(action)}")

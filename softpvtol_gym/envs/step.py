@@ -303,12 +303,14 @@ def step_physics_rows(lo, hi, act, state, obs, keys, istate, consts, codes, ctl)
 
 
 # One control step of every env (actions act (N, A)) in this thread; returns a ``STEP_*`` code. Four
-# entry points of one signature, so that a process compiles only what its env needs (numba compiles a
-# kernel with everything it calls, used or not): with or without the residual mode's base controller
-# (its new memory goes into S_new; the caller swaps it in on STEP_OK), for any N or for N < LANES
-# (lane-by-lane paths only). Same functions per env in each: the results do not depend on the choice.
+# entry points, so that a process compiles only what its env needs (numba compiles a kernel with
+# everything it calls, used or not): with or without the residual mode's base controller (its
+# constants, memory and work arrays: its new memory goes into S_new; the caller swaps it in on
+# STEP_OK), for any N or for N < LANES (lane-by-lane paths only). Same functions per env in each: the
+# results do not depend on the choice. (Fewer arguments without the controller: numba's dispatch of a
+# call costs about 50 ns per argument, a share of a single env's step.)
 @njit(cache=True, nogil=True)
-def step_serial(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl, ctl_err):
+def step_serial(act, state, obs, keys, istate, consts, codes, ctl):
     """Action modes without the base controller, any N."""
     n = state.shape[0]
     ok, _ = check_actions(act, codes[SK.action_dim])
@@ -334,7 +336,7 @@ def step_serial_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem
 
 
 @njit(cache=True, nogil=True)
-def step_serial_small(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl, ctl_err):
+def step_serial_small(act, state, obs, keys, istate, consts, codes, ctl):
     """:func:`step_serial` for N < LANES."""
     n = state.shape[0]
     ok, _ = check_actions(act, codes[SK.action_dim])
