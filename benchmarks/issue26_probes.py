@@ -77,25 +77,10 @@ def probe_single(reps: int = 21, steps: int = 2000) -> None:
     import gymnasium as gym
 
     import softpvtol_gym  # noqa: F401  (registers the env)
+    from benchmarks._env_speed import _step_timer  # the benchmark's own timer (resets counted)
 
     warnings.filterwarnings("ignore")
-
-    def timer(env, seed):
-        env.action_space.seed(seed)
-        actions = [env.action_space.sample() for _ in range(256)]
-        env.reset(seed=seed)
-
-        def run():
-            t0 = time.perf_counter()
-            for k in range(steps):
-                _, _, term, trunc, _ = env.step(actions[k & 255])
-                if term or trunc:
-                    env.reset()
-            return (time.perf_counter() - t0) / steps
-
-        return run
-
-    ours, pendulum = timer(gym.make("SoftPVTOL-v0"), 0), timer(gym.make("Pendulum-v1"), 1)
+    ours, pendulum = _step_timer(gym.make("SoftPVTOL-v0"), steps, 0), _step_timer(gym.make("Pendulum-v1"), steps, 1)
     ours(), pendulum()
     pairs = [(ours(), pendulum()) for _ in range(reps)]
     ratio = statistics.median(a / b for a, b in pairs)
