@@ -10,10 +10,12 @@ from numba import njit
 from ._batching import MAX_CURVATURE
 from ._parallel import row_ranges, run_split
 from .control import PassivityController
+from .control import _extended_kernels as EK
 from .control import _kernels as CK
 from .control.closed_loop import LOOPS, MAX_HELD_CONTROL_PERIOD
 from .control.extended import ExtendedController, ExtendedGains
 from .control.passivity import PassivityGains
+from .dynamics import input_map_code
 from .envs._validation import real_array, short_repr
 from .envs.config import EnvConfig
 from .envs.observation import OBS_DIM, OBS_NAMES
@@ -398,6 +400,11 @@ class ExtendedPolicy:
         self._weights = _cubic_fit_weights(REF_HISTORY, config.dt)
         self._tmax = config.thrust_max
         self._taumax = config.arm_torque_max
+        # the compiled pass's inputs (control._extended_kernels)
+        self._p = config.params.array
+        self._map_code = input_map_code(config.input_map)
+        self._constants = EK.extended_constants(self.controller, self._tmax, self._taumax)
+        self._work = None
 
     def reset(self) -> None:
         self.controller.reset()
@@ -407,7 +414,33 @@ class ExtendedPolicy:
         """(action, state) for observations (18,) or (N, 18) (21 with ``observe_error_integral``: entries
         0-17 are read); ``episode_start``: None, a bool or N bools
         (the entries whose memory is reset). ValueError for observations that are not finite or outside
-        the model's validity."""
+        the model's validity. One compiled pass (:mod:`softpvtol_gym.control._extended_kernels`);
+        :meth:`predict_reference` is the same policy in numpy, the readable reference it is tested against."""
+        obs, single, n = self._prepare(observation, episode_start)
+        obs = np.ascontiguousarray(obs)
+        theta = np.arctan2(obs[:, 3], obs[:, 4])  # numpy's arctan2, as state_from_observation
+        ctrl = self.controller
+        if ctrl._xi is None:
+            ctrl._xi = np.full((n, 2), np.nan)
+        if self._work is None or self._work[0].shape[0] != n:  # (per batch size: errors, thread ranges)
+            self._work = (np.zeros(n, dtype=np.int64), row_ranges(n))
+        err, ranges = self._work
+        out = np.empty((n, 4), dtype=np.float32)
+        args = (obs, theta, self._acc_hist, self._hist_len, ctrl._xi, self._weights, self._p, self._map_code,
+                self._constants, ctrl.held_command == "midpoint", out, err)
+        if len(ranges) == 1:
+            bad = EK.extended_policy_rows(0, n, *args)
+        else:
+            bad = 0
+            run_split(lambda lo, hi: EK.extended_policy_rows(lo, hi, *args), ranges)
+        if bad or (len(ranges) > 1 and err.any()):  # pragma: no cover (the law safeguards its divisions)
+            raise ValueError(f"the extended loop produced non-finite actuators in rows {np.flatnonzero(err).tolist()}; "
+                             "their extension is kept, reset the policy")
+        return (out[0] if single else out), state
+
+    def _prepare(self, observation, episode_start):
+        """The checked observations (N, 18), whether one was given, N; the memory sized for N and reset
+        where ``episode_start``."""
         obs, single = policy_observations(observation, self.config.obs_dim)
         n = obs.shape[0]
         mask = None if episode_start is None else _episode_start_mask(episode_start, n)
@@ -419,6 +452,12 @@ class ExtendedPolicy:
         elif mask is not None and mask.any():
             self.controller.reset(mask)
             self._hist_len[mask] = 0
+        return obs, single, n
+
+    def predict_reference(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        """:meth:`predict` in numpy through :class:`ExtendedController` (the readable reference; the same
+        memory): the same actions to round-off."""
+        obs, single, n = self._prepare(observation, episode_start)
         q, qd, q_ref, qdr, qddr = PassivityPolicy.state_from_observation(obs)
         hist, k = self._acc_hist, self._hist_len
         hist[:, 1:] = hist[:, :-1].copy()

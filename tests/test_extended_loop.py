@@ -218,3 +218,41 @@ def test_policy_in_the_env_tracks_without_saturating():
         assert not terminated
         errs.append(np.hypot(obs[0], obs[1]))
     assert sat == 0 and max(errs[-200:]) < 0.05, (sat, max(errs[-200:]))
+
+
+@pytest.mark.parametrize("tier", ["nominal", "hard"])
+def test_compiled_policy_is_the_numpy_reference(tier):
+    """ExtendedPolicy.predict (one compiled pass, control._extended_kernels) against predict_reference (numpy,
+    through ExtendedController): the same actions and extension along the vector env's episodes, with
+    memories reset at random steps, a batch large enough to be split over threads,
+    and a controller that holds the start's command."""
+    from softpvtol_gym import SoftPVTOLVectorEnv
+
+    n = 300
+    env = SoftPVTOLVectorEnv(num_envs=n, action_mode="actuators", task="track_random", tier=tier)
+    fast = PassivityPolicy.from_env(env, loop="extended")
+    ref = PassivityPolicy.from_env(env, loop="extended")
+    obs, _ = env.reset(seed=1)
+    start, restarted, rng = np.ones(n, dtype=bool), 0, np.random.default_rng(0)
+    for _ in range(150):
+        a, _ = fast.predict(obs, episode_start=start)
+        b, _ = ref.predict_reference(obs, episode_start=start)
+        assert a.dtype == np.float32 and a.shape == (n, 4)
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(fast.controller.thrust_state, ref.controller.thrust_state, rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(fast._hist_len, ref._hist_len)
+        obs, _, terminated, truncated, _ = env.step(b)
+        start = terminated | truncated | (rng.random(n) < 0.01)  # and memories forgotten mid-episode
+        restarted += int(start.sum())
+    assert restarted > 100
+    one = SoftPVTOLEnv(action_mode="actuators", task="track_paper", tier=tier)
+    for held in ("start", "midpoint"):
+        fast, ref = (PassivityPolicy.from_env(one, loop="extended") for _ in range(2))
+        for pol in (fast, ref):
+            pol.controller.held_command = held
+        o, _ = one.reset(seed=2)
+        for k in range(20):
+            a, _ = fast.predict(o, episode_start=k == 0)
+            b, _ = ref.predict_reference(o, episode_start=k == 0)
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
+            o = one.step(b)[0]
