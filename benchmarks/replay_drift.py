@@ -29,6 +29,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from softpvtol_gym.baselines.evaluation import run_episodes
     from softpvtol_gym.baselines.training.policy import LearnedPolicy
+    from softpvtol_gym.baselines.util.atomic import atomic_write_text
 
     data = json.loads((ROOT / "baselines" / "results" / "leaderboard.json").read_text())
     learned = sorted({(c["checkpoint"], c["train_tier"], c["task"]) for c in data["cells"] if c["checkpoint"]})
@@ -59,7 +60,7 @@ def main(argv=None) -> int:
               f"crashed or ended differently, mean RMS moved by at most "
               f"{100 * max(r['mean_rms_relative_change'] for r in sel):.2g} %")
     if args.out:
-        args.out.write_text(json.dumps(rows, indent=1) + "\n")
+        atomic_write_text(args.out, json.dumps(rows, indent=1) + "\n")
     return 0
 
 

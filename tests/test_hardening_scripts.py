@@ -402,7 +402,9 @@ def test_run_jobs_on_ray_terminated_leaves_no_ray_process_or_temp_folder(when, t
     pytest.importorskip("ray")
     if _ray_leftovers():
         pytest.skip(f"another Ray is running here: {_ray_leftovers()[:2]}")
-    spec = _write_spec(tmp_path, episodes=5000)
+    # 4 jobs of 10,000 episodes: still running 8 s after Ray's start on a fast machine (one job of 5,000 took 5 s
+    # on an AMX Xeon, and the SIGTERM then reached a process that had finished); SIGTERM ends them long before
+    spec = _write_spec(tmp_path, episodes=10000, passivity=4)
     ready = "Ray:" if when == "running" else ""
     code, err = _signal_command(["run-jobs", "--executor", "ray", "--workers", "1", "--spec", str(spec), "--root",
                                  "runs"], tmp_path, ready, signal.SIGTERM, 8.0 if when == "running" else 4.0)
