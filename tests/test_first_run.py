@@ -195,3 +195,37 @@ def test_sb3_subproc_vec_env_with_the_module_id(tmp_path):
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=900, cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.strip().endswith("ok")
+
+
+_COMPILED_NAMES = """
+import numpy as np, softpvtol_gym, sys
+from numba.core import event
+names = set()
+class Names(event.Listener):
+    def on_start(self, ev):
+        names.add(ev.data["dispatcher"].py_func.__name__)
+    def on_end(self, ev):
+        pass
+event.register("numba:compile", Names())
+env = softpvtol_gym.SoftPVTOLEnv(action_mode=sys.argv[1], tier=sys.argv[2])
+env.reset(seed=0)
+env.step(env.action_space.sample())
+print(" ".join(sorted(names)))
+"""
+
+
+@pytest.mark.slow  # two cold first steps in a fresh cache: ~25 s
+@pytest.mark.parametrize("mode, tier, absent, present", [
+    ("actuators", "nominal", {"_virtual_allocation", "rk4_lanes_consistent", "consistent_energies"},
+     {"rk4_lanes_partial"}),
+    ("virtual", "model_gap", set(), {"_virtual_allocation", "rk4_lanes_consistent", "consistent_energies"}),
+])
+def test_a_first_step_compiles_only_what_its_env_uses(tmp_path, mode, tier, absent, present):
+    """The step and reset kernels take ``virtual`` and ``consistent`` as None unless the env needs them
+    (envs.step.kernel_flags): numba prunes those branches, so a first actuators step compiles neither the
+    virtual mode's allocation nor the consistent plant, and a virtual-mode model_gap env compiles both."""
+    out = subprocess.run([sys.executable, "-c", _COMPILED_NAMES, mode, tier], capture_output=True, text=True,
+                         timeout=600, env=dict(os.environ, SOFTPVTOL_GYM_CACHE_DIR=str(tmp_path)))
+    assert out.returncode == 0, out.stderr
+    names = set(out.stdout.split())
+    assert "step_serial_small" in names and not absent & names and present <= names, sorted(names)

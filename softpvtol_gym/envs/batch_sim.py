@@ -18,6 +18,7 @@ from .reset import reset_rows
 from .step import (
     STEP_BAD_ACTION,
     STEP_OK,
+    kernel_flags,
     serial_step_kernel,
     step_check_actions,
     step_controller_rows,
@@ -68,6 +69,7 @@ class BatchSim:
         self._ranges = row_ranges(n, align=MK.LANES)  # one per thread, whole lane blocks
         # the compiled step of one call (compiled on first use, with the controller only in residual mode)
         self._step_serial = serial_step_kernel(n, cfg.action_mode == "residual")
+        self._flags = kernel_flags(self.C, self.K)
         self._shape = {True: (n, self.action_dim), False: (self.action_dim,)}
         self._expected = {b: f"an array of shape {shape} in [-1, 1]" for b, shape in self._shape.items()}
         self.controller = None
@@ -91,7 +93,7 @@ class BatchSim:
 
     def __getstate__(self) -> dict:
         # the views (pickle would turn them into independent copies) and the kernel are rebuilt on unpickling
-        state = {k: v for k, v in self.__dict__.items() if k not in self._VIEWS and k != "_step_serial"}
+        state = {k: v for k, v in self.__dict__.items() if k not in self._VIEWS and k not in ("_step_serial", "_flags")}
         state["layouts"] = (STATE.signature, ISTATE.signature, CONST.signature)  # C is pickled too
         return state
 
@@ -107,6 +109,7 @@ class BatchSim:
         self._custom_reference = not self.task.is_compiled
         self._make_views()
         self._step_serial = serial_step_kernel(self.n, self.cfg.action_mode == "residual")
+        self._flags = kernel_flags(self.C, self.K)
 
     # -------------------------------------------------------------------------------- reset
     def set_start_error_scale(self, scale: float) -> None:
@@ -132,7 +135,7 @@ class BatchSim:
         """Write episodes from :meth:`prepare_reset` into entries ``idx``."""
         rows = np.ascontiguousarray(np.atleast_1d(np.arange(self.n)[idx]), dtype=np.int64)
         reset_rows(self.F, self.obs, self.key, self.I, self.C, rows, ep["q0"], ep["qd0"], ep["P"], ep["key"],
-                   ep["refp"], ep["ref"])
+                   ep["refp"], ep["ref"], self._flags[1])
         if self.controller is not None:
             self.controller.reset_rows(rows)
         if self.aids is not None:
@@ -174,10 +177,10 @@ class BatchSim:
         if len(self._ranges) > 1:
             code = self._step_split(a, cc, S_mem, S_new, side)
         elif ctrl is None:  # (the serial kernels without the controller take fewer arguments)
-            code = self._step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, self._ctl)
+            code = self._step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, self._ctl, *self._flags)
         else:
             code = self._step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, cc, S_mem, S_new,
-                                     self._ctl_in, self._ctl, self._ctl_err)
+                                     self._ctl_in, self._ctl, self._ctl_err, *self._flags)
         if code == STEP_BAD_ACTION:
             raise ValueError(f"action must be finite (in [-1, 1]; out-of-range values are clipped), got "
                              f"{short_repr(action)}")
@@ -198,5 +201,7 @@ class BatchSim:
         if self.controller is not None:
             run_split(lambda lo, hi: step_controller_rows(lo, hi, a, F, I, C, K, has_res, cc, S_mem, S_new, X, ctl,
                                                           err), self._ranges)
-        run_split(lambda lo, hi: step_physics_rows(lo, hi, a, F, obs, key, I, C, K, ctl), self._ranges, side)
+        virtual, consistent = self._flags
+        run_split(lambda lo, hi: step_physics_rows(lo, hi, a, F, obs, key, I, C, K, ctl, virtual, consistent),
+                  self._ranges, side)
         return STEP_OK

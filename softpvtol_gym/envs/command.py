@@ -68,9 +68,12 @@ def _virtual_allocation(state, n, consts, alloc, imap, cmd):
 
 
 @jit
-def command(state, n, consts, mode, alloc, imap, ctl, cmd):
+def command(state, n, consts, mode, alloc, imap, ctl, cmd, virtual):
     """The command of env n before saturation into cmd[0:5] (actuators (4), or tau (5) in ideal mode);
-    returns the thrust-saturation flag of the allocation. One branch per action mode (``MODE_*``)."""
+    returns the thrust-saturation flag of the allocation. One branch per action mode (``MODE_*``).
+
+    ``virtual``: None in a kernel compiled for the other modes (numba prunes the allocation's branch on a
+    None argument, so that kernel never compiles the allocation), 1 for virtual mode."""
     for i in range(5):
         cmd[i] = 0.0
     tmax, taumax = consts[SC.thrust_max], consts[SC.arm_torque_max]
@@ -90,4 +93,6 @@ def command(state, n, consts, mode, alloc, imap, ctl, cmd):
         for i in range(5):
             cmd[i] = cmd[5 + i]
         return 0.0
+    if virtual is None:  # not reached: such a kernel steps no virtual-mode env (BatchSim picks it by mode)
+        return math.nan
     return _virtual_allocation(state, n, consts, alloc, imap, cmd)

@@ -18,10 +18,12 @@ from .termination import R_NONE
 
 
 @njit(cache=True, nogil=True)
-def reset_rows(state, obs, keys, istate, consts, rows, q0, qd0, P, new_keys, refp, ref):
-    """Start new episodes in the given rows (initial state, plant params, noise keys, reference
+def reset_rows(state, obs, keys, istate, consts, rows, q0, qd0, P, new_keys, refp, ref, consistent):
+    """Start new episodes in the given rows (initial state, plant parameters, noise keys, reference
     parameters and the reference at t = 0 as (N, 9), row j of the inputs for rows[j]): clear the
-    episode state, draw the initial wind, compute the observation, measured state and diagnostics."""
+    episode state, draw the initial wind, compute the observation, measured state and diagnostics.
+    ``consistent``: None unless the plant is the consistent model (its energy; the kernel compiled for None
+    leaves the consistent model out: :func:`softpvtol_gym.envs.step.kernel_flags`)."""
     std = consts[SC.wind_std]
     for j in range(rows.shape[0]):
         n = rows[j]
@@ -54,7 +56,7 @@ def reset_rows(state, obs, keys, istate, consts, rows, q0, qd0, P, new_keys, ref
             row5(state, n, S.q), row5(state, n, S.qd), (state[n, S.qr], state[n, S.qr + 1], state[n, S.qr + 2]),
             (state[n, S.qdr], state[n, S.qdr + 1], state[n, S.qdr + 2]), row10(state, n, S.P), nominal_params(consts),
             vec5(consts, SC.lam), vec5(consts, SC.kg))
-        if consts[SC.consistent_plant] > 0.0:
+        if consistent is not None:
             kin, pot = MK.consistent_energies(row5(state, n, S.q), row5(state, n, S.qd), row10(state, n, S.P))
             state[n, S.total_energy] = kin + pot
         state[n, S.curvature_violation] = max(abs(state[n, S.q + 3]) - math.pi, abs(state[n, S.q + 4]) - math.pi, 0.0)

@@ -23,7 +23,7 @@ from numba import njit
 from .. import model as MK
 from ..control import _kernels as CK
 from ..references import REF_CONSTANT, REF_CUSTOM, reference_row
-from .actions import MODE_IDEAL, MODE_RES_ACT
+from .actions import MODE_IDEAL, MODE_RES_ACT, MODE_VIRTUAL
 from .command import check_actions, clip_actions, command
 from .diagnostics import consistent_energy_lanes, diag_lanes, diag_lanes_partial
 from .layout import LANES, SC, SI, SK, SL, S
@@ -53,7 +53,7 @@ def _put_reference(state, n, code, t):
 
 
 @_jit
-def _begin_range(lo, hi, state, istate, consts, codes, ctl, lanes, cmd):
+def _begin_range(lo, hi, state, istate, consts, codes, ctl, lanes, cmd, virtual):
     """Clock, reference and applied command (action scaling, allocation, saturation, actuator lag) of
     envs lo .. hi - 1; their state, command and wind into the lanes of lanes."""
     mode, alloc, imap, ref = codes[SK.mode], codes[SK.alloc], codes[SK.imap], codes[SK.ref]
@@ -74,7 +74,7 @@ def _begin_range(lo, hi, state, istate, consts, codes, ctl, lanes, cmd):
         state[n, S.allocation_residual] = 0.0
         state[n, S.arm_reference] = 0.0
         state[n, S.arm_reference + 1] = 0.0
-        thrust_sat = command(state, n, consts, mode, alloc, imap, ctl, cmd)
+        thrust_sat = command(state, n, consts, mode, alloc, imap, ctl, cmd, virtual)
         torque_sat = 0.0
         if mode != MODE_IDEAL:
             for i in range(2):
@@ -200,12 +200,12 @@ def _consistent_physics(lanes, m, consts, codes):
 
 
 @_jit
-def _step_block(n0, m, state, obs, keys, istate, consts, codes, ctl, lanes, cmd):
+def _step_block(n0, m, state, obs, keys, istate, consts, codes, ctl, lanes, cmd, virtual, consistent):
     """Advance envs n0 .. n0 + m - 1 (m <= LANES) by one control step; their physics runs in the
     lane block lanes."""
     hi = n0 + m
-    _begin_range(n0, hi, state, istate, consts, codes, ctl, lanes, cmd)
-    if consts[SC.consistent_plant] > 0.0:
+    _begin_range(n0, hi, state, istate, consts, codes, ctl, lanes, cmd, virtual)
+    if consistent is not None:
         _consistent_physics(lanes, m, consts, codes)
     else:
         held = MK.HELD_TAU if codes[SK.mode] == MODE_IDEAL else codes[SK.imap]
@@ -213,19 +213,19 @@ def _step_block(n0, m, state, obs, keys, istate, consts, codes, ctl, lanes, cmd)
             MK.rk4_lanes(lanes, consts[SC.dt_physics], m, held)
     _end_range(n0, hi, state, keys, istate, consts, lanes)
     diag_lanes(lanes, m, nominal_params(consts), vec5(consts, SC.lam), vec5(consts, SC.kg))
-    if consts[SC.consistent_plant] > 0.0:
+    if consistent is not None:
         consistent_energy_lanes(lanes, m)
     observe_range(n0, hi, state, keys, istate, consts, obs)
     _reward_range(n0, hi, state, istate, consts, codes, lanes)
 
 
 @_jit
-def _step_block_partial(n0, m, state, obs, keys, istate, consts, codes, ctl, lanes, cmd):
+def _step_block_partial(n0, m, state, obs, keys, istate, consts, codes, ctl, lanes, cmd, virtual, consistent):
     """:func:`_step_block` for m < LANES through the lane-by-lane paths only (what a batch of fewer
     than LANES envs needs: the same functions per lane, without the SIMD copies to compile)."""
     hi = n0 + m
-    _begin_range(n0, hi, state, istate, consts, codes, ctl, lanes, cmd)
-    if consts[SC.consistent_plant] > 0.0:
+    _begin_range(n0, hi, state, istate, consts, codes, ctl, lanes, cmd, virtual)
+    if consistent is not None:
         _consistent_physics(lanes, m, consts, codes)
     else:
         held = MK.HELD_TAU if codes[SK.mode] == MODE_IDEAL else codes[SK.imap]
@@ -233,7 +233,7 @@ def _step_block_partial(n0, m, state, obs, keys, istate, consts, codes, ctl, lan
             MK.rk4_lanes_partial(lanes, consts[SC.dt_physics], m, held)
     _end_range(n0, hi, state, keys, istate, consts, lanes)
     diag_lanes_partial(lanes, m, nominal_params(consts), vec5(consts, SC.lam), vec5(consts, SC.kg))
-    if consts[SC.consistent_plant] > 0.0:
+    if consistent is not None:
         consistent_energy_lanes(lanes, m)
     observe_range(n0, hi, state, keys, istate, consts, obs)
     _reward_range(n0, hi, state, istate, consts, codes, lanes)
@@ -263,20 +263,21 @@ def _controller_rows(lo, hi, state, consts, has_res, cc, S_mem, S_new, ctl_in, c
 
 
 @_jit
-def _physics_rows(lo, hi, state, obs, keys, istate, consts, codes, ctl):
+def _physics_rows(lo, hi, state, obs, keys, istate, consts, codes, ctl, virtual, consistent):
     """Advance envs lo .. hi - 1 by one control step, in blocks of LANES (the controller done)."""
     lanes = np.empty(LANE_BLOCK)
     cmd = np.empty(10)  # the command (5) and, in virtual mode, the requested tau (5)
     for n0 in range(lo, hi, MK.LANES):
-        _step_block(n0, min(MK.LANES, hi - n0), state, obs, keys, istate, consts, codes, ctl, lanes, cmd)
+        _step_block(n0, min(MK.LANES, hi - n0), state, obs, keys, istate, consts, codes, ctl, lanes, cmd, virtual,
+                    consistent)
 
 
 @_jit
-def _physics_rows_small(lo, hi, state, obs, keys, istate, consts, codes, ctl):
+def _physics_rows_small(lo, hi, state, obs, keys, istate, consts, codes, ctl, virtual, consistent):
     """:func:`_physics_rows` for hi - lo < LANES envs (one partial block)."""
     lanes = np.empty(LANE_BLOCK)
     cmd = np.empty(10)
-    _step_block_partial(lo, hi - lo, state, obs, keys, istate, consts, codes, ctl, lanes, cmd)
+    _step_block_partial(lo, hi - lo, state, obs, keys, istate, consts, codes, ctl, lanes, cmd, virtual, consistent)
 
 
 # --------------------------------------------------------------------------------- entry points
@@ -295,11 +296,11 @@ def step_controller_rows(lo, hi, act, state, istate, consts, codes, has_res, cc,
 
 
 @njit(cache=True, nogil=True)
-def step_physics_rows(lo, hi, act, state, obs, keys, istate, consts, codes, ctl):
+def step_physics_rows(lo, hi, act, state, obs, keys, istate, consts, codes, ctl, virtual, consistent):
     """Envs lo .. hi - 1: clip the actions (unless the controller phase did), then the step."""
     if codes[SK.mode] != MODE_RES_ACT:
         clip_actions(lo, hi, act, state, istate, codes[SK.action_dim])
-    _physics_rows(lo, hi, state, obs, keys, istate, consts, codes, ctl)
+    _physics_rows(lo, hi, state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
 
 
 # One control step of every env (actions act (N, A)) in this thread; returns a ``STEP_*`` code. Four
@@ -308,21 +309,32 @@ def step_physics_rows(lo, hi, act, state, obs, keys, istate, consts, codes, ctl)
 # constants, memory and work arrays: its new memory goes into S_new; the caller swaps it in on
 # STEP_OK), for any N or for N < LANES (lane-by-lane paths only). Same functions per env in each: the
 # results do not depend on the choice. (Fewer arguments without the controller: numba's dispatch of a
-# call costs about 50 ns per argument, a share of a single env's step.)
+# call costs about 50 ns per argument, a share of a single env's step.) The last two arguments,
+# ``virtual`` and ``consistent`` (:func:`kernel_flags`), are None unless the env is in virtual mode, resp.
+# steps the consistent plant: numba prunes a branch on a None argument before typing it, so a kernel
+# compiled for None never compiles the virtual mode's allocation, resp. the consistent model (a cold first
+# step compiles what its env uses).
+def kernel_flags(consts: np.ndarray, codes: np.ndarray) -> tuple[int | None, int | None]:
+    """(virtual, consistent) of the step kernels for an env's constants and codes: 1 where the env is in
+    virtual mode (the allocation), resp. steps the consistent plant (model_gap), else None."""
+    return (1 if codes[SK.mode] == MODE_VIRTUAL else None, 1 if consts[SC.consistent_plant] > 0.0 else None)
+
+
 @njit(cache=True, nogil=True)
-def step_serial(act, state, obs, keys, istate, consts, codes, ctl):
+def step_serial(act, state, obs, keys, istate, consts, codes, ctl, virtual, consistent):
     """Action modes without the base controller, any N."""
     n = state.shape[0]
     ok, _ = check_actions(act, codes[SK.action_dim])
     if not ok:
         return STEP_BAD_ACTION
     clip_actions(0, n, act, state, istate, codes[SK.action_dim])
-    _physics_rows(0, n, state, obs, keys, istate, consts, codes, ctl)
+    _physics_rows(0, n, state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
     return STEP_OK
 
 
 @njit(cache=True, nogil=True)
-def step_serial_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl, ctl_err):
+def step_serial_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl, ctl_err, virtual,
+                         consistent):
     """Residual mode (the base controller, then the physics), any N."""
     n = state.shape[0]
     ok, anyu = check_actions(act, codes[SK.action_dim])
@@ -331,25 +343,25 @@ def step_serial_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem
     clip_actions(0, n, act, state, istate, codes[SK.action_dim])
     has_res = anyu and codes[SK.res_virtual] != 0
     _controller_rows(0, n, state, consts, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err)
-    _physics_rows(0, n, state, obs, keys, istate, consts, codes, ctl)
+    _physics_rows(0, n, state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
     return STEP_OK
 
 
 @njit(cache=True, nogil=True)
-def step_serial_small(act, state, obs, keys, istate, consts, codes, ctl):
+def step_serial_small(act, state, obs, keys, istate, consts, codes, ctl, virtual, consistent):
     """:func:`step_serial` for N < LANES."""
     n = state.shape[0]
     ok, _ = check_actions(act, codes[SK.action_dim])
     if not ok:
         return STEP_BAD_ACTION
     clip_actions(0, n, act, state, istate, codes[SK.action_dim])
-    _physics_rows_small(0, n, state, obs, keys, istate, consts, codes, ctl)
+    _physics_rows_small(0, n, state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
     return STEP_OK
 
 
 @njit(cache=True, nogil=True)
 def step_serial_small_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl,
-                               ctl_err):
+                               ctl_err, virtual, consistent):
     """:func:`step_serial_residual` for N < LANES."""
     n = state.shape[0]
     ok, anyu = check_actions(act, codes[SK.action_dim])
@@ -358,7 +370,7 @@ def step_serial_small_residual(act, state, obs, keys, istate, consts, codes, cc,
     clip_actions(0, n, act, state, istate, codes[SK.action_dim])
     has_res = anyu and codes[SK.res_virtual] != 0
     _controller_rows(0, n, state, consts, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err)
-    _physics_rows_small(0, n, state, obs, keys, istate, consts, codes, ctl)
+    _physics_rows_small(0, n, state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
     return STEP_OK
 
 
