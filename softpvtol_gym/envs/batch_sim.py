@@ -135,7 +135,7 @@ class BatchSim:
         """Write episodes from :meth:`prepare_reset` into entries ``idx``."""
         rows = np.ascontiguousarray(np.atleast_1d(np.arange(self.n)[idx]), dtype=np.int64)
         reset_rows(self.F, self.obs, self.key, self.I, self.C, rows, ep["q0"], ep["qd0"], ep["P"], ep["key"],
-                   ep["refp"], ep["ref"], self._flags[1])
+                   ep["refp"], ep["ref"], *self._flags[1:])
         if self.controller is not None:
             self.controller.reset_rows(rows)
         if self.aids is not None:
@@ -201,7 +201,6 @@ class BatchSim:
         if self.controller is not None:
             run_split(lambda lo, hi: step_controller_rows(lo, hi, a, F, I, C, K, has_res, cc, S_mem, S_new, X, ctl,
                                                           err), self._ranges)
-        virtual, consistent = self._flags
-        run_split(lambda lo, hi: step_physics_rows(lo, hi, a, F, obs, key, I, C, K, ctl, virtual, consistent),
-                  self._ranges, side)
+        flags = self._flags
+        run_split(lambda lo, hi: step_physics_rows(lo, hi, a, F, obs, key, I, C, K, ctl, *flags), self._ranges, side)
         return STEP_OK

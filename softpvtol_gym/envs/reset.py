@@ -18,12 +18,12 @@ from .termination import R_NONE
 
 
 @njit(cache=True, nogil=True)
-def reset_rows(state, obs, keys, istate, consts, rows, q0, qd0, P, new_keys, refp, ref, consistent):
+def reset_rows(state, obs, keys, istate, consts, rows, q0, qd0, P, new_keys, refp, ref, consistent=None):
     """Start new episodes in the given rows (initial state, plant parameters, noise keys, reference
     parameters and the reference at t = 0 as (N, 9), row j of the inputs for rows[j]): clear the
     episode state, draw the initial wind, compute the observation, measured state and diagnostics.
-    ``consistent``: None unless the plant is the consistent model (its energy; the kernel compiled for None
-    leaves the consistent model out: :func:`softpvtol_gym.envs.step.kernel_flags`)."""
+    ``consistent``: None (the default) unless the plant is the consistent model (its energy; the kernel
+    compiled for None leaves the consistent model out: :func:`softpvtol_gym.envs.step.kernel_flags`)."""
     std = consts[SC.wind_std]
     for j in range(rows.shape[0]):
         n = rows[j]

@@ -296,7 +296,7 @@ def step_controller_rows(lo, hi, act, state, istate, consts, codes, has_res, cc,
 
 
 @njit(cache=True, nogil=True)
-def step_physics_rows(lo, hi, act, state, obs, keys, istate, consts, codes, ctl, virtual, consistent):
+def step_physics_rows(lo, hi, act, state, obs, keys, istate, consts, codes, ctl, virtual=None, consistent=None):
     """Envs lo .. hi - 1: clip the actions (unless the controller phase did), then the step."""
     if codes[SK.mode] != MODE_RES_ACT:
         clip_actions(lo, hi, act, state, istate, codes[SK.action_dim])
@@ -310,18 +310,20 @@ def step_physics_rows(lo, hi, act, state, obs, keys, istate, consts, codes, ctl,
 # STEP_OK), for any N or for N < LANES (lane-by-lane paths only). Same functions per env in each: the
 # results do not depend on the choice. (Fewer arguments without the controller: numba's dispatch of a
 # call costs about 50 ns per argument, a share of a single env's step.) The last two arguments,
-# ``virtual`` and ``consistent`` (:func:`kernel_flags`), are None unless the env is in virtual mode, resp.
-# steps the consistent plant: numba prunes a branch on a None argument before typing it, so a kernel
-# compiled for None never compiles the virtual mode's allocation, resp. the consistent model (a cold first
-# step compiles what its env uses).
-def kernel_flags(consts: np.ndarray, codes: np.ndarray) -> tuple[int | None, int | None]:
-    """(virtual, consistent) of the step kernels for an env's constants and codes: 1 where the env is in
-    virtual mode (the allocation), resp. steps the consistent plant (model_gap), else None."""
-    return (1 if codes[SK.mode] == MODE_VIRTUAL else None, 1 if consts[SC.consistent_plant] > 0.0 else None)
+# ``virtual`` and ``consistent`` (:func:`kernel_flags`), are None (the default) unless the env is in virtual
+# mode, resp. steps the consistent plant: numba prunes a branch on a None argument before typing it, so a
+# kernel compiled for None never compiles the virtual mode's allocation, resp. the consistent model (a cold
+# first step compiles what its env uses).
+def kernel_flags(consts: np.ndarray, codes: np.ndarray) -> tuple:
+    """The step kernels' trailing arguments (virtual, consistent) for an env's constants and codes: 1 where
+    the env is in virtual mode (the allocation), resp. steps the consistent plant (model_gap), else None;
+    () when both are None (the defaults: two arguments fewer for numba's dispatch to type)."""
+    flags = (1 if codes[SK.mode] == MODE_VIRTUAL else None, 1 if consts[SC.consistent_plant] > 0.0 else None)
+    return () if flags == (None, None) else flags
 
 
 @njit(cache=True, nogil=True)
-def step_serial(act, state, obs, keys, istate, consts, codes, ctl, virtual, consistent):
+def step_serial(act, state, obs, keys, istate, consts, codes, ctl, virtual=None, consistent=None):
     """Action modes without the base controller, any N."""
     n = state.shape[0]
     ok, _ = check_actions(act, codes[SK.action_dim])
@@ -333,8 +335,8 @@ def step_serial(act, state, obs, keys, istate, consts, codes, ctl, virtual, cons
 
 
 @njit(cache=True, nogil=True)
-def step_serial_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl, ctl_err, virtual,
-                         consistent):
+def step_serial_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl, ctl_err,
+                         virtual=None, consistent=None):
     """Residual mode (the base controller, then the physics), any N."""
     n = state.shape[0]
     ok, anyu = check_actions(act, codes[SK.action_dim])
@@ -348,7 +350,7 @@ def step_serial_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem
 
 
 @njit(cache=True, nogil=True)
-def step_serial_small(act, state, obs, keys, istate, consts, codes, ctl, virtual, consistent):
+def step_serial_small(act, state, obs, keys, istate, consts, codes, ctl, virtual=None, consistent=None):
     """:func:`step_serial` for N < LANES."""
     n = state.shape[0]
     ok, _ = check_actions(act, codes[SK.action_dim])
@@ -361,7 +363,7 @@ def step_serial_small(act, state, obs, keys, istate, consts, codes, ctl, virtual
 
 @njit(cache=True, nogil=True)
 def step_serial_small_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl,
-                               ctl_err, virtual, consistent):
+                               ctl_err, virtual=None, consistent=None):
     """:func:`step_serial_residual` for N < LANES."""
     n = state.shape[0]
     ok, anyu = check_actions(act, codes[SK.action_dim])
