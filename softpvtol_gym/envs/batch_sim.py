@@ -21,8 +21,8 @@ from .step import (
     kernel_flags,
     serial_step_kernel,
     step_check_actions,
-    step_controller_rows,
     step_physics_rows,
+    step_residual_rows,
 )
 from .training_aids import TrainingAids
 
@@ -198,9 +198,11 @@ class BatchSim:
         ok, has_res = step_check_actions(a, K)
         if not ok:
             return STEP_BAD_ACTION
-        if self.controller is not None:
-            run_split(lambda lo, hi: step_controller_rows(lo, hi, a, F, I, C, K, has_res, cc, S_mem, S_new, X, ctl,
-                                                          err), self._ranges)
         flags = self._flags
-        run_split(lambda lo, hi: step_physics_rows(lo, hi, a, F, obs, key, I, C, K, ctl, *flags), self._ranges, side)
+        if self.controller is not None:  # each range: the controller, then the physics
+            run_split(lambda lo, hi: step_residual_rows(lo, hi, a, F, obs, key, I, C, K, has_res, cc, S_mem, S_new, X,
+                                                        ctl, err, *flags), self._ranges, side)
+        else:
+            run_split(lambda lo, hi: step_physics_rows(lo, hi, a, F, obs, key, I, C, K, ctl, *flags), self._ranges,
+                      side)
         return STEP_OK

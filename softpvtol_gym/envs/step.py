@@ -5,8 +5,9 @@ The physics of up to ``MK.LANES`` envs at a time runs in a lane block (structure
 :data:`~softpvtol_gym.envs.layout.LANES`) that LLVM turns into SIMD code. The residual mode's base
 controller is the controller block driver of :mod:`softpvtol_gym.control._kernels`, fed the
 measured state. Entry points: :func:`serial_step_kernel` (one call, small batches) and, for large batches
-split over threads by BatchSim, :func:`step_check_actions`, :func:`step_controller_rows` and
-:func:`step_physics_rows`. An error code changes nothing.
+split over threads by BatchSim, :func:`step_check_actions`, then :func:`step_residual_rows` (the residual
+mode: controller and physics of a range in one pass) or :func:`step_physics_rows`. An error code changes
+nothing.
 
 Its parts, by job: the command (:mod:`.command`: actions checked, clipped and scaled, allocation), the
 diagnostics (:mod:`.diagnostics`: energy and storage), the episode starts (:mod:`.reset`), and row and
@@ -289,10 +290,13 @@ def step_check_actions(act, codes):
 
 
 @njit(cache=True, nogil=True)
-def step_controller_rows(lo, hi, act, state, istate, consts, codes, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err):
-    """Residual mode, envs lo .. hi - 1: clip the actions, then the base controller."""
+def step_residual_rows(lo, hi, act, state, obs, keys, istate, consts, codes, has_res, cc, S_mem, S_new, ctl_in, ctl,
+                       ctl_err, virtual=None, consistent=None):
+    """Residual mode, envs lo .. hi - 1, in one pass: clip the actions, the base controller, then the step
+    (a thread's rows stay in its cache between the two)."""
     clip_actions(lo, hi, act, state, istate, codes[SK.action_dim])
     _controller_rows(lo, hi, state, consts, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err)
+    _physics_rows(lo, hi, state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
 
 
 @njit(cache=True, nogil=True)
