@@ -108,7 +108,8 @@ def test_statistics_match_the_per_episode_data():
 # The replays below compare with the leaderboard's episodes at a relative 1e-6, which needs the arithmetic of the
 # machine the leaderboard was computed on. torch's float32 GEMM sums in an order that depends on the batch size and
 # on the CPU model (its MKL/oneDNN kernels), and a closed loop carries the last-bit differences along. Measured on
-# a CPU other than the leaderboard's (an AMX-capable Xeon, 2026-12-02; python benchmarks/replay_drift.py): of 105
+# a CPU other than the leaderboard's (an AMX-capable Xeon; the leaderboard's was an AMD EPYC, with the same
+# package versions; 2026-12-02, python benchmarks/replay_drift.py): of 105
 # replays 39 equal to 1e-6, the others drift; per cell the mean RMS error moved by at most 0.7 % on the nominal,
 # wind and mismatch tiers (no crash changed), and on the hard tier by up to 35 %, with up to 5 of 20 episodes
 # crashing or not. So: a reference cell replayed exactly (every value equal to the last bit) tells that this machine
