@@ -135,7 +135,7 @@ class BatchSim:
         """Write episodes from :meth:`prepare_reset` into entries ``idx``."""
         rows = np.ascontiguousarray(np.atleast_1d(np.arange(self.n)[idx]), dtype=np.int64)
         reset_rows(self.F, self.obs, self.key, self.I, self.C, rows, ep["q0"], ep["qd0"], ep["P"], ep["key"],
-                   ep["refp"], ep["ref"], *self._flags[1:])
+                   ep["refp"], ep["ref"], *self._flags[1:])  # (the consistent flag, if the flags are given)
         if self.controller is not None:
             self.controller.reset_rows(rows)
         if self.aids is not None:

@@ -301,10 +301,17 @@ def step_residual_rows(lo, hi, act, state, obs, keys, istate, consts, codes, has
 
 @njit(cache=True, nogil=True)
 def step_physics_rows(lo, hi, act, state, obs, keys, istate, consts, codes, ctl, virtual=None, consistent=None):
-    """Envs lo .. hi - 1: clip the actions (unless the controller phase did), then the step."""
-    if codes[SK.mode] != MODE_RES_ACT:
-        clip_actions(lo, hi, act, state, istate, codes[SK.action_dim])
+    """Action modes without the base controller, envs lo .. hi - 1: clip the actions, then the step."""
+    clip_actions(lo, hi, act, state, istate, codes[SK.action_dim])
     _physics_rows(lo, hi, state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
+
+
+def kernel_flags(consts: np.ndarray, codes: np.ndarray) -> tuple:
+    """The step kernels' trailing arguments (virtual, consistent) for an env's constants and codes: 1 where
+    the env is in virtual mode (the allocation), resp. steps the consistent plant (model_gap), else None;
+    () when both are None (the defaults: two arguments fewer for numba's dispatch to type)."""
+    flags = (1 if codes[SK.mode] == MODE_VIRTUAL else None, 1 if consts[SC.consistent_plant] > 0.0 else None)
+    return () if flags == (None, None) else flags
 
 
 # One control step of every env (actions act (N, A)) in this thread; returns a ``STEP_*`` code. Four
@@ -318,14 +325,6 @@ def step_physics_rows(lo, hi, act, state, obs, keys, istate, consts, codes, ctl,
 # mode, resp. steps the consistent plant: numba prunes a branch on a None argument before typing it, so a
 # kernel compiled for None never compiles the virtual mode's allocation, resp. the consistent model (a cold
 # first step compiles what its env uses).
-def kernel_flags(consts: np.ndarray, codes: np.ndarray) -> tuple:
-    """The step kernels' trailing arguments (virtual, consistent) for an env's constants and codes: 1 where
-    the env is in virtual mode (the allocation), resp. steps the consistent plant (model_gap), else None;
-    () when both are None (the defaults: two arguments fewer for numba's dispatch to type)."""
-    flags = (1 if codes[SK.mode] == MODE_VIRTUAL else None, 1 if consts[SC.consistent_plant] > 0.0 else None)
-    return () if flags == (None, None) else flags
-
-
 @njit(cache=True, nogil=True)
 def step_serial(act, state, obs, keys, istate, consts, codes, ctl, virtual=None, consistent=None):
     """Action modes without the base controller, any N."""
