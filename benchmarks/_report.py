@@ -44,6 +44,10 @@ def readme_table(payload: dict) -> str:
          ", ".join(f"{ctl['batched_' + k]:.2f}x" for k in _CONTROLLER_RATIOS), "<= 1x"],
         ["4. PPO (default `train.py` configuration): share of wall time in `env.step` (training env-steps/s)",
          f"{100 * ppo['env_share']:.1f} % ({ppo['env_steps_per_second'] / 1e3:.1f} k env-steps/s)", "<= 10 %"],
+        [f"4. the fast recipe (`train.py --recipe {ppo['fast']['recipe']}`) on the tracking cell (residual, "
+         "track_random, nominal): training env-steps/s, rollouts + updates (its quality and wall time against the "
+         "default: `benchmarks/ppo_speed.py --compare`, docs/performance.md)",
+         f"{ppo['fast']['env_steps_per_second'] / 1e3:.1f} k env-steps/s", ">= 50 k/s"],
         ["5. `import softpvtol_gym` + first reset and step, fresh process",
          f"{tg['cold_start']['import_plus_first_step']:.2f} s", "< 2 s"],
         ["5. the same with a cold numba cache (it compiles): actuators mode; residual mode",

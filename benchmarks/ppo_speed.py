@@ -134,6 +134,112 @@ def markdown_table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def compare(results: list[dict], baseline: str, candidate: str) -> dict:
+    """Issue 26, goal 4: the ``candidate`` configuration against ``baseline`` on the seeds both ran (same task,
+    tier and mode). Quality is the mean over those seeds of the final held-out evaluation (10 episodes per
+    seed): RMS position error and return. The candidate passes when its mean final RMS error is at most the
+    baseline's, its mean return at least the baseline's, its mean training wall time (evaluations included) at
+    most a third of the baseline's, and its env-steps/s of the whole loop at least 50 k."""
+    runs = {name: {r["seed"]: r for r in results if r["name"] == name} for name in (baseline, candidate)}
+    for name, by_seed in runs.items():
+        if not by_seed:
+            raise SystemExit(f"no run named {name!r} in the results (names: {sorted({r['name'] for r in results})})")
+    seeds = sorted(set(runs[baseline]) & set(runs[candidate]))
+    if not seeds:
+        raise SystemExit(f"{baseline!r} and {candidate!r} share no seed")
+    out = {"seeds": seeds}
+    for name in (baseline, candidate):
+        rs = [runs[name][s] for s in seeds]
+        cells = {(r["action_mode"], r.get("task", "hover"), r.get("tier", "nominal")) for r in rs}
+        if len(cells) != 1:
+            raise SystemExit(f"the runs of {name!r} are of different cells: {sorted(cells)}")
+        out[name] = {
+            "cell": cells.pop(), "hyperparams": rs[0]["hyperparams"],
+            "timesteps": [r["timesteps"] for r in rs],
+            "final_rms": [r["final"]["mean_rms_position_error"] for r in rs],
+            "final_return": [r["final"]["mean_return"] for r in rs],
+            "crash_rate": [r["final"]["crash_rate"] for r in rs],
+            "wall_seconds": [r["wall_seconds"] for r in rs],
+            "steps_per_second": [r["steps_per_second"] for r in rs],
+            "loadavg_before": [r["loadavg_before"][0] for r in rs],
+        }
+    b, c = out[baseline], out[candidate]
+    if b["cell"] != c["cell"]:
+        raise SystemExit(f"{baseline!r} ran {b['cell']}, {candidate!r} ran {c['cell']}: not the same cell")
+
+    def mean(xs):
+        return sum(xs) / len(xs)
+
+    out["checks"] = {
+        "final RMS error at most the baseline's": mean(c["final_rms"]) <= mean(b["final_rms"]),
+        "final return at least the baseline's": mean(c["final_return"]) >= mean(b["final_return"]),
+        "wall time at most a third of the baseline's": mean(c["wall_seconds"]) <= mean(b["wall_seconds"]) / 3,
+        "at least 50 k env-steps/s end to end": mean(c["steps_per_second"]) >= 50_000,
+    }
+    out["passed"] = all(out["checks"].values())
+    return out
+
+
+def compare_table(results: list[dict], baseline: str, candidate: str) -> str:
+    """The Markdown table of :func:`compare` (docs/performance.md, goal 4), its checks below it."""
+    cmp = compare(results, baseline, candidate)
+
+    def mean(xs):
+        return sum(xs) / len(xs)
+
+    def spread(xs, fmt):
+        return f"{fmt.format(mean(xs))} ({fmt.format(min(xs))}-{fmt.format(max(xs))})"
+
+    lines = [f"seeds {', '.join(map(str, cmp['seeds']))}; mean over the seeds (lowest-highest)", "",
+             "| configuration | steps | final RMS position error [m] | final return | crash rate | wall seconds | "
+             "env-steps/s | load |", "|---|---|---|---|---|---|---|---|"]
+    for name in (baseline, candidate):
+        r, hp = cmp[name], cmp[name]["hyperparams"]
+        config = (f"{name}: {hp['n_envs']} x {hp['n_steps']}, batch {hp['batch_size']}, {hp['n_epochs']} epochs, "
+                  f"lr {hp['learning_rate']}")
+        lines.append(f"| {config} | {spread(r['timesteps'], '{:,.0f}')} | {spread(r['final_rms'], '{:.3f}')} | "
+                     f"{spread(r['final_return'], '{:.1f}')} | {mean(r['crash_rate']):.2f} | "
+                     f"{spread(r['wall_seconds'], '{:.1f}')} | "
+                     f"{spread([v / 1e3 for v in r['steps_per_second']], '{:.1f} k')} | "
+                     f"{max(r['loadavg_before']):.2f} |")
+    lines.append("")
+    lines += [f"- {'pass' if ok else 'FAIL'}: {what}" for what, ok in cmp["checks"].items()]
+    return "\n".join(lines)
+
+
+def plot_compare(results: list[dict], names: list[str], path: Path) -> None:
+    """Held-out RMS position error and return against training wall seconds, one line per run of ``names``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from softpvtol_gym.baselines.util.atomic import atomic_path
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for n, name in enumerate(names):
+        runs = [r for r in results if r["name"] == name]
+        for k, r in enumerate(runs):
+            t = [e["seconds"] for e in r["curve"]]
+            for ax, key in ((axes[0], "mean_rms_position_error"), (axes[1], "mean_return")):
+                ax.plot(t, [e[key] for e in r["curve"]], color=f"C{n}", marker=".", alpha=0.8,
+                        label=name if k == 0 else None)
+    passivity = next(r["passivity"] for r in results if r["name"] in names)
+    for ax, key, label in ((axes[0], "mean_rms_position_error", "held-out mean RMS position error [m]"),
+                           (axes[1], "mean_return", "held-out mean return")):
+        ax.axhline(passivity[key], color="k", ls="--", lw=1, label="passivity (seed 0's episodes)")
+        ax.set_xlabel("training wall time [s]")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].set_yscale("log")
+    axes[0].legend()
+    fig.suptitle("PPO configurations: learning curve against wall time (python benchmarks/ppo_speed.py --plot)")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=90)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mode", default="residual", choices=("residual", "virtual", "actuators"))
@@ -141,6 +247,10 @@ def main(argv=None) -> int:
     ap.add_argument("--tier", default="nominal", help="the training and evaluation tier (default: nominal)")
     ap.add_argument("--config", action="append", help="name=key=value;key=value (repeatable)")
     ap.add_argument("--table", action="store_true", help="print the Markdown table of --out and exit")
+    ap.add_argument("--compare", nargs=2, metavar=("BASELINE", "CANDIDATE"),
+                    help="print issue 26's goal-4 comparison of two configurations of --out and exit")
+    ap.add_argument("--plot", type=Path, help="with --compare: also draw their learning curves against wall time "
+                                              "to this PNG")
     ap.add_argument("--timesteps", type=int, default=2_000_000)
     ap.add_argument("--eval-freq", type=int, default=50_000)
     ap.add_argument("--seed", type=int, action="append", help="training seed (repeatable; default 0)")
@@ -149,6 +259,11 @@ def main(argv=None) -> int:
     results = json.loads(args.out.read_text()) if args.out.is_file() else []
     if args.table:
         print(markdown_table(results))
+        return 0
+    if args.compare:
+        print(compare_table(results, *args.compare))
+        if args.plot:
+            plot_compare(results, list(args.compare), args.plot)
         return 0
     if not args.config:
         ap.error("--config is required (or --table)")

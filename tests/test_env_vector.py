@@ -136,6 +136,45 @@ def test_sb3_adapter_ppo_and_terminal_observation():
     assert found
 
 
+AIDS = {"residual_gate": 0.05, "precision_reward_weight": 1.0, "action_rate_penalty": 0.1}
+
+
+@pytest.mark.parametrize("step_infos", [True, False])
+@pytest.mark.parametrize("aids", [{}, AIDS])
+def test_sb3_adapter_infos_are_the_vector_envs_entries(aids, step_infos):
+    """Each of the adapter's info dicts holds sub-env i's entries of the vector env's info (nested dicts too),
+    as Python scalars, with SB3's keys where an episode ended; with ``step_infos=False`` only where an episode
+    ended (the others are empty)."""
+    from gymnasium.vector import AutoresetMode
+
+    from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
+
+    kwargs = dict(num_envs=6, action_mode="residual", task="track_random", max_episode_seconds=0.2, **aids)
+    adapter = SoftPVTOLSB3VecEnv(step_infos=step_infos, **kwargs)
+    native = SoftPVTOLVectorEnv(autoreset_mode=AutoresetMode.SAME_STEP, **kwargs)
+    adapter.seed(3)
+    adapter.reset()
+    native.reset(seed=3)
+    rng = np.random.default_rng(0)
+    ended = 0
+    for _ in range(30):
+        a = rng.uniform(-1, 1, (6, 5)).astype(np.float32)
+        _, _, dones, infos = adapter.step(a)
+        _, _, term, trunc, info = native.step(a)
+        keys = [k for k in info if not k.startswith("_") and k not in ("final_obs", "final_info")]
+        assert ("residual_gate" in keys) == bool(aids)
+        for i in range(6):
+            expected = {k: ({kk: vv[i].item() for kk, vv in info[k].items()} if isinstance(info[k], dict)
+                            else info[k][i] if info[k].dtype == object else info[k][i].item()) for k in keys}
+            if dones[i]:
+                ended += 1
+                np.testing.assert_array_equal(infos[i].pop("terminal_observation"), info["final_obs"][i])
+                assert infos[i].pop("TimeLimit.truncated") == bool(trunc[i] and not term[i])
+            assert infos[i] == (expected if step_infos or dones[i] else {})
+            assert list(infos[i]) == (keys if step_infos or dones[i] else [])
+    assert ended >= 6
+
+
 def test_diverging_residual_envs_terminate_instead_of_raising():
     """Huge actuator limits and random residuals make sub-envs diverge within a step; the base
     controller then sees a non-finite state (a terminated sub-env is stepped once more before its
@@ -150,3 +189,10 @@ def test_diverging_residual_envs_terminate_instead_of_raising():
         assert all(info["termination_reason"][term])
         reasons |= {r for r in info["termination_reason"][term]}
     assert reasons and reasons <= {"curvature_limit", "ground", "out_of_bounds", "non_finite"}
+
+
+def test_sb3_adapter_refuses_a_step_infos_that_is_not_a_bool():
+    from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
+
+    with pytest.raises(ValueError, match="step_infos must be True or False, got 'no'"):
+        SoftPVTOLSB3VecEnv(num_envs=2, step_infos="no")

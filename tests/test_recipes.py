@@ -146,6 +146,45 @@ def test_train_recipe_sets_the_run_and_the_command_line_changes_it(tmp_path):
             make_config(ap.parse_args(argv), ap)
 
 
+def test_the_fast_recipe_trains_with_fused_adam_and_resumes(tmp_path):
+    """residual-fast (issue 26, goal 4): its hyperparameters, one rollout of 128 x 128 steps trained with torch's
+    fused Adam, and a resumed run that continues with the same optimizer."""
+    from softpvtol_gym.baselines.checkpoints.load import load_folder
+
+    hp = recipe_hyperparams(load_recipe("residual-fast"))
+    assert (hp["n_envs"], hp["n_steps"], hp["batch_size"], hp["n_epochs"]) == (128, 128, 512, 3)
+    assert hp["learning_rate"] == "lin_5e-3" and hp["n_timesteps"] == 1_000_000
+    out = tmp_path / "run"
+    args = ["--recipe", "residual-fast", "--task", "track_random", "--eval-freq", "16384", "--eval-episodes", "1",
+            "--checkpoint-freq", "16384", "--out", str(out)]
+    assert train_main([*args, "--timesteps", "16384"]) == 0
+    model, _, _, _ = load_folder(out)
+    assert model.policy.optimizer.param_groups[0]["fused"] is True
+    assert model.num_timesteps == 16384
+    assert train_main([*args, "--timesteps", "32768", "--resume"]) == 0
+    resumed, _, _, _ = load_folder(out)
+    assert resumed.num_timesteps == 32768 and resumed.policy.optimizer.param_groups[0]["fused"] is True
+    # Adam's step count went on from the checkpoint: 3 epochs x 32 mini-batches per rollout
+    steps = {float(s["step"]) for s in resumed.policy.optimizer.state.values()}
+    assert {float(s["step"]) for s in model.policy.optimizer.state.values()} == {96.0} and steps == {192.0}
+
+
+def test_a_torch_without_fused_cpu_adam_is_a_config_error_naming_the_fix(monkeypatch):
+    import torch
+
+    from softpvtol_gym.baselines.training.models import build_model
+
+    def refuse(self, *args, **kwargs):  # what torch < 2.4 raises for fused=True on CPU tensors
+        raise RuntimeError("`fused=True` requires all the params to be floating point Tensors of supported devices: "
+                           "['cuda']")
+
+    monkeypatch.setattr(torch.optim.Adam, "__init__", refuse)
+    r = load_recipe("residual-fast")
+    config = RunConfig(**recipe_config_fields(r), hyperparams=recipe_hyperparams(r), task="track_random", n_envs=2)
+    with pytest.raises(ConfigError, match=r"optimizer_kwargs=dict\(fused=True\), which needs torch >= 2.4"):
+        build_model(config, make_env(config))
+
+
 def test_a_recipe_run_trains_with_its_aids_and_curriculum_and_evaluates_without_them(tmp_path):
     out = tmp_path / "run"
     assert train_main(["--recipe", "residual-precise-wide", "--task", "track_random", "--timesteps", "256", *TINY,

@@ -23,9 +23,12 @@ def algo_class(algo: str):
 
 
 def make_env(config: RunConfig, n_envs: int | None = None):
-    """The SB3 adapter over a native vector env of the run's cell (``n_envs`` sub-envs, default the run's)."""
+    """The SB3 adapter over a native vector env of the run's cell (``n_envs`` sub-envs, default the run's); its
+    info dicts are empty while an episode goes on (``step_infos=False``: SB3's PPO and SAC read only a finished
+    episode's)."""
 
-    return SoftPVTOLSB3VecEnv(num_envs=config.n_envs if n_envs is None else n_envs, **config.env_kwargs())
+    return SoftPVTOLSB3VecEnv(num_envs=config.n_envs if n_envs is None else n_envs, step_infos=False,
+                              **config.env_kwargs())
 
 
 def make_vecnorm(config: RunConfig, env, training: bool = True):
@@ -100,3 +103,12 @@ def build_model(config: RunConfig, env, tensorboard_log: str | None = None, verb
     except (AssertionError, TypeError, ValueError, KeyError) as exc:
         raise ConfigError(f"stable-baselines3 refused the hyperparameters of this {config.algo.upper()} run: "
                           f"{type(exc).__name__}: {exc}") from None
+    except RuntimeError as exc:
+        if "fused" not in str(exc):
+            raise
+        import torch
+
+        # torch's fused Adam runs on the CPU from torch 2.4 on (the residual-fast recipe asks for it)
+        raise ConfigError(f"torch {torch.__version__} refused the optimizer of this {config.algo.upper()} run "
+                          f"({exc}); policy_kwargs asks for optimizer_kwargs=dict(fused=True), which needs torch "
+                          f">= 2.4 on the CPU: upgrade torch or override policy_kwargs without it") from None
