@@ -583,3 +583,61 @@ def test_docs_ppo_speed_table_is_the_generated_one():
         above = [e for e in r["curve"] if e["mean_return"] > r["passivity"]["mean_return"]]
         assert r["steps_to_beat"] == (above[0]["step"] if above else None)
         assert r["command"].startswith("python benchmarks/ppo_speed.py ")
+
+
+def _ppo_speed_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("softpvtol_ppo_speed", ROOT / "benchmarks" / "ppo_speed.py")
+    speed = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(speed)
+    return speed
+
+
+def test_fast_recipe_comparison_is_the_committed_runs_and_the_docs_table():
+    """Issue 26, goal 4: benchmarks/ppo_speed_fast.json holds the default entry and the residual-fast recipe as
+    shipped, three seeds each on the tracking cell; docs/performance.md's table is --compare's output for it."""
+    from softpvtol_gym.baselines.config.recipes import load_recipe
+
+    speed = _ppo_speed_module()
+    results = json.loads((ROOT / "benchmarks" / "ppo_speed_fast.json").read_text())
+    assert {(r["name"], r["seed"]) for r in results} == {(n, s) for n in ("default", "fast") for s in (0, 1, 2)}
+    for r in results:
+        assert (r["action_mode"], r["task"], r["tier"]) == ("residual", "track_random", "nominal")
+        assert r["overrides"] == ([] if r["name"] == "default" else load_recipe("residual-fast")["hp"])
+        assert r["command"].startswith("python benchmarks/ppo_speed.py ")
+        assert r["final"] == r["curve"][-1] and r["timesteps"] >= 1_000_000
+    cmp = speed.compare(results, "default", "fast")
+    assert cmp["seeds"] == [0, 1, 2] and set(cmp["checks"]) and cmp["passed"] is all(cmp["checks"].values())
+    text = (ROOT / "docs" / "performance.md").read_text()
+    start = ("<!-- benchmarks/ppo_speed.py --compare: start (generated from benchmarks/ppo_speed_fast.json, do not "
+             "edit) -->")
+    block = text[text.index(start) + len(start):text.index("<!-- benchmarks/ppo_speed.py --compare: end -->")]
+    assert block.strip() == speed.compare_table(results, "default", "fast").strip()
+    png = (ROOT / "benchmarks" / "ppo_speed_fast.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+def test_ppo_speed_compare_checks_each_criterion():
+    speed = _ppo_speed_module()
+
+    def run(name, seed, rms, ret, wall, rate, rate_no_eval, task="track_random"):
+        final = {"step": 1000, "seconds": wall, "mean_return": ret, "mean_rms_position_error": rms, "crash_rate": 0.0}
+        return {"name": name, "seed": seed, "action_mode": "residual", "task": task, "tier": "nominal",
+                "hyperparams": {}, "timesteps": 1000, "final": final, "wall_seconds": wall, "steps_per_second": rate,
+                "steps_per_second_without_evaluations": rate_no_eval, "loadavg_before": [1.0, 1.0, 1.0]}
+
+    base = [run("a", s, 0.07, 1900.0, 60.0, 15e3, 16e3) for s in (0, 1)]
+    good = [run("b", s, 0.06, 1910.0, 19.0, 52e3, 55e3) for s in (0, 1)]
+    assert speed.compare(base + good, "a", "b")["passed"]
+    for bad, failed in (({"rms": 0.08}, "final RMS error at most the baseline's"),
+                        ({"ret": 1800.0}, "final return at least the baseline's"),
+                        ({"wall": 21.0}, "wall time at most a third of the baseline's"),
+                        ({"rate_no_eval": 49e3}, "at least 50 k env-steps/s, rollouts and updates")):
+        kw = {"rms": 0.06, "ret": 1910.0, "wall": 19.0, "rate": 52e3, "rate_no_eval": 55e3, **bad}
+        cmp = speed.compare(base + [run("b", s, **kw) for s in (0, 1)], "a", "b")
+        assert not cmp["passed"] and [k for k, ok in cmp["checks"].items() if not ok] == [failed]
+    with pytest.raises(SystemExit, match="no run named 'c'"):
+        speed.compare(base, "a", "c")
+    with pytest.raises(SystemExit, match="not the same cell"):
+        speed.compare(base + [run("b", 0, 0.06, 1910.0, 19.0, 52e3, 55e3, task="hover")], "a", "b")

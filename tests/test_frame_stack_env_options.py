@@ -233,3 +233,35 @@ def test_a_run_trained_with_residual_scale_0_4_evaluates_with_0_4(tmp_path):
         train_main(["--out", str(out), "--resume", "--env", "residual_scale=0.2", "--timesteps", "512",
                     "--no-progress-bar"])
     assert exc.value.code == 2
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_learned_policy_acts_as_the_models_own_predict(algo):
+    """LearnedPolicy.predict skips SB3's per-call set_training_mode but otherwise makes SB3's calls: the same
+    actions as model.predict (batched and single observations; SAC squashes, PPO clips), also right after a
+    training update left the policy in training mode."""
+    import torch
+    from stable_baselines3 import PPO, SAC
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
+
+    env = VecNormalize(SoftPVTOLSB3VecEnv(num_envs=4, action_mode="residual", task="track_random"))
+    model = (PPO("MlpPolicy", env, n_steps=16, batch_size=32, seed=0, device="cpu") if algo == "ppo"
+             else SAC("MlpPolicy", env, learning_starts=0, batch_size=32, seed=0, device="cpu"))
+    model.learn(64)
+    policy = LearnedPolicy(model, env)
+    raw = np.random.default_rng(0).normal(scale=3.0, size=(6, env.observation_space.shape[0])).astype(np.float32)
+    normed = env.normalize_obs(raw)
+    for deterministic in (True, False):
+        model.policy.set_training_mode(True)
+        torch.manual_seed(1)
+        mine, _ = policy.predict(raw, deterministic=deterministic)
+        assert not model.policy.training
+        torch.manual_seed(1)
+        theirs, _ = model.predict(normed, deterministic=deterministic)
+        np.testing.assert_array_equal(mine, theirs)
+        assert mine.shape == (6, 5)
+    one, _ = policy.predict(raw[0], deterministic=True)
+    np.testing.assert_array_equal(one, model.predict(normed[0], deterministic=True)[0])
+    assert one.shape == (5,)
