@@ -30,7 +30,8 @@ def bench_ppo(quick: bool) -> dict:
     rollout = n_envs * int(hp["n_steps"])
     total = rollout if quick else 5 * rollout
     torch.set_num_threads(1)
-    env = SoftPVTOLSB3VecEnv(num_envs=n_envs, action_mode="residual", task="hover", tier="nominal")
+    # as train.py builds it (training.models.make_env): no per-step info dicts
+    env = SoftPVTOLSB3VecEnv(num_envs=n_envs, action_mode="residual", task="hover", tier="nominal", step_infos=False)
     env.seed(0)
     inside = {"seconds": 0.0, "calls": 0}
     step_wait = env.step_wait

@@ -5,6 +5,8 @@
     python benchmarks/issue26_probes.py draws      # reset uniforms: the compiled loop vs the Python loop
     python benchmarks/issue26_probes.py single     # single env / Pendulum-v1, random actions, resets counted
     python benchmarks/issue26_probes.py policy     # PassivityPolicy.predict for one state (default, integral loops)
+    python benchmarks/issue26_probes.py training   # the SB3 adapter's step (step_infos on/off), 128 sub-envs;
+                                                   # one periodic evaluation (10 track_random episodes)
 
 For a before/after pair run the same command on the older sources too (e.g. ``git stash`` or
 ``git checkout <commit> -- softpvtol_gym``), back to back: absolute times on a shared machine drift between runs.
@@ -103,6 +105,44 @@ def probe_policy() -> None:
         print(f"PassivityPolicy.predict, one state, loop {loop or 'default'}: {seconds * 1e6:.2f} us (best of 7)")
 
 
+def probe_training() -> None:
+    import tempfile
+    import timeit
+
+    import numpy as np
+
+    import softpvtol_gym.baselines.training.loop as training
+    from softpvtol_gym.baselines.config.hyperparams import load_hyperparams
+    from softpvtol_gym.baselines.config.run_config import RunConfig
+    from softpvtol_gym.baselines.evaluation import run_episodes
+    from softpvtol_gym.baselines.training.policy import LearnedPolicy
+    from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
+
+    for step_infos in (True, False):
+        env = SoftPVTOLSB3VecEnv(num_envs=128, action_mode="residual", task="track_random", step_infos=step_infos)
+        env.reset()
+        action = np.zeros((128, 5), np.float32)
+
+        def step(e=env, action=action):
+            e.step_async(action)
+            e.step_wait()
+
+        seconds = min(timeit.repeat(step, number=200, repeat=7)) / 200 / 128
+        print(f"SB3 adapter step, 128 sub-envs, residual, step_infos={step_infos}: {seconds * 1e6:.2f} us per "
+              f"env-step (best of 7)")
+    hp = load_hyperparams("ppo", "residual")
+    config = RunConfig(algo="ppo", action_mode="residual", task="track_random", tier="nominal", timesteps=1000,
+                       seed=0, n_envs=16, hyperparams=hp, overrides=[], checkpoint_freq=1000, eval_freq=1000,
+                       eval_episodes=10)
+    with tempfile.TemporaryDirectory() as tmp:
+        _, vecnorm, model = training.prepare(config, Path(tmp) / "run")
+    policy = LearnedPolicy(model, vecnorm)
+    run_episodes(policy, "residual", "track_random", "nominal", 10, 0)
+    seconds = min(timeit.repeat(lambda: run_episodes(policy, "residual", "track_random", "nominal", 10, 0),
+                                number=1, repeat=5))
+    print(f"one periodic evaluation (10 track_random episodes, an untrained policy): {seconds:.3f} s (best of 5)")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="probe", required=True)
@@ -111,6 +151,7 @@ def main(argv=None) -> int:
     sub.add_parser("draws", help="reset uniforms: compiled vs Python loop")
     sub.add_parser("single", help="single env / Pendulum-v1")
     sub.add_parser("policy", help="PassivityPolicy.predict for one state")
+    sub.add_parser("training", help="the SB3 adapter's step; a periodic evaluation")
     args = ap.parse_args(argv)
     if args.probe == "compile":
         probe_compile(args.mode)
@@ -118,6 +159,8 @@ def main(argv=None) -> int:
         probe_draws()
     elif args.probe == "policy":
         probe_policy()
+    elif args.probe == "training":
+        probe_training()
     else:
         probe_single()
     return 0

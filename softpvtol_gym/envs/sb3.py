@@ -85,25 +85,25 @@ class SoftPVTOLSB3VecEnv(VecEnv):
 
     def _split(self, info: dict, rows: np.ndarray | None = None) -> list[dict]:
         """The vector env's info (arrays, and dicts of arrays) as one dict per sub-env (or per index of
-        ``rows``), of Python scalars (each column converted once with ``tolist``; the dicts built row by
-        row with ``zip``)."""
+        ``rows``), of Python scalars (each column converted once with ``tolist``)."""
 
         def column(v: np.ndarray) -> list:
             return (v if rows is None else v[rows]).tolist()
 
-        keys, columns = [], []
+        n = self.num_envs if rows is None else len(rows)
+        out: list[dict] = [{} for _ in range(n)]
         for k, v in info.items():
             if k.startswith("_") or k in ("final_obs", "final_info"):
                 continue
-            keys.append(k)
             if isinstance(v, dict):
-                sub_keys = list(v)
-                columns.append([dict(zip(sub_keys, row)) for row in zip(*(column(vv) for vv in v.values()))])
+                cols = {kk: column(vv) for kk, vv in v.items()}
+                for i in range(n):
+                    out[i][k] = {kk: vv[i] for kk, vv in cols.items()}
             else:
-                columns.append(column(v))
-        if not keys:
-            return [{} for _ in range(self.num_envs if rows is None else len(rows))]
-        return [dict(zip(keys, row)) for row in zip(*columns)]
+                vals = column(v)
+                for i in range(n):
+                    out[i][k] = vals[i]
+        return out
 
     def seed(self, seed: int | None = None):
         self._seed = seed
