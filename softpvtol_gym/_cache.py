@@ -26,9 +26,10 @@ from numba.core import event as _numba_event
 PACKAGE_DIR = Path(__file__).resolve().parent
 
 #: the cold compile of a first env reset + step (numba, empty cache) in a fresh process on the 2-core x86-64
-#: development machine, import included (``python benchmarks/run.py``, item 5, at issue 26): 29 s for the
-#: actuators mode, 45 s for the residual mode (its controller too); said by the first-run message
-COLD_COMPILE_SECONDS = "30-45"
+#: development machines, import included (``python benchmarks/run.py``, item 5): 11.9 s for the actuators mode
+#: and 23.8 s for the residual mode (its controller too) at d0a5872 on an AMX-capable Xeon; 28 s and 49 s at
+#: ec88276 on the slower AMD EPYC used before (it compiled more then); said by the first-run message
+COLD_COMPILE_SECONDS = "10-50"
 
 
 def source_digest(package_dir: Path = PACKAGE_DIR) -> str:
