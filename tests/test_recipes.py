@@ -120,6 +120,8 @@ def test_every_shipped_recipe_builds_a_valid_run():
     ({"description": "x", "algo": "ppo", "action_mode": "residual", "hp": "n_epochs=5"}, "hp must be a list"),
     ({"description": "x", "algo": "ppo", "action_mode": "residual", "seeds": [1]}, r"unknown keys \['seeds'\]"),
     ({"description": " ", "algo": "ppo", "action_mode": "residual"}, "description must be a non-empty string"),
+    ({"description": "x", "algo": "ppo", "action_mode": "residual", "eval_freq": 0}, "eval_freq must be a positive"),
+    ({"description": "x", "algo": "ppo", "action_mode": "residual", "eval_freq": True}, "eval_freq must be a positive"),
 ])
 def test_bad_recipes_are_config_errors_naming_the_key(entry, message):
     with pytest.raises(ConfigError, match=message):
@@ -140,6 +142,10 @@ def test_train_recipe_sets_the_run_and_the_command_line_changes_it(tmp_path):
     config, _ = make_config(ap.parse_args(["--recipe", "actuators-wide", "--start-error-curriculum", "0.5,1000"]), ap)
     assert config.action_mode == "actuators" and config.start_error_curriculum == [0.5, 1000]
     assert config.overrides == ["learning_rate=1.0e-3"] and config.hyperparams["learning_rate"] == 1.0e-3
+    # a recipe's evaluation period, which --eval-freq overrides; the others keep train.py's default
+    assert make_config(ap.parse_args(["--recipe", "residual-fast"]), ap)[0].eval_freq == 250_000
+    assert make_config(ap.parse_args(["--recipe", "residual-fast", "--eval-freq", "1000"]), ap)[0].eval_freq == 1000
+    assert make_config(ap.parse_args(["--recipe", "residual-precise"]), ap)[0].eval_freq == 50_000
     for argv in (["--recipe", "actuators-wide", "--action-mode", "residual"], ["--start-error-curriculum", "0.5"],
                  ["--start-error-curriculum", "a,b"], ["--train-env", "residual_gate=0.1"]):
         with pytest.raises((SystemExit, ConfigError)):

@@ -105,7 +105,7 @@ def build_parser(prog: str = "train.py") -> Parser:
                          f"options, hyperparameter overrides); the other options change it")
     ap.add_argument("--checkpoint-freq", type=int_arg(), default=None, help="env steps between checkpoints (100,000)")
     ap.add_argument("--eval-freq", type=int_arg(), default=None,
-                    help="env steps between periodic evaluations (50,000)")
+                    help="env steps between periodic evaluations (50,000, or the recipe's eval_freq)")
     ap.add_argument("--eval-episodes", type=int_arg(), default=None,
                     help=f"episodes per evaluation (10; 0: none; at most {MAX_EPISODES:,})")
     ap.add_argument("--device", default="cpu", choices=DEVICES,
@@ -141,6 +141,8 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
     base = dict(DEFAULTS)
     if recipe is not None:
         base.update(algo=recipe["algo"], action_mode=recipe["action_mode"])
+        if recipe["eval_freq"] is not None:  # the recipe's evaluation period (--eval-freq overrides it)
+            base["eval_freq"] = recipe["eval_freq"]
         for key in ("algo", "action_mode"):
             if key in given and given[key] != recipe[key]:
                 ap.error(f"--{key.replace('_', '-')} {given[key]} contradicts --recipe {args.recipe} ({key} "

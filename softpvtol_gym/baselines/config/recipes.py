@@ -29,7 +29,7 @@ from softpvtol_gym.envs.actions import ACTION_MODES
 RECIPES_FILE = HYPERPARAMS_DIR / "recipes.yml"
 #: a recipe's keys; ``description``, ``algo`` and ``action_mode`` are required
 RECIPE_KEYS = ("description", "algo", "action_mode", "controller_loop", "env_options", "train_env_options",
-               "start_error_curriculum", "hp")
+               "start_error_curriculum", "hp", "eval_freq")
 REQUIRED_RECIPE_KEYS = ("description", "algo", "action_mode")
 
 
@@ -63,7 +63,7 @@ def validate_recipe(name, entry, where: str) -> dict:
     if lost:
         raise ConfigError(f"{where} lacks the keys {lost}")
     out = {"controller_loop": None, "env_options": {}, "train_env_options": {}, "start_error_curriculum": None,
-           "hp": [], **entry}
+           "hp": [], "eval_freq": None, **entry}
     if not isinstance(out["description"], str) or not out["description"].strip():
         raise ConfigError(f"{where}: description must be a non-empty string, got {out['description']!r}")
     if out["algo"] not in ALGOS:
@@ -80,6 +80,10 @@ def validate_recipe(name, entry, where: str) -> dict:
     hp = out["hp"]
     if not isinstance(hp, list) or not all(isinstance(h, str) for h in hp):
         raise ConfigError(f"{where}: hp must be a list of 'key=value' strings, got {hp!r}")
+    freq = out["eval_freq"]
+    if freq is not None and (isinstance(freq, bool) or not isinstance(freq, int) or freq < 1):
+        raise ConfigError(f"{where}: eval_freq must be a positive integer (train.py's periodic evaluation every "
+                          f"that many steps) or null, got {freq!r}")
     return out
 
 
