@@ -29,6 +29,7 @@ import argparse
 import json
 import multiprocessing
 import os
+import statistics
 import sys
 import tempfile
 import time
@@ -41,9 +42,10 @@ if str(ROOT) not in sys.path:
 from softpvtol_gym.baselines.util.atomic import atomic_write_text  # noqa: E402
 
 
-def parse_config(text: str) -> tuple[str, list[str]]:
+def parse_config(text: str, mode: str) -> tuple[str, list[str]]:
     """``"name=k1=v1;k2=v2"`` -> ``("name", ["k1=v1", "k2=v2"])``; ``"name="`` -> no overrides;
-    ``"name=recipe:NAME"`` -> the ``hp`` overrides of a training recipe (recipes.yml) that sets nothing else."""
+    ``"name=recipe:NAME"`` -> the ``hp`` overrides of a training recipe (recipes.yml) of action mode ``mode``
+    that sets nothing else."""
     name, sep, rest = text.partition("=")
     if not sep or not name:
         raise SystemExit(f"--config must look like name=key=value;key=value (name= for the YAML entry), got {text!r}")
@@ -56,6 +58,9 @@ def parse_config(text: str) -> tuple[str, list[str]]:
         if recipe["algo"] != "ppo" or others:
             raise SystemExit(f"--config {text!r}: this script trains PPO entries with hp overrides only; the recipe "
                              f"is {recipe['algo']} and sets {others}")
+        if recipe["action_mode"] != mode:
+            raise SystemExit(f"--config {text!r}: the recipe is for the {recipe['action_mode']} mode, this run's "
+                             f"--mode is {mode}; pass --mode {recipe['action_mode']}")
         return name, list(recipe["hp"])
     return name, [item for item in rest.split(";") if item]
 
@@ -180,10 +185,7 @@ def compare(results: list[dict], baseline: str, candidate: str) -> dict:
     b, c = out[baseline], out[candidate]
     if b["cell"] != c["cell"]:
         raise SystemExit(f"{baseline!r} ran {b['cell']}, {candidate!r} ran {c['cell']}: not the same cell")
-
-    def mean(xs):
-        return sum(xs) / len(xs)
-
+    mean = statistics.fmean
     out["checks"] = {
         "final RMS error at most the baseline's": mean(c["final_rms"]) <= mean(b["final_rms"]),
         "final return at least the baseline's": mean(c["final_return"]) >= mean(b["final_return"]),
@@ -197,9 +199,7 @@ def compare(results: list[dict], baseline: str, candidate: str) -> dict:
 def compare_table(results: list[dict], baseline: str, candidate: str) -> str:
     """The Markdown table of :func:`compare` (docs/performance.md, goal 4), its checks below it."""
     cmp = compare(results, baseline, candidate)
-
-    def mean(xs):
-        return sum(xs) / len(xs)
+    mean = statistics.fmean
 
     def spread(xs, fmt):
         return f"{fmt.format(mean(xs))} ({fmt.format(min(xs))}-{fmt.format(max(xs))})"
@@ -283,7 +283,7 @@ def main(argv=None) -> int:
     if not args.config:
         ap.error("--config is required (or --table)")
     for text in args.config:
-        name, overrides = parse_config(text)
+        name, overrides = parse_config(text, args.mode)
         for seed in args.seed or [0]:
             # each run in a fresh interpreter, as `python train.py` runs: runs in one process are not
             # independent (a second run with the same seed differs from a fresh process's)

@@ -641,3 +641,15 @@ def test_ppo_speed_compare_checks_each_criterion():
         speed.compare(base, "a", "c")
     with pytest.raises(SystemExit, match="not the same cell"):
         speed.compare(base + [run("b", 0, 0.06, 1910.0, 19.0, 52e3, 55e3, task="hover")], "a", "b")
+
+
+def test_ppo_speed_config_of_a_recipe_is_its_hp_and_must_match_the_mode():
+    from softpvtol_gym.baselines.config.recipes import load_recipe
+
+    speed = _ppo_speed_module()
+    assert speed.parse_config("fast=recipe:residual-fast", "residual") == ("fast", load_recipe("residual-fast")["hp"])
+    with pytest.raises(SystemExit, match="the recipe is for the residual mode, this run's --mode is actuators"):
+        speed.parse_config("fast=recipe:residual-fast", "actuators")
+    with pytest.raises(SystemExit, match="hp overrides only"):
+        speed.parse_config("x=recipe:residual-precise", "residual")
+    assert speed.parse_config("a=n_epochs=3;batch_size=64", "residual") == ("a", ["n_epochs=3", "batch_size=64"])
