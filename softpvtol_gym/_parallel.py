@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import os
+import threading
 
 import numba
 import numpy as np
@@ -42,30 +43,53 @@ def row_ranges(n: int, align: int = 1) -> list[tuple[int, int]]:
     return [(lo, min(n, lo + per)) for lo in range(0, n, per)]
 
 
-def run_split(fn, ranges: list[tuple[int, int]], side=None) -> None:
+def run_split(fn, ranges: list[tuple[int, int]], side=None, after=None) -> None:
     """fn(lo, hi) for every range, the ranges taken in turn by this thread and the pool's threads
     (dynamic scheduling: a thread that the OS does not run, on a busy machine, holds up one chunk at
-    most). ``side()``, if given, runs first in this thread while the pool's threads start on the ranges."""
+    most). ``side()``, if given, runs first in this thread while the pool's threads start on the ranges.
+    ``after(lo, hi)``, if given, runs for each range right after fn(lo, hi), in the same thread (while the
+    range's rows are in that thread's cache), once ``side()`` has returned; if ``side()`` raises, no
+    ``after`` runs and the error propagates once every thread is done."""
     global _pool, _pool_pid
     if len(ranges) == 1:
         fn(*ranges[0])
         if side is not None:
             side()
+        if after is not None:
+            after(*ranges[0])
         return
     if _pool is None or _pool_pid != os.getpid():  # a forked child does not inherit the threads
         _pool = concurrent.futures.ThreadPoolExecutor(max_workers=max(1, thread_count() - 1),
                                                       thread_name_prefix="softpvtol")
         _pool_pid = os.getpid()
     todo = iter(ranges)  # next() on a list iterator is atomic under the GIL
+    side_done = threading.Event()
+    side_failed = []
 
     def work() -> None:
         for lo, hi in todo:
             fn(lo, hi)
+            if after is not None:
+                side_done.wait()
+                if side_failed:
+                    return
+                after(lo, hi)
 
     futures = [_pool.submit(work) for _ in range(min(thread_count() - 1, len(ranges) - 1))]
-    if side is not None:
-        side()
-    work()
+    try:
+        if side is not None:
+            try:
+                side()
+            except BaseException:
+                side_failed.append(True)
+                raise
+            finally:
+                side_done.set()
+        else:
+            side_done.set()
+        work()
+    finally:
+        concurrent.futures.wait(futures)
     for f in futures:
         f.result()
 

@@ -196,3 +196,95 @@ def test_sb3_adapter_refuses_a_step_infos_that_is_not_a_bool():
 
     with pytest.raises(ValueError, match="step_infos must be True or False, got 'no'"):
         SoftPVTOLSB3VecEnv(num_envs=2, step_infos="no")
+
+
+def _assert_same_outputs(a, b, where):
+    """Two step (or reset) results equal bit for bit: arrays, dicts of arrays, object arrays of arrays."""
+    if isinstance(a, tuple):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            _assert_same_outputs(x, y, f"{where}[{i}]")
+    elif isinstance(a, dict):
+        assert list(a) == list(b), where
+        for k in a:
+            _assert_same_outputs(a[k], b[k], f"{where}[{k!r}]")
+    elif isinstance(a, np.ndarray) and a.dtype == object:
+        assert a.shape == b.shape, where
+        for x, y in zip(a, b):
+            _assert_same_outputs(x, y, where)
+    elif isinstance(a, np.ndarray):
+        assert a.dtype == b.dtype, where
+        np.testing.assert_array_equal(a, b, err_msg=where)
+    else:
+        assert a == b, where
+
+
+@pytest.mark.parametrize("autoreset_mode, kw", [
+    ("NextStep", dict(action_mode="residual", tier="hard", task="track_random")),
+    ("NextStep", dict(action_mode="actuators", observe_error_integral=True, action_rate_penalty=0.1)),
+    ("SameStep", dict(action_mode="virtual", tier="wind")),
+    ("Disabled", dict(action_mode="actuators", tier="noisy")),
+])
+def test_threaded_step_equals_the_serial_step(autoreset_mode, kw):
+    """A batch split over threads writes its autoresets and gathers its outputs (observation, reward, flags,
+    infos) in each thread's range right after the physics (without training aids; with them, after the
+    kernel): the same results, bit for bit, as the whole batch stepped in one call, across episode ends."""
+    from softpvtol_gym._parallel import thread_count
+
+    n = 600
+    envs = [SoftPVTOLVectorEnv(num_envs=n, autoreset_mode=autoreset_mode, max_episode_seconds=0.05, **kw)
+            for _ in range(2)]
+    if thread_count() > 1:
+        assert len(envs[0].sim._ranges) > 1
+    envs[1].sim._ranges = [(0, n)]  # the serial path
+    # and a few sub-envs against single envs (the same seeds), across NextStep's autoresets
+    singles = {i: SoftPVTOLEnv(max_episode_seconds=0.05, **kw) for i in (0, 63, 64, 301, n - 1)}
+    need_reset = dict.fromkeys(singles, False)
+    first = [e.reset(seed=4) for e in envs]
+    _assert_same_outputs(first[0], first[1], "reset")
+    for i, e in singles.items():
+        np.testing.assert_array_equal(first[0][0][i], e.reset(seed=4 + i)[0])
+    rng = np.random.default_rng(2)
+    ends = 0
+    for k in range(12):
+        a = rng.uniform(-1.3, 1.3, envs[0].action_space.shape)
+        out = [e.step(a) for e in envs]
+        for i, name in enumerate(("obs", "rewards", "terminated", "truncated", "infos")):
+            _assert_same_outputs(out[0][i], out[1][i], f"step {k} {name}")
+        if autoreset_mode == "NextStep":
+            for i, e in singles.items():
+                if need_reset[i]:
+                    o, info = e.reset()
+                    r, term, trunc = 0.0, False, False
+                    need_reset[i] = False
+                else:
+                    o, r, term, trunc, info = e.step(a[i])
+                    need_reset[i] = term or trunc
+                np.testing.assert_array_equal(out[0][0][i], o)
+                assert (out[0][1][i], out[0][2][i], out[0][3][i]) == (r, term, trunc)
+                assert out[0][4]["time"][i] == info["time"]
+                assert out[0][4]["termination_reason"][i] == info.get("termination_reason")
+        done = out[0][2] | out[0][3]
+        ends += int(done.sum())
+        if autoreset_mode == "Disabled" and done.any():
+            again = [e.reset(options={"reset_mask": done}) for e in envs]
+            _assert_same_outputs(again[0], again[1], f"reset_mask after step {k}")
+    assert ends >= n  # every sub-env's episode (5 steps) ended at least once
+
+
+def test_run_split_side_error_propagates_without_running_after():
+    """``side()`` raising in a split step: the error reaches the caller once every thread has stopped, and no
+    range runs ``after`` (they would wait for what side() prepares)."""
+    from softpvtol_gym._parallel import run_split
+
+    done, after = [], []
+
+    def side():
+        raise RuntimeError("side failed")
+
+    ranges = [(0, 1), (1, 2), (2, 3), (3, 4)]
+    with pytest.raises(RuntimeError, match="side failed"):
+        run_split(lambda lo, hi: done.append(lo), ranges, side, lambda lo, hi: after.append(lo))
+    assert after == [] and set(done) <= {0, 1, 2, 3}
+    run_split(lambda lo, hi: done.append(lo), ranges, None, lambda lo, hi: after.append(lo))
+    assert sorted(after) == [0, 1, 2, 3]

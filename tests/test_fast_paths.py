@@ -87,7 +87,7 @@ def test_info_dicts_equal_the_reference_read_from_the_whole_state():
     venv.reset(seed=2)
     for _ in range(5):
         venv.step(rng.uniform(-1.2, 1.2, (7, 4)))
-    infos = batch_info(venv.sim, None)
+    infos = batch_info(venv.sim)
     for n in range(7):
         ref = _reference_info(venv.sim, n, None)
         assert {k: float(v[n]) for k, v in infos["reward_terms"].items()} == ref["reward_terms"]

@@ -132,21 +132,39 @@ class BatchSim:
         return ep
 
     def apply_reset(self, idx: np.ndarray, ep: dict) -> None:
-        """Write episodes from :meth:`prepare_reset` into entries ``idx``."""
+        """Write episodes from :meth:`prepare_reset` into entries ``idx`` (their state and memories)."""
         rows = np.ascontiguousarray(np.atleast_1d(np.arange(self.n)[idx]), dtype=np.int64)
-        reset_rows(self.F, self.obs, self.key, self.I, self.C, rows, ep["q0"], ep["qd0"], ep["P"], ep["key"],
-                   ep["refp"], ep["ref"], *self._flags[1:])  # (the consistent flag, if the flags are given)
+        self.write_episodes(rows, ep)
+        self.reset_memory(rows)
+
+    def write_episodes(self, rows: np.ndarray, ep: dict, lo: int = 0, hi: int | None = None) -> None:
+        """The state part of :meth:`apply_reset` (state, observation, training aids) for the entries ``rows``
+        (sorted int64) in lo .. hi - 1 (all of them by default): ``ep[k][j]`` is entry rows[j]'s.
+        Rows of different ranges may be written by different threads at once."""
+        a, b = (0, rows.shape[0]) if hi is None else np.searchsorted(rows, (lo, hi)).tolist()
+        if a == b:
+            return
+        reset_rows(self.F, self.obs, self.key, self.I, self.C, rows[a:b], ep["q0"][a:b], ep["qd0"][a:b],
+                   ep["P"][a:b], ep["key"][a:b], ep["refp"][a:b], ep["ref"][a:b],
+                   *self._flags[1:])  # (the consistent flag, if the flags are given)
+        if self.aids is not None:
+            self.aids.reset(rows[a:b], self.obs)
+
+    def reset_memory(self, rows: np.ndarray) -> None:
+        """The memory part of :meth:`apply_reset`: the base controller's memory of the entries ``rows`` reset
+        (after a step: its new memory is in place once the step returns)."""
         if self.controller is not None:
             self.controller.reset_rows(rows)
-        if self.aids is not None:
-            self.aids.reset(rows, self.obs)
 
     # --------------------------------------------------------------------------------- step
-    def step(self, action, batched: bool, side=None) -> None:
+    def step(self, action, batched: bool, side=None, after=None) -> None:
         """Validate the action (shape, finite), clip it and advance every entry by one control step.
 
         ``side()``, if given, runs in this thread once the step cannot fail any more, beside the
-        kernel threads of a large batch (Python work that overlaps the physics)."""
+        kernel threads of a large batch (Python work that overlaps the physics). ``after(lo, hi)``, if
+        given, runs once the step is done and ``side()`` has returned, for ranges of rows that cover them
+        all: in the kernel threads of a large batch, each range right after its physics (without training
+        aids, whose work follows the kernel), else once for all rows at the end."""
         expected = self._shape[batched]
         a = action
         # the kernels get C-contiguous, writeable float64 (one compiled signature); anything else is
@@ -174,8 +192,10 @@ class BatchSim:
             cc, (S_mem, S_new) = ctrl.kernel_constants, ctrl.memory_pair(self.n)
         else:
             cc, S_mem, S_new = self.C, self.F, self.F  # unused (same types: no second compilation)
-        if len(self._ranges) > 1:
-            code = self._step_split(a, cc, S_mem, S_new, side)
+        split = len(self._ranges) > 1
+        in_threads = after if split and aids is None else None
+        if split:
+            code = self._step_split(a, cc, S_mem, S_new, side, in_threads)
         elif ctrl is None:  # (the serial kernels without the controller take fewer arguments)
             code = self._step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, self._ctl, *self._flags)
         else:
@@ -188,10 +208,12 @@ class BatchSim:
             ctrl.swap_memory()
         if aids is not None:
             aids.after_step(given, self.F, self.clipped, self.obs, self.dt)
-        if len(self._ranges) == 1 and side is not None:
+        if not split and side is not None:
             side()
+        if after is not None and in_threads is None:
+            after(0, self.n)
 
-    def _step_split(self, a, cc, S_mem, S_new, side=None) -> int:
+    def _step_split(self, a, cc, S_mem, S_new, side=None, after=None) -> int:
         """The step of a large batch with its rows split over threads (same result as the serial step)."""
         F, obs, key, I, C, K, X, ctl, err = (self.F, self.obs, self.key, self.I, self.C, self.K, self._ctl_in,
                                              self._ctl, self._ctl_err)
@@ -201,8 +223,8 @@ class BatchSim:
         flags = self._flags
         if self.controller is not None:  # each range: the controller, then the physics
             run_split(lambda lo, hi: step_residual_rows(lo, hi, a, F, obs, key, I, C, K, has_res, cc, S_mem, S_new, X,
-                                                        ctl, err, *flags), self._ranges, side)
+                                                        ctl, err, *flags), self._ranges, side, after)
         else:
             run_split(lambda lo, hi: step_physics_rows(lo, hi, a, F, obs, key, I, C, K, ctl, *flags), self._ranges,
-                      side)
+                      side, after)
         return STEP_OK

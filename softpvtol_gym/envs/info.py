@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from .layout import SI, S
 from .reward import REWARD_TERMS
@@ -29,11 +30,6 @@ _TERMS_LO, _TERMS_HI = S.terms - _INFO_LO, S.terms - _INFO_LO + len(REWARD_TERMS
 _FLOAT_AT = tuple((k, c - _INFO_LO) for k, c in FLOAT_ENTRIES)
 _FLAG_AT = tuple((k, c - _INFO_LO) for k, c in FLAG_ENTRIES)
 _REWARD_AT, _TIME_AT = S.reward - _INFO_LO, S.t - _INFO_LO
-#: the vector env's info copies less: the reward terms and the diagnostics (one slice), and the time
-_BATCH_LO = min(S.terms, *(c for _, c in FLOAT_ENTRIES + FLAG_ENTRIES))
-_BATCH_HI = max(S.terms + len(REWARD_TERMS), *(c + 1 for _, c in FLOAT_ENTRIES + FLAG_ENTRIES))
-
-
 def single_info(sim, reason: str | None) -> dict[str, Any]:
     """The info of entry 0 as Python scalars; ``reason``: the termination/truncation reason or None."""
     return _single_info(sim.F[0, _INFO_LO:_INFO_HI].tolist(), sim.I[0].tolist(), sim, reason)
@@ -70,26 +66,99 @@ def single_outcome(sim, max_steps: int) -> tuple[float, bool, bool, dict[str, An
     return f[_REWARD_AT], terminated, truncated, _single_info(f, i, sim, reason)
 
 
-def batch_info(sim, reasons: np.ndarray | None) -> dict[str, Any]:
-    """The infos of every entry as arrays (one private copy of the state; each array a column of it);
-    ``reasons``: an object array of reasons (None where not done), or None when no entry is done."""
-    F = sim.F[:, _BATCH_LO:_BATCH_HI].copy()  # the columns the info reads (not the whole state: a copy per step)
-    n = F.shape[0]
-    info: dict[str, Any] = {"reward_terms": {k: F[:, S.terms - _BATCH_LO + i] for i, k in enumerate(REWARD_TERMS)}}
-    for k, c in FLOAT_ENTRIES:
-        info[k] = F[:, c - _BATCH_LO]
-    for k, c in FLAG_ENTRIES:
-        info[k] = F[:, c - _BATCH_LO] > 0.5
-    info["action_clipped"] = sim.I[:, SI.clipped] != 0
-    # (np.empty of dtype object is None-filled)
-    info["termination_reason"] = np.empty(n, dtype=object) if reasons is None else reasons
-    info["time"] = sim.F[:, S.t].copy()
-    info.update(dict.fromkeys(_MASK_KEYS, np.ones(n, dtype=bool)))
-    aids = sim.aids
-    if aids is not None:  # the opt-in training aids: their reward terms, the residual gate
-        for i, name in enumerate(aids.term_names):
-            info["reward_terms"][name] = aids.terms[:, i].copy()
-        if aids.sigma is not None:
-            info["residual_gate"] = aids.gate.copy()
-            info["_residual_gate"] = np.ones(n, dtype=bool)
-    return info
+# ----------------------------------------------------------------------------- vector step
+#: the float columns a vector step copies out: the reward, its terms and the diagnostics (one slice of the
+#: packed state), then the time
+_OUT_LO = S.reward
+_OUT_HI = max(S.terms + len(REWARD_TERMS), *(c + 1 for _, c in FLOAT_ENTRIES + FLAG_ENTRIES))
+_OUT_TIME = _OUT_HI - _OUT_LO
+OUT_WIDTH = _OUT_TIME + 1
+_FLAG_COLUMNS = tuple(c for _, c in FLAG_ENTRIES)
+#: the code of a truncated episode in :attr:`StepOutputs.codes` (after the termination codes)
+R_TIME_LIMIT = len(REASONS)
+#: the termination_reason of each code: None (R_NONE), the reasons, "time_limit"
+_REASON_NAMES = np.array([None, *REASONS[1:], "time_limit"], dtype=object)
+
+
+@njit(cache=True, nogil=True)
+def gather_outputs(lo, hi, state, istate, obs, max_steps, out_obs, out_f, rewards, terminated, truncated, codes,
+                   flags):
+    """Rows lo .. hi - 1 of a vector step's outputs, copied from the packed state: the observation, the info
+    columns (``out_f``, :data:`OUT_WIDTH` wide), the reward, terminated, truncated (the time limit of
+    ``max_steps`` steps), the end code (``R_*`` or :data:`R_TIME_LIMIT`) and the flags (action clipped,
+    then those of FLAG_ENTRIES)."""
+    for n in range(lo, hi):
+        for k in range(obs.shape[1]):
+            out_obs[n, k] = obs[n, k]
+        for k in range(_OUT_TIME):
+            out_f[n, k] = state[n, _OUT_LO + k]
+        out_f[n, _OUT_TIME] = state[n, S.t]
+        rewards[n] = state[n, S.reward]
+        code = istate[n, SI.reason]
+        term = code != R_NONE
+        trunc = not term and istate[n, SI.steps] >= max_steps
+        terminated[n] = term
+        truncated[n] = trunc
+        codes[n] = code if term else (R_TIME_LIMIT if trunc else R_NONE)
+        flags[n, 0] = istate[n, SI.clipped] != 0
+        for i in range(len(_FLAG_COLUMNS)):
+            flags[n, 1 + i] = state[n, _FLAG_COLUMNS[i]] > 0.5
+
+
+class StepOutputs:
+    """What a vector step returns, as fresh arrays of N rows (the caller keeps them; the env never writes
+    them again): ``obs`` (N, obs_dim) float32, ``rewards`` (N,), ``terminated``/``truncated`` (N,) bool,
+    and the info's columns. :meth:`gather` fills rows lo .. hi - 1 from the packed state (each thread its
+    range, right after its physics), :meth:`info` builds the info dict."""
+
+    __slots__ = ("obs", "f", "rewards", "terminated", "truncated", "codes", "flags")
+
+    def __init__(self, n: int, obs_dim: int):
+        self.obs = np.empty((n, obs_dim), dtype=np.float32)
+        self.f = np.empty((n, OUT_WIDTH))
+        self.rewards = np.empty(n)
+        self.terminated = np.empty(n, dtype=bool)
+        self.truncated = np.empty(n, dtype=bool)
+        self.codes = np.empty(n, dtype=np.int64)
+        self.flags = np.empty((n, 1 + len(FLAG_ENTRIES)), dtype=bool)
+
+    def gather(self, sim, lo: int, hi: int) -> None:
+        gather_outputs(lo, hi, sim.F, sim.I, sim.obs, sim.max_steps, self.obs, self.f, self.rewards, self.terminated,
+                       self.truncated, self.codes, self.flags)
+
+    def gather_into(self, sim):
+        """:meth:`gather` as a function of (lo, hi) (BatchSim.step's ``after``)."""
+        return lambda lo, hi: self.gather(sim, lo, hi)
+
+    def info(self, sim) -> dict[str, Any]:
+        """The infos of every entry as arrays (columns of the gathered copies) with gymnasium's ``_name``
+        masks; ``termination_reason`` an object array (None where the episode goes on)."""
+        F, n = self.f, self.f.shape[0]
+        info: dict[str, Any] = {"reward_terms": {k: F[:, S.terms - _OUT_LO + i] for i, k in enumerate(REWARD_TERMS)}}
+        for k, c in FLOAT_ENTRIES:
+            info[k] = F[:, c - _OUT_LO]
+        for i, (k, _) in enumerate(FLAG_ENTRIES):
+            info[k] = self.flags[:, 1 + i]
+        info["action_clipped"] = self.flags[:, 0]
+        reasons = np.empty(n, dtype=object)  # (None-filled)
+        done = np.flatnonzero(self.codes)
+        if done.size:
+            reasons[done] = _REASON_NAMES[self.codes[done]]
+        info["termination_reason"] = reasons
+        info["time"] = F[:, _OUT_TIME]
+        info.update(dict.fromkeys(_MASK_KEYS, np.ones(n, dtype=bool)))
+        aids = sim.aids
+        if aids is not None:  # the opt-in training aids: their reward terms, the residual gate
+            for i, name in enumerate(aids.term_names):
+                info["reward_terms"][name] = aids.terms[:, i].copy()
+            if aids.sigma is not None:
+                info["residual_gate"] = aids.gate.copy()
+                info["_residual_gate"] = np.ones(n, dtype=bool)
+        return info
+
+
+def batch_info(sim) -> dict[str, Any]:
+    """The infos of every entry as arrays (:meth:`StepOutputs.info` of a copy of the state now)."""
+    out = StepOutputs(sim.n, sim.obs.shape[1])
+    out.gather(sim, 0, sim.n)
+    return out.info(sim)

@@ -14,12 +14,9 @@ from ._validation import choice, seed_value, short_repr
 from .batch_sim import BatchSim
 from .config import EnvConfig
 from .episodes import N_UNIFORMS, check_reset_options
-from .info import batch_info
+from .info import StepOutputs, batch_info
 from .soft_pvtol import make_spaces
-from .termination import R_NONE, REASONS
 from .uniforms import UniformDraws
-
-_REASON_NAMES = np.array(REASONS, dtype=object)
 
 
 class SoftPVTOLVectorEnv(VectorEnv):
@@ -146,7 +143,7 @@ class SoftPVTOLVectorEnv(VectorEnv):
         self._needs_reset = bool(self._fresh.any())
         if self._renderer is not None and (mask is None or mask[0]):
             self._renderer.clear_trail()
-        infos = batch_info(self._sim, None)
+        infos = batch_info(self._sim)
         if mask is not None:  # infos of the sub-envs reset (gymnasium's masks)
             for k in list(infos):
                 if k.startswith("_"):
@@ -199,43 +196,33 @@ class SoftPVTOLVectorEnv(VectorEnv):
                     "returned terminated = True or truncated = True (autoreset_mode='Disabled'). Reset them "
                     "with reset(options={'reset_mask': mask}) -- any further steps are undefined behavior."
                 )
-        pending = None
+        out = StepOutputs(self.num_envs, sim.obs.shape[1])  # what this step returns: fresh arrays
         if mode == AutoresetMode.NEXT_STEP:
             idx = np.flatnonzero(self._autoreset)
             if idx.size:
-                # the sub-envs reset at this step draw their uniforms and sample their episodes while
-                # the physics runs (in this thread, beside the kernel threads; only once the step can
-                # no longer fail, so an error consumes no random numbers)
+                # the sub-envs reset at this step draw their uniforms and sample their episodes while the
+                # physics runs (in this thread, beside the kernel threads; only once the step can no longer
+                # fail, so an error consumes no random numbers); each range's new episodes are then written
+                # and its outputs gathered in the thread that stepped it
                 pending = []
-                sim.step(actions, batched=True, side=lambda: pending.append(sim.prepare_reset(self._draw(idx))))
+
+                def finish(lo: int, hi: int) -> None:
+                    sim.write_episodes(idx, pending[0], lo, hi)
+                    out.gather(sim, lo, hi)
+
+                sim.step(actions, batched=True, side=lambda: pending.append(sim.prepare_reset(self._draw(idx))),
+                         after=finish)
+                sim.reset_memory(idx)
             else:
-                sim.step(actions, batched=True)
-        else:
-            sim.step(actions, batched=True)
-        reason = sim.reason
-        terminated = reason != R_NONE
-        truncated = (sim.steps >= sim.max_steps) & ~terminated
-        rewards = sim.reward.copy()
-        reasons = None
-        done = terminated | truncated
-        if done.any():
-            reasons = np.empty(self.num_envs, dtype=object)  # None-filled
-            reasons[terminated] = _REASON_NAMES[reason[terminated]]
-            reasons[truncated] = "time_limit"
-        if mode == AutoresetMode.NEXT_STEP:
-            if pending is not None:
-                sim.apply_reset(idx, pending[0])
-                rewards[idx] = 0.0
-                terminated[idx] = False
-                truncated[idx] = False
-                if reasons is not None:
-                    reasons[idx] = None
-            infos = batch_info(sim, reasons)
-            obs = sim.obs.copy()
-            self._autoreset = terminated | truncated
-        elif mode == AutoresetMode.SAME_STEP:
-            infos = batch_info(sim, reasons)
-            obs = sim.obs.copy()
+                sim.step(actions, batched=True, after=out.gather_into(sim))
+            # (a sub-env reset at this step reports its new episode: reward 0, neither terminated nor truncated)
+            self._autoreset = out.terminated | out.truncated
+            return out.obs, out.rewards, out.terminated, out.truncated, out.info(sim)
+        sim.step(actions, batched=True, after=out.gather_into(sim))
+        infos = out.info(sim)
+        obs = out.obs
+        done = out.terminated | out.truncated
+        if mode == AutoresetMode.SAME_STEP:
             idx = np.flatnonzero(done)
             if idx.size:
                 final_obs = np.full(self.num_envs, None, dtype=object)
@@ -243,16 +230,13 @@ class SoftPVTOLVectorEnv(VectorEnv):
                     final_obs[i] = obs[i].copy()
                 infos["final_obs"] = final_obs
                 infos["_final_obs"] = done.copy()
-                infos["final_info"] = batch_info(sim, reasons)
+                infos["final_info"] = batch_info(sim)
                 infos["_final_info"] = done.copy()
                 sim.reset_entries(idx, self._draw(idx))
                 obs[idx] = sim.obs[idx]
         else:
-            infos = batch_info(sim, reasons)
-            obs = sim.obs.copy()
-            if reasons is not None:
-                self._over |= done
-        return obs, rewards, terminated, truncated, infos
+            self._over |= done
+        return obs, out.rewards, out.terminated, out.truncated, infos
 
     def set_start_error_scale(self, scale: float) -> None:
         """Scale the starting deviations of the next resets (``start_error_scale``, in [0, 10]) that do not
