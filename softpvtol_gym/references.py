@@ -77,7 +77,15 @@ def batch_reference(code, t, refp, out):
 def evaluate(code: int, t, refp) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(pos, vel, acc), each (N, 3), of a compiled reference at times t (N,) with parameters refp (N, 21)."""
     t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
-    refp = np.ascontiguousarray(np.broadcast_to(refp, (t.shape[0], N_REF_PARAMS)), dtype=np.float64)
+    # (a writeable copy even of one row broadcast: one compiled signature)
+    refp = np.array(np.broadcast_to(refp, (t.shape[0], N_REF_PARAMS)), dtype=np.float64, order="C")
+    out = reference_block(code, t, refp)
+    return out[:, 0:3], out[:, 3:6], out[:, 6:9]
+
+
+def reference_block(code: int, t: np.ndarray, refp: np.ndarray) -> np.ndarray:
+    """:func:`evaluate` as one (N, 9) array (position, velocity, acceleration) from t (N,) and refp (N, 21),
+    both C-contiguous float64 (unchecked: the env's reset, on arrays it made)."""
     out = np.empty((t.shape[0], 9))
     batch_reference(code, t, refp, out)
-    return out[:, 0:3], out[:, 3:6], out[:, 6:9]
+    return out

@@ -11,7 +11,7 @@ import pytest
 from gymnasium.utils import seeding
 
 from softpvtol_gym import SoftPVTOLEnv, SoftPVTOLVectorEnv
-from softpvtol_gym.envs.info import FLAG_ENTRIES, FLOAT_ENTRIES, batch_info, single_info
+from softpvtol_gym.envs.info import FLAG_ENTRIES, FLOAT_ENTRIES, INFO_KEYS, batch_info, single_info
 from softpvtol_gym.envs.layout import SI, S
 from softpvtol_gym.envs.reward import REWARD_TERMS
 from softpvtol_gym.envs.uniforms import UniformDraws, python_draws
@@ -80,6 +80,8 @@ def test_info_dicts_equal_the_reference_read_from_the_whole_state():
     for _ in range(30):
         _, _, term, trunc, info = env.step(rng.uniform(-1.2, 1.2, 4))
         assert info == _reference_info(env.sim, 0, info["termination_reason"])
+        # (the single env writes its info as one dict display: the keys in the tables' order)
+        assert list(info) == list(INFO_KEYS) and list(info["reward_terms"]) == list(REWARD_TERMS)
         assert single_info(env.sim, None) == _reference_info(env.sim, 0, None)
         if term or trunc:
             env.reset()

@@ -10,6 +10,7 @@ from .. import model as MK
 from .._parallel import row_ranges, run_split
 from ..control import _kernels as CK
 from ..control.closed_loop import MAX_HELD_CONTROL_PERIOD, PassivityController
+from ..references import reference_block
 from ._validation import bounded_number, real_array, short_repr
 from .config import EnvConfig
 from .episodes import MAX_START_ERROR_SCALE, START_SCALE_REASON, apply_options, sample_episodes
@@ -27,6 +28,23 @@ from .step import (
 from .training_aids import TrainingAids
 
 _F64 = np.dtype(np.float64)
+
+
+class StepBinding:
+    """What a BatchSim's step derives from its arrays and config once (not state: rebuilt on unpickling, never
+    saved in a checkpoint): ``args``, the serial kernel's arguments after the action (without the base
+    controller, whose memory changes every step); ``one_action``, the shape of one env's action as the kernel
+    takes it; ``plain``, whether a step is that one kernel call alone (no training aids, base controller,
+    Python reference or thread split); ``F0``, ``I0``, ``obs0``, entry 0's rows (read by the single env)."""
+
+    __slots__ = ("args", "one_action", "plain", "F0", "I0", "obs0")
+
+    def __init__(self, sim: BatchSim):
+        self.args = (sim.F, sim.obs, sim.key, sim.I, sim.C, sim.K, sim._ctl, *sim._flags)
+        self.one_action = (1, sim.action_dim)
+        self.plain = (sim.controller is None and sim.aids is None and not sim._custom_reference
+                      and len(sim._ranges) == 1)
+        self.F0, self.I0, self.obs0 = sim.F[0], sim.I[0], sim.obs[0]
 
 
 class BatchSim:
@@ -67,9 +85,6 @@ class BatchSim:
         self._ctl = np.empty((n, CK.OUT_LEN))
         self._ctl_err = np.zeros(n, dtype=np.int64)
         self._ranges = row_ranges(n, align=MK.LANES)  # one per thread, whole lane blocks
-        # the compiled step of one call (compiled on first use, with the controller only in residual mode)
-        self._step_serial = serial_step_kernel(n, cfg.action_mode == "residual")
-        self._flags = kernel_flags(self.C, self.K)
         self._shape = {True: (n, self.action_dim), False: (self.action_dim,)}
         self._expected = {b: f"an array of shape {shape} in [-1, 1]" for b, shape in self._shape.items()}
         self.controller = None
@@ -83,6 +98,8 @@ class BatchSim:
                 cfg.resolved_controller_loop, params=cfg.params, input_map=cfg.input_map, dt=cfg.dt
             )
             self.controller.state_rows(n)
+        # the compiled step of one call (compiled on first use, with the controller only in residual mode)
+        self._bind_kernel()
 
     def _make_views(self) -> None:
         self.__dict__.update(STATE.views(self.F))
@@ -90,10 +107,12 @@ class BatchSim:
         self.u = self.F[:, S.u:S.u + self.action_dim]
 
     _VIEWS = tuple(f for f, _ in STATE.fields + ISTATE.fields)
+    #: set by _bind_kernel (not pickled: rebuilt from the arrays and the config)
+    _BOUND = ("_step_serial", "_flags", "bound")
 
     def __getstate__(self) -> dict:
         # the views (pickle would turn them into independent copies) and the kernel are rebuilt on unpickling
-        state = {k: v for k, v in self.__dict__.items() if k not in self._VIEWS and k not in ("_step_serial", "_flags")}
+        state = {k: v for k, v in self.__dict__.items() if k not in self._VIEWS and k not in self._BOUND}
         state["layouts"] = (STATE.signature, ISTATE.signature, CONST.signature)  # C is pickled too
         return state
 
@@ -108,8 +127,7 @@ class BatchSim:
         self.__dict__.update(state)
         self._custom_reference = not self.task.is_compiled
         self._make_views()
-        self._step_serial = serial_step_kernel(self.n, self.cfg.action_mode == "residual")
-        self._flags = kernel_flags(self.C, self.K)
+        self._bind_kernel()
 
     # -------------------------------------------------------------------------------- reset
     def set_start_error_scale(self, scale: float) -> None:
@@ -128,7 +146,12 @@ class BatchSim:
         ep = sample_episodes(self.cfg, u, start_error_scale=float(self.start_error_scale) if scale is None else scale)
         if options:
             ep = apply_options(self.cfg, ep, options)
-        ep["ref"] = np.ascontiguousarray(np.concatenate(self.task.evaluate(np.zeros(u.shape[0]), ep["refp"]), axis=1))
+        t0 = np.zeros(u.shape[0])
+        if self._custom_reference:
+            ep["ref"] = np.ascontiguousarray(np.concatenate(self.task.evaluate(t0, ep["refp"]), axis=1))
+        else:  # (the same numbers, without the split into three and the concatenation)
+            ep["ref"] = reference_block(self.task.compiled_reference, t0,
+                                        np.ascontiguousarray(ep["refp"], dtype=np.float64))
         return ep
 
     def apply_reset(self, idx: np.ndarray, ep: dict) -> None:
@@ -179,8 +202,18 @@ class BatchSim:
                 f"action must have shape {expected} (action_mode={self.cfg.action_mode!r}"
                 + (f", num_envs={self.n}" if batched else "") + f"), got shape {a.shape}"
             )
+        bound = self.bound
         if not batched:
-            a = a.reshape(1, self.action_dim)
+            a = a.reshape(bound.one_action)
+        if bound.plain:  # one kernel call and nothing around it (the single env's common case)
+            code = self._step_serial(a, *bound.args)
+            if code == STEP_BAD_ACTION:
+                raise self._bad_action(action)
+            if side is not None:
+                side()
+            if after is not None:
+                after(0, self.n)
+            return
         if self._custom_reference:  # a registered task: its reference at the end of the step, from Python
             self.qr_custom[:] = np.concatenate(self.task.evaluate((self.steps + 1) * self.dt, self.refp), axis=1)
         aids = self.aids
@@ -197,13 +230,12 @@ class BatchSim:
         if split:
             code = self._step_split(a, cc, S_mem, S_new, side, in_threads)
         elif ctrl is None:  # (the serial kernels without the controller take fewer arguments)
-            code = self._step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, self._ctl, *self._flags)
+            code = self._step_serial(a, *bound.args)
         else:
             code = self._step_serial(a, self.F, self.obs, self.key, self.I, self.C, self.K, cc, S_mem, S_new,
                                      self._ctl_in, self._ctl, self._ctl_err, *self._flags)
         if code == STEP_BAD_ACTION:
-            raise ValueError(f"action must be finite (in [-1, 1]; out-of-range values are clipped), got "
-                             f"{short_repr(action)}")
+            raise self._bad_action(action)
         if ctrl is not None:
             ctrl.swap_memory()
         if aids is not None:
@@ -212,6 +244,17 @@ class BatchSim:
             side()
         if after is not None and in_threads is None:
             after(0, self.n)
+
+    @staticmethod
+    def _bad_action(action) -> ValueError:
+        return ValueError(f"action must be finite (in [-1, 1]; out-of-range values are clipped), got "
+                          f"{short_repr(action)}")
+
+    def _bind_kernel(self) -> None:
+        """The serial step kernel, its flags and :class:`StepBinding`."""
+        self._step_serial = serial_step_kernel(self.n, self.cfg.action_mode == "residual")
+        self._flags = kernel_flags(self.C, self.K)
+        self.bound = StepBinding(self)
 
     def _step_split(self, a, cc, S_mem, S_new, side=None, after=None) -> int:
         """The step of a large batch with its rows split over threads (same result as the serial step)."""

@@ -325,13 +325,13 @@ class SoftPVTOLEnv(gym.Env):
                 "'truncated = True' -- any further steps are undefined behavior."
             )
         sim = self._sim
-        sim.step(action, batched=False)
+        sim.step(action, False)
         reward, terminated, truncated, info = single_outcome(sim, sim.max_steps)
         if terminated or truncated:
             self._episode_over = True
         if self.render_mode == "human":
             self.render()
-        return sim.obs[0].copy(), reward, terminated, truncated, info
+        return sim.bound.obs0.copy(), reward, terminated, truncated, info
 
     def set_start_error_scale(self, scale: float) -> None:
         """Scale the starting deviations of the next resets (``start_error_scale``, in [0, 10]) that do not
