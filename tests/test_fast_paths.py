@@ -112,3 +112,29 @@ def test_the_issue_26_probe_of_the_reset_draws_runs(capsys):
     assert probes.main(["draws"]) == 0
     out = capsys.readouterr().out
     assert "compiled loop" in out and "Python loop" in out
+
+
+def test_single_env_steps_every_float_array_as_its_float64_values():
+    """The single env copies a float array of shape (A,) into its kernel's buffer; other inputs (lists, strided
+    views, the wrong shape) take the general path: the same trajectory for the same values, and the buffer holds
+    nothing from one step to the next (a NaN action is refused, and the next step is as if it never came)."""
+    rng = np.random.default_rng(3)
+    actions = rng.uniform(-1.2, 1.2, (40, 4)).astype(np.float16).astype(np.float64)  # exact in every dtype
+    envs = [SoftPVTOLEnv(task="track_random", tier="noisy") for _ in range(5)]
+    for e in envs:
+        e.reset(seed=7)
+    wide = np.zeros((40, 8))
+    wide[:, ::2] = actions
+    for k, a in enumerate(actions):
+        given = (a, a.astype(np.float32), a.astype(np.float16), wide[k, ::2], a.tolist())
+        out = [e.step(x) for e, x in zip(envs, given)]
+        for o in out[1:]:
+            np.testing.assert_array_equal(o[0], out[0][0])
+            assert o[1:] == out[0][1:]
+        if k == 20:
+            with pytest.raises(ValueError, match="action must be finite"):
+                envs[1].step(np.array([np.nan, 0, 0, 0], np.float32))
+            with pytest.raises(ValueError, match=r"action must have shape \(4,\)"):
+                envs[1].step(np.zeros(5, np.float32))
+        if out[0][2] or out[0][3]:
+            break

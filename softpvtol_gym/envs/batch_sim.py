@@ -33,15 +33,17 @@ _F64 = np.dtype(np.float64)
 class StepBinding:
     """What a BatchSim's step derives from its arrays and config once (not state: rebuilt on unpickling, never
     saved in a checkpoint): ``args``, the serial kernel's arguments after the action (without the base
-    controller, whose memory changes every step); ``one_action``, the shape of one env's action as the kernel
-    takes it; ``plain``, whether a step is that one kernel call alone (no training aids, base controller,
-    Python reference or thread split); ``F0``, ``I0``, ``obs0``, entry 0's rows (read by the single env)."""
+    controller, whose memory changes every step); ``action`` (1, A), the kernel's action buffer of a single
+    env's step, ``action_row`` its row and ``action_shape`` one env's action shape (A,); ``plain``, whether a
+    step is one kernel call alone (no training aids, base controller, Python reference or thread split);
+    ``F0``, ``I0``, ``obs0``, entry 0's rows (read by the single env)."""
 
-    __slots__ = ("args", "one_action", "plain", "F0", "I0", "obs0")
+    __slots__ = ("args", "action", "action_row", "action_shape", "plain", "F0", "I0", "obs0")
 
     def __init__(self, sim: BatchSim):
         self.args = (sim.F, sim.obs, sim.key, sim.I, sim.C, sim.K, sim._ctl, *sim._flags)
-        self.one_action = (1, sim.action_dim)
+        self.action = np.empty((1, sim.action_dim))
+        self.action_row, self.action_shape = self.action[0], (sim.action_dim,)
         self.plain = (sim.controller is None and sim.aids is None and not sim._custom_reference
                       and len(sim._ranges) == 1)
         self.F0, self.I0, self.obs0 = sim.F[0], sim.I[0], sim.obs[0]
@@ -188,6 +190,19 @@ class BatchSim:
         given, runs once the step is done and ``side()`` has returned, for ranges of rows that cover them
         all: in the kernel threads of a large batch, each range right after its physics (without training
         aids, whose work follows the kernel), else once for all rows at the end."""
+        bound = self.bound
+        if (not batched and bound.plain and type(action) is np.ndarray and action.dtype.kind == "f"
+                and action.shape == bound.action_shape):
+            # the single env's common case: the action copied into the kernel's (1, A) float64 buffer, one call
+            bound.action_row[:] = action
+            code = self._step_serial(bound.action, *bound.args)
+            if code == STEP_BAD_ACTION:
+                raise self._bad_action(action)
+            if side is not None:
+                side()
+            if after is not None:
+                after(0, self.n)
+            return
         expected = self._shape[batched]
         a = action
         # the kernels get C-contiguous, writeable float64 (one compiled signature); anything else is
@@ -202,18 +217,8 @@ class BatchSim:
                 f"action must have shape {expected} (action_mode={self.cfg.action_mode!r}"
                 + (f", num_envs={self.n}" if batched else "") + f"), got shape {a.shape}"
             )
-        bound = self.bound
         if not batched:
-            a = a.reshape(bound.one_action)
-        if bound.plain:  # one kernel call and nothing around it (the single env's common case)
-            code = self._step_serial(a, *bound.args)
-            if code == STEP_BAD_ACTION:
-                raise self._bad_action(action)
-            if side is not None:
-                side()
-            if after is not None:
-                after(0, self.n)
-            return
+            a = a.reshape(1, self.action_dim)
         if self._custom_reference:  # a registered task: its reference at the end of the step, from Python
             self.qr_custom[:] = np.concatenate(self.task.evaluate((self.steps + 1) * self.dt, self.refp), axis=1)
         aids = self.aids
