@@ -166,7 +166,8 @@ class BatchSim:
         """The state part of :meth:`apply_reset` (state, observation, training aids) for the entries ``rows``
         (sorted int64) in lo .. hi - 1 (all of them by default): ``ep[k][j]`` is entry rows[j]'s.
         Rows of different ranges may be written by different threads at once."""
-        a, b = (0, rows.shape[0]) if hi is None else np.searchsorted(rows, (lo, hi)).tolist()
+        whole = hi is None or (lo == 0 and hi == self.n)
+        a, b = (0, rows.shape[0]) if whole else np.searchsorted(rows, (lo, hi)).tolist()
         if a == b:
             return
         reset_rows(self.F, self.obs, self.key, self.I, self.C, rows[a:b], ep["q0"][a:b], ep["qd0"][a:b],

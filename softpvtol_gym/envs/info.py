@@ -87,6 +87,10 @@ _OUT_HI = max(S.terms + len(REWARD_TERMS), *(c + 1 for _, c in FLOAT_ENTRIES + F
 _OUT_TIME = _OUT_HI - _OUT_LO
 OUT_WIDTH = _OUT_TIME + 1
 _FLAG_COLUMNS = tuple(c for _, c in FLAG_ENTRIES)
+# the columns of StepOutputs.f of the reward terms (a slice) and of the float entries, and of its flags
+_OUT_TERMS = slice(S.terms - _OUT_LO, S.terms - _OUT_LO + len(REWARD_TERMS))
+_OUT_FLOATS = tuple((k, c - _OUT_LO) for k, c in FLOAT_ENTRIES)
+_OUT_FLAGS = tuple((k, 1 + i) for i, (k, _) in enumerate(FLAG_ENTRIES))
 #: the code of a truncated episode in :attr:`StepOutputs.codes` (after the termination codes)
 R_TIME_LIMIT = len(REASONS)
 #: the termination_reason of each code: None (R_NONE), the reasons, "time_limit"
@@ -146,19 +150,19 @@ class StepOutputs:
     def info(self, sim) -> dict[str, Any]:
         """The infos of every entry as arrays (columns of the gathered copies) with gymnasium's ``_name``
         masks; ``termination_reason`` an object array (None where the episode goes on)."""
-        F, n = self.f, self.f.shape[0]
-        info: dict[str, Any] = {"reward_terms": {k: F[:, S.terms - _OUT_LO + i] for i, k in enumerate(REWARD_TERMS)}}
-        for k, c in FLOAT_ENTRIES:
-            info[k] = F[:, c - _OUT_LO]
-        for i, (k, _) in enumerate(FLAG_ENTRIES):
-            info[k] = self.flags[:, 1 + i]
-        info["action_clipped"] = self.flags[:, 0]
+        F, flags, n = self.f.T, self.flags.T, self.f.shape[0]  # (their rows: the columns)
+        info: dict[str, Any] = {"reward_terms": dict(zip(REWARD_TERMS, F[_OUT_TERMS]))}
+        for k, r in _OUT_FLOATS:
+            info[k] = F[r]
+        for k, r in _OUT_FLAGS:
+            info[k] = flags[r]
+        info["action_clipped"] = flags[0]
         reasons = np.empty(n, dtype=object)  # (None-filled)
         done = np.flatnonzero(self.codes)
         if done.size:
             reasons[done] = _REASON_NAMES[self.codes[done]]
         info["termination_reason"] = reasons
-        info["time"] = F[:, _OUT_TIME]
+        info["time"] = F[_OUT_TIME]
         info.update(dict.fromkeys(_MASK_KEYS, np.ones(n, dtype=bool)))
         aids = sim.aids
         if aids is not None:  # the opt-in training aids: their reward terms, the residual gate
