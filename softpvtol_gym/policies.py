@@ -253,6 +253,10 @@ class PassivityPolicy:
         self._taumax = config.arm_torque_max
         self._kind = ACTION_VIRTUAL if config.action_mode == "virtual" else ACTION_ACTUATORS
         self._action_dim = config.action_dim
+        # predict's path for one observation (_predict_one): the actuated loops' compiled pass, and its buffer
+        self._compiled = (config.action_mode != "residual" and self.controller.allocation != "ideal"
+                          and config.obs_dim == OBS_DIM)
+        self._one = None
 
     @classmethod
     def from_env(cls, env, loop: str | None = None, gains: PassivityGains | None = None,
@@ -311,11 +315,34 @@ class PassivityPolicy:
         ctrl.swap_memory()
         return out
 
+    def _predict_one(self, observation) -> np.ndarray:
+        """:meth:`predict` of one float observation (18,) for the actuated loops, the batch size staying 1, no
+        episode start: the same kernel on the same values with less around it (an evaluation loop's case)."""
+        buf = self._one
+        if buf is None:
+            buf = self._one = np.empty((1, OBS_DIM))
+        buf[0] = observation
+        if not _observations_ok(buf, MAX_CURVATURE):
+            _check_observation(buf)
+        theta = np.arctan2(buf[:, 3], buf[:, 4])  # numpy's arctan2, as state_from_observation
+        ctrl = self.controller
+        S, S_new = ctrl.memory_pair(1)
+        X, ctl, err, _ = self._work
+        out = np.empty((1, self._action_dim), dtype=np.float32)
+        if policy_step(0, 1, buf, theta, self._kind, self._scale, self._offset, self._tmax, self._taumax,
+                       ctrl.kernel_constants, S, S_new, X, ctl, out, err):
+            ctrl.raise_for(err, self.state_from_observation(buf)[0])
+        ctrl.swap_memory()
+        return out[0]
+
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         """(action, state) for observations (18,) or (N, 18) of the env (21 entries with the env's
         ``observe_error_integral``: the policy reads entries 0-17); ``episode_start``: None, a bool
         or a bool array of N entries (the entries whose controller memory is reset). Observations must be
         finite and inside the model's validity (arm curvatures |q_l|, |q_r| <= 2 pi); ValueError otherwise."""
+        if (episode_start is None and self._n == 1 and self._compiled and type(observation) is np.ndarray
+                and observation.shape == _ONE_OBS and observation.dtype.kind == "f"):
+            return self._predict_one(observation), state
         obs, single = policy_observations(observation, self.config.obs_dim)
         n = obs.shape[0]
         mask = None if episode_start is None else _episode_start_mask(episode_start, n)
@@ -340,6 +367,10 @@ class PassivityPolicy:
                 u = actuator_action(out.actuators, self._tmax, self._taumax)
             action = np.clip(u, -1.0, 1.0).astype(np.float32)
         return (action[0] if single else action), state
+
+
+#: the shape of one observation that PassivityPolicy.predict takes its short path for
+_ONE_OBS = (OBS_DIM,)
 
 
 #: observations of the reference acceleration the extended policy fits a cubic to (its jerk and snap)
@@ -405,6 +436,8 @@ class ExtendedPolicy:
         self._map_code = input_map_code(config.input_map)
         self._constants = EK.extended_constants(self.controller, self._tmax, self._taumax)
         self._work = None
+        # predict's buffer for one observation (18,) (the env's observation without the error integrals)
+        self._one = np.empty((1, OBS_DIM)) if config.obs_dim == OBS_DIM else None
 
     def reset(self) -> None:
         self.controller.reset()
@@ -416,8 +449,17 @@ class ExtendedPolicy:
         (the entries whose memory is reset). ValueError for observations that are not finite or outside
         the model's validity. One compiled pass (:mod:`softpvtol_gym.control._extended_kernels`);
         :meth:`predict_reference` is the same policy in numpy, the readable reference it is tested against."""
-        obs, single, n = self._prepare(observation, episode_start)
-        obs = np.ascontiguousarray(obs)
+        if (episode_start is None and self._n == 1 and self._one is not None and type(observation) is np.ndarray
+                and observation.shape == _ONE_OBS and observation.dtype.kind == "f"):
+            # one float observation, the batch size staying 1, no episode start (an evaluation loop's case)
+            obs = self._one
+            obs[0] = observation
+            if not _observations_ok(obs, MAX_CURVATURE):
+                _check_observation(obs)
+            single, n = True, 1
+        else:
+            obs, single, n = self._prepare(observation, episode_start)
+            obs = np.ascontiguousarray(obs)
         theta = np.arctan2(obs[:, 3], obs[:, 4])  # numpy's arctan2, as state_from_observation
         ctrl = self.controller
         if ctrl._xi is None:

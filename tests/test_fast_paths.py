@@ -138,3 +138,31 @@ def test_single_env_steps_every_float_array_as_its_float64_values():
                 envs[1].step(np.zeros(5, np.float32))
         if out[0][2] or out[0][3]:
             break
+
+
+@pytest.mark.parametrize("loop", [None, "integral", "extended"])
+def test_policy_predict_of_one_observation_equals_the_batch_of_one(loop):
+    """PassivityPolicy / ExtendedPolicy.predict of one float observation (18,) takes a short path once the batch
+    size is 1: the same actions, bit for bit, as the general path (the same observations as (1, 18) batches),
+    along an episode, across an episode start, and the same error for an observation it cannot act on."""
+    from softpvtol_gym import PassivityPolicy
+
+    env = SoftPVTOLEnv(task="track_random", tier="noisy")
+    short, general = PassivityPolicy.from_env(env, loop=loop), PassivityPolicy.from_env(env, loop=loop)
+    obs, _ = env.reset(seed=4)
+    for k in range(60):
+        start = k == 30  # an episode start: the general path for both, then the short path again
+        a, _ = short.predict(obs.astype(np.float64) if k % 3 == 0 else obs, episode_start=True if start else None)
+        b, _ = general.predict(obs[None, :].astype(np.float64), episode_start=np.array([start]) if start else None)
+        assert a.shape == (env.action_space.shape[0],) and a.dtype == np.float32
+        np.testing.assert_array_equal(a, b[0])
+        obs, _, term, trunc, _ = env.step(a)
+        assert not (term or trunc)
+    bad = obs.copy()
+    bad[5] = 7.0  # q_l beyond 2 pi
+    for policy, x in ((short, bad), (general, bad[None, :])):
+        with pytest.raises(ValueError, match=r"observation index 5 \(q_l\) = 7\.0 is outside the model's validity"):
+            policy.predict(x)
+    bad[5] = np.nan
+    with pytest.raises(ValueError, match="observation must be finite"):
+        short.predict(bad)
