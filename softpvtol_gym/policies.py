@@ -318,15 +318,18 @@ class PassivityPolicy:
     def _predict_one(self, observation) -> np.ndarray:
         """:meth:`predict` of one float observation (18,) for the actuated loops, the batch size staying 1, no
         episode start: the same kernel on the same values with less around it (an evaluation loop's case)."""
-        buf = self._one
-        if buf is None:
-            buf = self._one = np.empty((1, OBS_DIM))
+        if self._one is None:  # the observation's buffer, its sin and cos columns, theta
+            buf = np.empty((1, OBS_DIM))
+            self._one = (buf, buf[:, 3], buf[:, 4], np.empty(1))
+        buf, sin, cos, theta = self._one
         buf[0] = observation
         if not _observations_ok(buf, MAX_CURVATURE):
             _check_observation(buf)
-        theta = np.arctan2(buf[:, 3], buf[:, 4])  # numpy's arctan2, as state_from_observation
+        np.arctan2(sin, cos, out=theta)  # numpy's arctan2, as state_from_observation
         ctrl = self.controller
-        S, S_new = ctrl.memory_pair(1)
+        S, S_new = ctrl._state, ctrl._spare
+        if S is None or S_new is None or S.shape[0] != 1:  # (the controller was reset: memory_pair's checks)
+            S, S_new = ctrl.memory_pair(1)
         X, ctl, err, _ = self._work
         out = np.empty((1, self._action_dim), dtype=np.float32)
         if policy_step(0, 1, buf, theta, self._kind, self._scale, self._offset, self._tmax, self._taumax,
@@ -436,8 +439,10 @@ class ExtendedPolicy:
         self._map_code = input_map_code(config.input_map)
         self._constants = EK.extended_constants(self.controller, self._tmax, self._taumax)
         self._work = None
-        # predict's buffer for one observation (18,) (the env's observation without the error integrals)
-        self._one = np.empty((1, OBS_DIM)) if config.obs_dim == OBS_DIM else None
+        # predict's buffer for one observation (18,) (the env's observation without the error integrals), its
+        # sin and cos columns, theta
+        one = np.empty((1, OBS_DIM))
+        self._one = (one, one[:, 3], one[:, 4], np.empty(1)) if config.obs_dim == OBS_DIM else None
 
     def reset(self) -> None:
         self.controller.reset()
@@ -452,15 +457,16 @@ class ExtendedPolicy:
         if (episode_start is None and self._n == 1 and self._one is not None and type(observation) is np.ndarray
                 and observation.shape == _ONE_OBS and observation.dtype.kind == "f"):
             # one float observation, the batch size staying 1, no episode start (an evaluation loop's case)
-            obs = self._one
+            obs, sin, cos, theta = self._one
             obs[0] = observation
             if not _observations_ok(obs, MAX_CURVATURE):
                 _check_observation(obs)
+            np.arctan2(sin, cos, out=theta)  # numpy's arctan2, as state_from_observation
             single, n = True, 1
         else:
             obs, single, n = self._prepare(observation, episode_start)
             obs = np.ascontiguousarray(obs)
-        theta = np.arctan2(obs[:, 3], obs[:, 4])  # numpy's arctan2, as state_from_observation
+            theta = np.arctan2(obs[:, 3], obs[:, 4])  # numpy's arctan2, as state_from_observation
         ctrl = self.controller
         if ctrl._xi is None:
             ctrl._xi = np.full((n, 2), np.nan)
