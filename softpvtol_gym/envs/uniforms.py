@@ -72,7 +72,7 @@ class UniformDraws:
 
     def draw(self, rngs: list, idx: np.ndarray, n_uniforms: int) -> np.ndarray:
         """``rngs[i].random(n_uniforms)`` for i in idx (an int array), as rows of a (len(idx), n_uniforms) array."""
-        if idx.size < 8 or not self._table(rngs):  # (a few rows: the Python loop is as fast)
+        if idx.size < 2 or not self._table(rngs):  # (one row: the Python loop is as fast)
             return python_draws(rngs, idx, n_uniforms)
         u = np.empty((idx.size, n_uniforms))
         _draw_rows(self._next_double, self._states, np.ascontiguousarray(idx, dtype=np.int64), u)
