@@ -59,6 +59,10 @@ __all__ = ["LOOPS", "ControlOutput", "PassivityController", "simulate_closed_loo
 MAX_HELD_CONTROL_PERIOD = 0.012
 
 _F64 = np.dtype(np.float64)
+# the single-state call's names, bound once (it is a hot path: a module attribute costs a lookup per use)
+_ND, _ONE_SHAPE, _ONE_STRIDES = np.ndarray, (5,), (8,)
+_OUT_LEN, _OUT_INFO, _OUT_LOOP, _ERR_NONE = CK.OUT_LEN, CK.OUT_INFO, CK.OUT_LOOP, CK.ERR_NONE
+_single_controller = CK.single_controller
 
 #: Lambda and K of the integral loop: the body position's (x, z) raised from (1, 2.55) to (2, 14), the
 #: rest as the default (:class:`PassivityGains`); chosen with its integral gains by the sweep of
@@ -311,13 +315,14 @@ class PassivityController:
         in the actuated loops, used as given in the ideal loop). ``tau_residual`` (..., 5) is added
         to the controller's tau before allocation (body rows) and to the arm torques (arm rows).
         ``commit=False`` evaluates without advancing the controller's memory (RK4 stages)."""
-        if tau_residual is None and type(q) is np.ndarray and q.shape == (5,) and self.allocation != "ideal":
+        if tau_residual is None and self.allocation != "ideal":
             # fast path: one state, contiguous float64 arrays (5,) (no residual)
-            for x in (q, qdot, q_ref, qdot_ref, qddot_ref):
-                if type(x) is not np.ndarray or x.dtype is not _F64 or x.shape != (5,) or x.strides != (8,):
+            ins = (q, qdot, q_ref, qdot_ref, qddot_ref)
+            for x in ins:
+                if type(x) is not _ND or x.dtype is not _F64 or x.strides != _ONE_STRIDES or x.shape != _ONE_SHAPE:
                     break
             else:
-                return self._call_single((q, qdot, q_ref, qdot_ref, qddot_ref), False, bool(commit))
+                return self._call_single(ins, False, commit is True or bool(commit))
         p, gains = self.params, self.gains
         if self.allocation == "ideal":
             q = np.asarray(q, dtype=np.float64)
@@ -370,20 +375,22 @@ class PassivityController:
                              loop_iterations=out[..., CK.OUT_LOOP + 1].astype(np.int64))
 
     def _call_single(self, ins, has_res: bool, commit: bool) -> ControlOutput:
-        """__call__ for one state given as contiguous float64 arrays (5,) (the fast path)."""
-        out = np.empty(CK.OUT_LEN)
-        S = self.state_rows(1)
-        code = CK.single_controller(ins[0], ins[1], ins[2], ins[3], ins[4],
-                                    ins[5] if has_res else self._no_residual[0], has_res, commit,
-                                    self.kernel_constants, S, out)
-        if code != CK.ERR_NONE:
+        """__call__ for one state given as contiguous float64 arrays (5,) (the fast path; the control step of
+        an evaluation loop, so its outputs are built without the generic constructors)."""
+        out = np.empty(_OUT_LEN)
+        S = self._state
+        if S is None or S.shape[0] != 1:
+            S = self.state_rows(1)
+        code = _single_controller(ins[0], ins[1], ins[2], ins[3], ins[4], ins[5] if has_res else self._no_residual[0],
+                                  has_res, commit, self.kernel_constants, S, out)
+        if code != _ERR_NONE:
             self.raise_for(np.array([code]), ins[0].reshape(1, 5))
-        allocation = _allocation_info(out[..., CK.OUT_INFO], np.array(int(out[CK.OUT_INFO + 1])),
-                                      np.array(out[CK.OUT_INFO + 2] > 0.5))
+        allocation = _allocation_info(out[..., _OUT_INFO], np.array(int(out[_OUT_INFO + 1])),
+                                      np.array(out[_OUT_INFO + 2] > 0.5))
         # (ControlOutput's fields set directly: its generated __init__ costs half a microsecond, on a hot path)
         result = object.__new__(ControlOutput)
         result.__dict__.update(tau=out[0:5], actuators=out[5:9], arm_reference=out[9:11], allocation=allocation,
-                               loop_residual=out[CK.OUT_LOOP], loop_iterations=np.int64(int(out[CK.OUT_LOOP + 1])))
+                               loop_residual=out[_OUT_LOOP], loop_iterations=np.int64(int(out[_OUT_LOOP + 1])))
         return result
 
 
