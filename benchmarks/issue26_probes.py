@@ -4,7 +4,9 @@
         # a cold first step: import + reset + step, and the compile of every kernel (a tree, >= 0.25 s)
     python benchmarks/issue26_probes.py draws      # reset uniforms: the compiled loop vs the Python loop
     python benchmarks/issue26_probes.py single     # single env / Pendulum-v1, random actions, resets counted
-    python benchmarks/issue26_probes.py policy     # PassivityPolicy.predict for one state (default, integral loops)
+    python benchmarks/issue26_probes.py policy     # PassivityPolicy.predict for one state (default, integral,
+                                                   # extended loops) and PassivityController()
+    python benchmarks/issue26_probes.py vector     # the vector env's step, N = 256 and 4096, random actions
     python benchmarks/issue26_probes.py training   # the SB3 adapter's step (step_infos on/off), 128 sub-envs;
                                                    # one periodic evaluation (10 track_random episodes)
 
@@ -95,14 +97,46 @@ def probe_policy() -> None:
     import timeit
 
     from softpvtol_gym import PassivityPolicy, SoftPVTOLVectorEnv
+    from softpvtol_gym.control import PassivityController
 
     env = SoftPVTOLVectorEnv(num_envs=1)
     obs = env.reset(seed=0)[0][0]
-    for loop in (None, "integral"):
+    for loop in (None, "integral", "extended"):
         policy = PassivityPolicy.from_env(env, loop=loop)
         policy.predict(obs)
         seconds = min(timeit.repeat(lambda p=policy: p.predict(obs), number=20000, repeat=7)) / 20000
         print(f"PassivityPolicy.predict, one state, loop {loop or 'default'}: {seconds * 1e6:.2f} us (best of 7)")
+    ctrl = PassivityController.from_loop("exact")  # the residual mode's base controller, as benchmarks/run.py item 3
+    sim = env.sim
+    args = [x[0].copy() for x in (sim.qm, sim.qdm, sim.qr, sim.qdr, sim.qddr)]
+    ctrl(*args)
+    seconds = min(timeit.repeat(lambda: ctrl(*args), number=20000, repeat=7)) / 20000
+    print(f"PassivityController(), one state: {seconds * 1e6:.2f} us (best of 7)")
+
+
+def probe_vector(reps: int = 7) -> None:
+    import gymnasium as gym
+    import numpy as np
+
+    import softpvtol_gym  # noqa: F401  (registers the env)
+
+    for n in (256, 4096):
+        env = gym.make_vec("SoftPVTOL-v0", num_envs=n, vectorization_mode="vector_entry_point")
+        rng = np.random.default_rng(0)
+        actions = [rng.uniform(-1, 1, env.action_space.shape).astype(np.float32) for _ in range(4)]
+        env.reset(seed=0)
+        for i in range(30):  # past the first steps (and their compiles)
+            env.step(actions[i & 3])
+        steps = max(100, 400_000 // n)
+        times = []
+        for _ in range(reps):
+            t0 = time.perf_counter()
+            for i in range(steps):
+                env.step(actions[i & 3])
+            times.append((time.perf_counter() - t0) / steps)
+        t = statistics.median(times)
+        print(f"vector env, N = {n}, random actions: {t * 1e6:.1f} us per step, {n / t / 1e6:.2f} M env-steps/s "
+              f"(median of {reps})")
 
 
 def probe_training() -> None:
@@ -150,7 +184,9 @@ def main(argv=None) -> int:
     c.add_argument("--mode", default="actuators", choices=("actuators", "virtual", "residual"))
     sub.add_parser("draws", help="reset uniforms: compiled vs Python loop")
     sub.add_parser("single", help="single env / Pendulum-v1")
-    sub.add_parser("policy", help="PassivityPolicy.predict for one state")
+    sub.add_parser("policy", help="PassivityPolicy.predict (default, integral, extended) and PassivityController() "
+                                  "for one state")
+    sub.add_parser("vector", help="the vector env's step at N = 256 and 4096")
     sub.add_parser("training", help="the SB3 adapter's step; a periodic evaluation")
     args = ap.parse_args(argv)
     if args.probe == "compile":
@@ -159,6 +195,8 @@ def main(argv=None) -> int:
         probe_draws()
     elif args.probe == "policy":
         probe_policy()
+    elif args.probe == "vector":
+        probe_vector()
     elif args.probe == "training":
         probe_training()
     else:
