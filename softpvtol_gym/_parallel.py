@@ -48,8 +48,8 @@ def run_split(fn, ranges: list[tuple[int, int]], side=None, after=None) -> None:
     (dynamic scheduling: a thread that the OS does not run, on a busy machine, holds up one chunk at
     most). ``side()``, if given, runs first in this thread while the pool's threads start on the ranges.
     ``after(lo, hi)``, if given, runs for each range right after fn(lo, hi), in the same thread (while the
-    range's rows are in that thread's cache), once ``side()`` has returned; if ``side()`` raises, no
-    ``after`` runs and the error propagates once every thread is done."""
+    range's rows are in that thread's cache), once ``side()`` has returned; if ``side()`` raises, every range
+    still gets fn, none gets ``after``, and the error propagates once every thread is done."""
     global _pool, _pool_pid
     if len(ranges) == 1:
         fn(*ranges[0])
@@ -64,34 +64,32 @@ def run_split(fn, ranges: list[tuple[int, int]], side=None, after=None) -> None:
         _pool_pid = os.getpid()
     todo = iter(ranges)  # next() on a list iterator is atomic under the GIL
     side_done = threading.Event()
-    side_failed = []
+    side_error: list[BaseException] = []
 
     def work() -> None:
         for lo, hi in todo:
             fn(lo, hi)
             if after is not None:
                 side_done.wait()
-                if side_failed:
-                    return
-                after(lo, hi)
+                if not side_error:
+                    after(lo, hi)
 
     futures = [_pool.submit(work) for _ in range(min(thread_count() - 1, len(ranges) - 1))]
     try:
         if side is not None:
             try:
                 side()
-            except BaseException:
-                side_failed.append(True)
-                raise
-            finally:
-                side_done.set()
-        else:
-            side_done.set()
+            except BaseException as exc:  # every range is still stepped; side()'s error is raised at the end
+                side_error.append(exc)
+        side_done.set()
         work()
     finally:
+        side_done.set()
         concurrent.futures.wait(futures)
     for f in futures:
         f.result()
+    if side_error:
+        raise side_error[0]
 
 
 def run_rows(kernel, n: int, *args) -> None:
