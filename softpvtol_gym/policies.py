@@ -258,6 +258,10 @@ class PassivityPolicy:
                           and config.obs_dim == OBS_DIM)
         self._one = None
 
+    def __getstate__(self) -> dict:
+        # the one-observation buffer holds views of itself, which a copy would turn into independent arrays
+        return {**self.__dict__, "_one": None}
+
     @classmethod
     def from_env(cls, env, loop: str | None = None, gains: PassivityGains | None = None,
                  controller_options: dict | None = None) -> PassivityPolicy:
@@ -318,9 +322,8 @@ class PassivityPolicy:
     def _predict_one(self, observation) -> np.ndarray:
         """:meth:`predict` of one float observation (18,) for the actuated loops, the batch size staying 1, no
         episode start: the same kernel on the same values with less around it (an evaluation loop's case)."""
-        if self._one is None:  # the observation's buffer, its sin and cos columns, theta
-            buf = np.empty((1, OBS_DIM))
-            self._one = (buf, buf[:, 3], buf[:, 4], np.empty(1))
+        if self._one is None:
+            self._one = _one_observation_buffer()
         buf, sin, cos, theta = self._one
         buf[0] = observation
         if not _observations_ok(buf, MAX_CURVATURE):
@@ -374,6 +377,12 @@ class PassivityPolicy:
 
 #: the shape of one observation that PassivityPolicy.predict takes its short path for
 _ONE_OBS = (OBS_DIM,)
+
+
+def _one_observation_buffer() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The policies' buffers for one observation: (obs (1, 18), its sin and cos columns (views), theta (1,))."""
+    buf = np.empty((1, OBS_DIM))
+    return buf, buf[:, 3], buf[:, 4], np.empty(1)
 
 
 #: observations of the reference acceleration the extended policy fits a cubic to (its jerk and snap)
@@ -439,10 +448,11 @@ class ExtendedPolicy:
         self._map_code = input_map_code(config.input_map)
         self._constants = EK.extended_constants(self.controller, self._tmax, self._taumax)
         self._work = None
-        # predict's buffer for one observation (18,) (the env's observation without the error integrals), its
-        # sin and cos columns, theta
-        one = np.empty((1, OBS_DIM))
-        self._one = (one, one[:, 3], one[:, 4], np.empty(1)) if config.obs_dim == OBS_DIM else None
+        self._one = None  # predict's buffer for one observation (18,) (see _one_observation_buffer)
+
+    def __getstate__(self) -> dict:
+        # the one-observation buffer holds views of itself, which a copy would turn into independent arrays
+        return {**self.__dict__, "_one": None}
 
     def reset(self) -> None:
         self.controller.reset()
@@ -454,9 +464,12 @@ class ExtendedPolicy:
         (the entries whose memory is reset). ValueError for observations that are not finite or outside
         the model's validity. One compiled pass (:mod:`softpvtol_gym.control._extended_kernels`);
         :meth:`predict_reference` is the same policy in numpy, the readable reference it is tested against."""
-        if (episode_start is None and self._n == 1 and self._one is not None and type(observation) is np.ndarray
-                and observation.shape == _ONE_OBS and observation.dtype.kind == "f"):
+        if (episode_start is None and self._n == 1 and self.config.obs_dim == OBS_DIM
+                and type(observation) is np.ndarray and observation.shape == _ONE_OBS
+                and observation.dtype.kind == "f"):
             # one float observation, the batch size staying 1, no episode start (an evaluation loop's case)
+            if self._one is None:
+                self._one = _one_observation_buffer()
             obs, sin, cos, theta = self._one
             obs[0] = observation
             if not _observations_ok(obs, MAX_CURVATURE):

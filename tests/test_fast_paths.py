@@ -166,3 +166,22 @@ def test_policy_predict_of_one_observation_equals_the_batch_of_one(loop):
     bad[5] = np.nan
     with pytest.raises(ValueError, match="observation must be finite"):
         short.predict(bad)
+
+
+@pytest.mark.parametrize("loop", [None, "extended"])
+def test_a_copied_policy_acts_as_the_original(loop):
+    """A policy copied (pickle, deepcopy) after acting on single observations acts as the original from there
+    on: its one-observation buffer (views of itself) is rebuilt, not copied into independent arrays."""
+    from softpvtol_gym import PassivityPolicy
+
+    env = SoftPVTOLEnv(task="track_random")
+    policy = PassivityPolicy.from_env(env, loop=loop)
+    obs, _ = env.reset(seed=2)
+    for _ in range(5):
+        obs = env.step(policy.predict(obs)[0])[0]
+    clones = [pickle.loads(pickle.dumps(policy)), copy.deepcopy(policy)]
+    for _ in range(5):
+        a = policy.predict(obs)[0]
+        for c in clones:
+            np.testing.assert_array_equal(c.predict(obs)[0], a)
+        obs = env.step(a)[0]
