@@ -195,7 +195,8 @@ def test_evaluate_with_trust_pickle_loads_an_sb3_zip_with_a_warning(tmp_path, ti
 
 # ---------------------------------------------------------------------------------- env state
 def _walk(obj, path="", seen=None):
-    """(path, value) of every leaf of an object graph below softpvtol_gym objects, lists, tuples, dicts."""
+    """(path, value) of every leaf of an object graph below softpvtol_gym objects (their pickled state), lists,
+    tuples, dicts."""
     seen = set() if seen is None else seen
     if id(obj) in seen:
         return
@@ -215,7 +216,8 @@ def _walk(obj, path="", seen=None):
             yield from _walk(v, f"{path}[{k!r}]", seen)
     elif type(obj).__module__.startswith("softpvtol_gym") and hasattr(obj, "__dict__"):
         seen.add(id(obj))
-        for k, v in vars(obj).items():
+        state = obj.__getstate__()  # what the object is (caches that a copy rebuilds left out, e.g. UniformDraws')
+        for k, v in (state if isinstance(state, dict) else vars(obj)).items():
             yield from _walk(v, f"{path}.{k}", seen)
 
 
