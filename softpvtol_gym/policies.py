@@ -253,10 +253,10 @@ class PassivityPolicy:
         self._taumax = config.arm_torque_max
         self._kind = ACTION_VIRTUAL if config.action_mode == "virtual" else ACTION_ACTUATORS
         self._action_dim = config.action_dim
-        # predict's path for one observation (_predict_one): the actuated loops' compiled pass, and its buffer
+        # predict's path for one observation (_predict_one): the actuated loops' compiled pass, and its buffers
         self._compiled = (config.action_mode != "residual" and self.controller.allocation != "ideal"
                           and config.obs_dim == OBS_DIM)
-        self._one = None
+        self._one: _OneObservation | None = None
 
     def __getstate__(self) -> dict:
         # the one-observation buffer holds views of itself, which a copy would turn into independent arrays
@@ -323,12 +323,8 @@ class PassivityPolicy:
         """:meth:`predict` of one float observation (18,) for the actuated loops, the batch size staying 1, no
         episode start: the same kernel on the same values with less around it (an evaluation loop's case)."""
         if self._one is None:
-            self._one = _one_observation_buffer()
-        buf, sin, cos, theta = self._one
-        buf[0] = observation
-        if not _observations_ok(buf, MAX_CURVATURE):
-            _check_observation(buf)
-        np.arctan2(sin, cos, out=theta)  # numpy's arctan2, as state_from_observation
+            self._one = _OneObservation()
+        buf, theta = self._one.load(observation)
         ctrl = self.controller
         S, S_new = ctrl._state, ctrl._spare
         if S is None or S_new is None or S.shape[0] != 1:  # (the controller was reset: memory_pair's checks)
@@ -346,8 +342,7 @@ class PassivityPolicy:
         ``observe_error_integral``: the policy reads entries 0-17); ``episode_start``: None, a bool
         or a bool array of N entries (the entries whose controller memory is reset). Observations must be
         finite and inside the model's validity (arm curvatures |q_l|, |q_r| <= 2 pi); ValueError otherwise."""
-        if (episode_start is None and self._n == 1 and self._compiled and type(observation) is np.ndarray
-                and observation.shape == _ONE_OBS and observation.dtype.kind == "f"):
+        if episode_start is None and self._n == 1 and self._compiled and _is_one_observation(observation):
             return self._predict_one(observation), state
         obs, single = policy_observations(observation, self.config.obs_dim)
         n = obs.shape[0]
@@ -379,10 +374,31 @@ class PassivityPolicy:
 _ONE_OBS = (OBS_DIM,)
 
 
-def _one_observation_buffer() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The policies' buffers for one observation: (obs (1, 18), its sin and cos columns (views), theta (1,))."""
-    buf = np.empty((1, OBS_DIM))
-    return buf, buf[:, 3], buf[:, 4], np.empty(1)
+def _is_one_observation(observation) -> bool:
+    """Whether the policies' one-observation path takes ``observation``: a float array of shape (18,)."""
+    return type(observation) is np.ndarray and observation.shape == _ONE_OBS and observation.dtype.kind == "f"
+
+
+class _OneObservation:
+    """The policies' buffers for one observation (the path of an evaluation loop): the observation (1, 18)
+    float64, its sin and cos columns (views) and theta (1,). Not copied with a policy (it holds views of
+    itself): the policies leave it out of their pickled state and build it again at first use."""
+
+    __slots__ = ("obs", "sin", "cos", "theta")
+
+    def __init__(self):
+        self.obs = np.empty((1, OBS_DIM))
+        self.sin, self.cos, self.theta = self.obs[:, 3], self.obs[:, 4], np.empty(1)
+
+    def load(self, observation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(obs (1, 18), theta (1,)) of a float observation (18,): copied, checked as policy_observations
+        checks it, theta by numpy's arctan2 as state_from_observation (the same values as the general path)."""
+        obs = self.obs
+        obs[0] = observation
+        if not _observations_ok(obs, MAX_CURVATURE):
+            _check_observation(obs)
+        np.arctan2(self.sin, self.cos, out=self.theta)
+        return obs, self.theta
 
 
 #: observations of the reference acceleration the extended policy fits a cubic to (its jerk and snap)
@@ -448,7 +464,7 @@ class ExtendedPolicy:
         self._map_code = input_map_code(config.input_map)
         self._constants = EK.extended_constants(self.controller, self._tmax, self._taumax)
         self._work = None
-        self._one = None  # predict's buffer for one observation (18,) (see _one_observation_buffer)
+        self._one: _OneObservation | None = None  # predict's buffers for one observation (18,)
 
     def __getstate__(self) -> dict:
         # the one-observation buffer holds views of itself, which a copy would turn into independent arrays
@@ -465,16 +481,11 @@ class ExtendedPolicy:
         the model's validity. One compiled pass (:mod:`softpvtol_gym.control._extended_kernels`);
         :meth:`predict_reference` is the same policy in numpy, the readable reference it is tested against."""
         if (episode_start is None and self._n == 1 and self.config.obs_dim == OBS_DIM
-                and type(observation) is np.ndarray and observation.shape == _ONE_OBS
-                and observation.dtype.kind == "f"):
+                and _is_one_observation(observation)):
             # one float observation, the batch size staying 1, no episode start (an evaluation loop's case)
             if self._one is None:
-                self._one = _one_observation_buffer()
-            obs, sin, cos, theta = self._one
-            obs[0] = observation
-            if not _observations_ok(obs, MAX_CURVATURE):
-                _check_observation(obs)
-            np.arctan2(sin, cos, out=theta)  # numpy's arctan2, as state_from_observation
+                self._one = _OneObservation()
+            obs, theta = self._one.load(observation)
             single, n = True, 1
         else:
             obs, single, n = self._prepare(observation, episode_start)
