@@ -315,14 +315,14 @@ class PassivityController:
         in the actuated loops, used as given in the ideal loop). ``tau_residual`` (..., 5) is added
         to the controller's tau before allocation (body rows) and to the arm torques (arm rows).
         ``commit=False`` evaluates without advancing the controller's memory (RK4 stages)."""
-        if tau_residual is None and self.allocation != "ideal":
-            # fast path: one state, contiguous float64 arrays (5,) (no residual)
-            ins = (q, qdot, q_ref, qdot_ref, qddot_ref)
+        ins = (q, qdot, q_ref, qdot_ref, qddot_ref) if tau_residual is None else (
+            q, qdot, q_ref, qdot_ref, qddot_ref, tau_residual)
+        if self.allocation != "ideal":  # fast path: one state, contiguous float64 arrays (5,)
             for x in ins:
                 if type(x) is not _ND or x.dtype is not _F64 or x.strides != _ONE_STRIDES or x.shape != _ONE_SHAPE:
                     break
             else:
-                return self._call_single(ins, False, commit is True or bool(commit))
+                return self._call_single(ins, tau_residual is not None, commit is True or bool(commit))
         p, gains = self.params, self.gains
         if self.allocation == "ideal":
             q = np.asarray(q, dtype=np.float64)
@@ -332,16 +332,8 @@ class PassivityController:
                 tau = tau + tau_residual
             return ControlOutput(tau=tau, actuators=None, arm_reference=np.asarray(q_ref)[..., 3:5], allocation=None)
 
-        ins = (q, qdot, q_ref, qdot_ref, qddot_ref) if tau_residual is None else (
-            q, qdot, q_ref, qdot_ref, qddot_ref, tau_residual)
         shape = getattr(q, "shape", None)
         ndarray, f64 = np.ndarray, np.float64
-        if shape == (5,):  # fast path: one state, contiguous float64 arrays (5,)
-            for x in ins:
-                if type(x) is not ndarray or x.dtype is not _F64 or x.shape != shape or x.strides != (8,):
-                    break
-            else:
-                return self._call_single(ins, tau_residual is not None, bool(commit))
         if shape and shape[-1] == 5 and all([type(x) is ndarray and x.dtype == f64 and x.shape == shape for x in ins]):
             # fast path: float64 arrays of one shape
             lead = shape[:-1]
