@@ -139,6 +139,13 @@ class StepOutputs:
         self.codes = np.empty(n, dtype=np.int64)
         self.flags = np.empty((n, 1 + len(FLAG_ENTRIES)), dtype=bool)
 
+    @classmethod
+    def of(cls, sim) -> StepOutputs:
+        """The outputs of every entry of ``sim`` now (a copy of its state)."""
+        out = cls(sim.n, sim.obs.shape[1])
+        out.gather(sim, 0, sim.n)
+        return out
+
     def gather(self, sim, lo: int, hi: int) -> None:
         gather_outputs(lo, hi, sim.F, sim.I, sim.obs, sim.max_steps, self.obs, self.f, self.rewards, self.terminated,
                        self.truncated, self.codes, self.flags)
@@ -180,6 +187,4 @@ class StepOutputs:
 
 def batch_info(sim) -> dict[str, Any]:
     """The infos of every entry as arrays (:meth:`StepOutputs.info` of a copy of the state now)."""
-    out = StepOutputs(sim.n, sim.obs.shape[1])
-    out.gather(sim, 0, sim.n)
-    return out.info(sim)
+    return StepOutputs.of(sim).info(sim)

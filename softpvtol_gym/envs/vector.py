@@ -143,12 +143,13 @@ class SoftPVTOLVectorEnv(VectorEnv):
         self._needs_reset = bool(self._fresh.any())
         if self._renderer is not None and (mask is None or mask[0]):
             self._renderer.clear_trail()
-        infos = batch_info(self._sim)
+        out = StepOutputs.of(self._sim)  # the new observations and their infos
+        infos = out.info(self._sim)
         if mask is not None:  # infos of the sub-envs reset (gymnasium's masks)
             for k in list(infos):
                 if k.startswith("_"):
                     infos[k] = mask.copy()
-        return self._sim.obs.copy(), infos
+        return out.obs, infos
 
     def _seeds(self, seed) -> list | None:
         """The per-sub-env seeds of :meth:`reset` (gymnasium's rules; numpy integers accepted)."""
