@@ -195,6 +195,86 @@ _TIMED = {"ratio_policy": "PassivityPolicy.predict", "ratio_controller": "Passiv
           "ratio_policy_integral": "PassivityPolicy.predict (integral)",
           "ratio_policy_extended": "ExtendedPolicy.predict"}
 
+#: Item 3 times each controller along its own closed loop, not on one observation given again and again: the
+#: algebraic loop of the actuated loops (body rows -> allocation -> arm references, solved to 1e-10 rad from the
+#: last step's solution) takes one pass on a state it has just solved, and two or more along a closed loop
+#: (about four in an episode's first 100 steps). Windows of WINDOW steps start at the steps STARTS of a hover
+#: episode (nominal tier, seed 0): a single state's windows cover the whole episode, the batch's sample it.
+STARTS = tuple(range(0, 1000, 100))
+WINDOW = {"single": 100, "batched": 10}
+
+
+class _ClosedLoop:
+    """The inputs of a controller along its own closed loop, and copies of it at each window's start: replaying
+    a window calls a copy on the inputs it met there, in order (the same calls as in the loop).
+
+    ``policy``: a policy (its ``predict`` acts on ``env``, an actuators-mode vector env), or a
+    ``PassivityController`` that shadows the base controller of ``env`` (residual mode, zero residual actions):
+    it is called on the env's measured state and reference (that controller's inputs), and the env steps itself.
+    ``single``: one state (``env`` has one sub-env; inputs of shape (18,) or (5,))."""
+
+    def __init__(self, env, policy, starts: tuple[int, ...], window: int, single: bool):
+        import copy
+
+        self.policy, self.single = policy, single
+        self.controller = not hasattr(policy, "predict")
+        #: per window: (the controller as it was at its start, the calls' arguments, their outputs in the loop)
+        self.windows: list[tuple[object, list[tuple], list[np.ndarray]]] = []
+        zeros = np.zeros(env.action_space.shape, dtype=np.float32)
+        obs, _ = env.reset(seed=0)
+        episode_start = np.ones(env.num_envs, dtype=bool)
+        last = max(starts) + window
+        for k in range(last):
+            if k in starts:
+                self.windows.append((copy.deepcopy(policy), [], []))
+            if self.controller:
+                sim = env.sim
+                rows = [x.copy() for x in (sim.qm, sim.qdm, sim.qr, sim.qdr, sim.qddr)]
+                call = tuple(x[0] for x in rows) if single else tuple(rows)
+                output = policy(*call).actuators
+                action = zeros
+            else:
+                call = (obs[0].copy(),) if single else (obs.copy(), None, episode_start)  # (obs, state, episode_start)
+                output = policy.predict(*call)[0]
+                action = output[None] if single else output
+            for s, (_, calls, outputs) in zip(starts, self.windows):
+                if s <= k < s + window:
+                    calls.append(call)
+                    outputs.append(np.array(output))  # (a copy: a policy may return a kept buffer)
+            obs, _, term, trunc, _ = env.step(action)
+            episode_start = term | trunc
+            if single and episode_start[0] and k + 1 < last:
+                raise RuntimeError(f"{type(policy).__name__}: the hover episode ended at step {k + 1}, before the "
+                                   f"last window's end ({last})")
+
+    def caller(self, snapshot):
+        """A fresh copy of a window's controller, to be called as in the loop: fn(*call) (``output`` reads the
+        action, or the controller's actuators, from what it returns)."""
+        import copy
+
+        p = copy.deepcopy(snapshot)
+        return p if self.controller else p.predict
+
+    def output(self, result) -> np.ndarray:
+        return result.actuators if self.controller else result[0]
+
+    def timer(self):
+        """A callable returning the mean seconds per call over every window, each replayed by a fresh copy of
+        the controller as it was at the window's start (copying is not timed)."""
+
+        def run() -> float:
+            total, count = 0.0, 0
+            for snapshot, calls, _ in self.windows:
+                fn = self.caller(snapshot)
+                t0 = time.perf_counter()
+                for call in calls:
+                    fn(*call)
+                total += time.perf_counter() - t0
+                count += len(calls)
+            return total / count
+
+        return run
+
 
 def bench_controller(quick: bool) -> dict:
     from softpvtol_gym import PassivityPolicy, SoftPVTOLVectorEnv
@@ -214,21 +294,17 @@ def bench_controller(quick: bool) -> dict:
         # that both envs reset about as rarely and the difference of their steps is the controller
         a_act = (np.array([-1 / 3, -1 / 3, 0.0, 0.0]) + rng.uniform(-0.05, 0.05, (n, 4))).astype(np.float32)
         a_res = rng.uniform(-0.05, 0.05, (n, 5)).astype(np.float32)
-        obs = res.reset(seed=0)[0]
-        pol = PassivityPolicy.from_env(act)  # actuators: the controller's allocated actuators
-        pol_int = PassivityPolicy.from_env(act, loop="integral")  # the analytic loops beyond the paper's
-        pol_ext = PassivityPolicy.from_env(act, loop="extended")
-        for p in (pol, pol_int, pol_ext):
-            p.predict(obs)
-        ctrl = PassivityController.from_loop("exact")  # the residual mode's base controller
-        sim = res.sim
-        args = [x.copy() for x in (sim.qm, sim.qdm, sim.qr, sim.qdr, sim.qddr)]
-        if n == 1:
-            args = [x[0] for x in args]  # single state (5,) arrays
-            obs_p = obs[0]
-        else:
-            obs_p = obs
-        ctrl(*args)
+        # each controller along its own closed loop (see STARTS): the policies act on an actuators-mode env, the
+        # controller shadows the residual-mode env's base controller
+        starts, window = ((0,), 5 if n > 1 else 50) if quick else (STARTS, WINDOW[label])
+        policies = {"PassivityPolicy.predict": None, "PassivityPolicy.predict (integral)": "integral",
+                    "ExtendedPolicy.predict": "extended"}
+        loops = {}
+        for name, loop in policies.items():
+            env = SoftPVTOLVectorEnv(num_envs=n, **kw)
+            loops[name] = _ClosedLoop(env, PassivityPolicy.from_env(env, loop=loop), starts, window, n == 1)
+        loops["PassivityController()"] = _ClosedLoop(SoftPVTOLVectorEnv(num_envs=n, action_mode="residual", **kw),
+                                                      PassivityController.from_loop("exact"), starts, window, n == 1)
         if n == 1:  # the single env through gym.make, as item 1
             single = {m: gym.make("SoftPVTOL-v0", action_mode=m) for m in ("actuators", "residual")}
             for e in single.values():
@@ -239,14 +315,8 @@ def bench_controller(quick: bool) -> dict:
         else:
             step_act = _calls_timer(lambda e=act, a=a_act: e.step(a), calls)
             step_res = _calls_timer(lambda e=res, a=a_res: e.step(a), calls)
-        cases = {
-            "env step (actuators)": step_act,
-            "env step (residual)": step_res,
-            "PassivityPolicy.predict": _calls_timer(lambda p=pol, o=obs_p: p.predict(o), calls),
-            "PassivityPolicy.predict (integral)": _calls_timer(lambda p=pol_int, o=obs_p: p.predict(o), calls),
-            "ExtendedPolicy.predict": _calls_timer(lambda p=pol_ext, o=obs_p: p.predict(o), calls),
-            "PassivityController()": _calls_timer(lambda c=ctrl, a=args: c(*a), calls),
-        }
+        cases = {"env step (actuators)": step_act, "env step (residual)": step_res,
+                 **{name: loop.timer() for name, loop in loops.items()}}
         for fn in cases.values():
             fn()
         t = interleaved(cases, reps)

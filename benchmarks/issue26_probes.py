@@ -5,8 +5,13 @@
     python benchmarks/issue26_probes.py draws      # reset uniforms: the compiled loop vs the Python loop
     python benchmarks/issue26_probes.py single     # single env / Pendulum-v1, random actions, resets counted
     python benchmarks/issue26_probes.py policy     # PassivityPolicy.predict for one state (default, integral,
-                                                   # extended loops) and PassivityController()
+                                                   # extended loops) and PassivityController(), called again and
+                                                   # again on one state: the Python around the kernel and a
+                                                   # 1-pass algebraic loop (benchmarks/run.py item 3 times the
+                                                   # controllers along their closed loops instead)
     python benchmarks/issue26_probes.py vector     # the vector env's step, N = 256 and 4096, random actions
+    python benchmarks/issue26_probes.py split      # the step kernel of N = 4096 envs in one thread and split
+                                                   # over the threads: when each chunk starts and ends
     python benchmarks/issue26_probes.py training   # the SB3 adapter's step (step_infos on/off), 128 sub-envs;
                                                    # one periodic evaluation (10 track_random episodes)
 
@@ -139,6 +144,54 @@ def probe_vector(reps: int = 7) -> None:
               f"(median of {reps})")
 
 
+def probe_split(reps: int = 7) -> None:
+    import threading
+
+    import numpy as np
+
+    from softpvtol_gym import SoftPVTOLVectorEnv
+    from softpvtol_gym._parallel import row_ranges, run_split
+    from softpvtol_gym.envs.step import step_physics_rows
+
+    n = 4096
+    env = SoftPVTOLVectorEnv(num_envs=n, task="hover", tier="nominal")
+    env.reset(seed=0)
+    s = env.sim
+    actions = np.array([-1 / 3, -1 / 3, 0.0, 0.0]) + np.random.default_rng(0).uniform(-0.05, 0.05, (n, 4))
+    args = (actions, s.F, s.obs, s.key, s.I, s.C, s.K, s._ctl)  # (the kernel's arguments, as BatchSim passes them)
+    main, log = threading.get_ident(), []
+
+    def chunk(lo: int, hi: int) -> None:
+        t = time.perf_counter()
+        step_physics_rows(lo, hi, *args)
+        log.append((threading.get_ident() == main, t, time.perf_counter()))
+
+    ranges = row_ranges(n)
+    one, split, first_main, first_pool, last_end = [], [], [], [], []
+    for _ in range(reps):  # blocks of calls of one kind (a split call leaves half the rows in the other core's cache)
+        for _ in range(3):
+            step_physics_rows(0, n, *args)
+        t0 = time.perf_counter()
+        for _ in range(10):
+            step_physics_rows(0, n, *args)
+        one.append((time.perf_counter() - t0) / 10)
+        for k in range(13):
+            log.clear()
+            t1 = time.perf_counter()
+            run_split(chunk, ranges)
+            t2 = time.perf_counter()
+            if k >= 3:
+                split.append(t2 - t1)
+                first_main.append(min(t for m, t, _ in log if m) - t1)
+                first_pool.append(min((t for m, t, _ in log if not m), default=float("nan")) - t1)
+                last_end.append(t2 - max(e for _, _, e in log))
+    us = [1e6 * statistics.median(x) for x in (one, split, first_main, first_pool, last_end)]
+    print(f"step kernel, N = {n} (hover, near-hover actions; medians of {reps} x 10 calls): one thread "
+          f"{us[0]:.0f} us; split over {len(ranges)} chunks and the threads {us[1]:.0f} us (one thread / 2 = "
+          f"{us[0] / 2:.0f} us). In the split call: this thread's first chunk starts at {us[2]:.0f} us, the pool's at "
+          f"{us[3]:.0f} us, and the call returns {us[4]:.0f} us after the last chunk ends")
+
+
 def probe_training() -> None:
     import tempfile
     import timeit
@@ -187,6 +240,7 @@ def main(argv=None) -> int:
     sub.add_parser("policy", help="PassivityPolicy.predict (default, integral, extended) and PassivityController() "
                                   "for one state")
     sub.add_parser("vector", help="the vector env's step at N = 256 and 4096")
+    sub.add_parser("split", help="the step kernel of 4096 envs in one thread and split over the threads")
     sub.add_parser("training", help="the SB3 adapter's step; a periodic evaluation")
     args = ap.parse_args(argv)
     if args.probe == "compile":
@@ -197,6 +251,8 @@ def main(argv=None) -> int:
         probe_policy()
     elif args.probe == "vector":
         probe_vector()
+    elif args.probe == "split":
+        probe_split()
     elif args.probe == "training":
         probe_training()
     else:

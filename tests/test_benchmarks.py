@@ -520,6 +520,36 @@ def test_benchmark_script_runs_end_to_end_quick(tmp_path):
     assert "Pendulum-v1" in md and "CartPoleVectorEnv" in md and "do not edit" in md
 
 
+@pytest.mark.parametrize("n", [1, 3])
+@pytest.mark.parametrize("loop", ["exact", "integral", "extended", "controller"])
+def test_benchmark_replays_each_controller_along_its_own_closed_loop(n, loop):
+    """Item 3 times copies of a controller replaying the calls of its closed loop: each window's replay gives the
+    loop's outputs bit for bit, so the timed calls are the loop's (and where the outputs depend on the memory, a
+    replay from the wrong window's copy does not)."""
+    if str(ROOT) not in sys.path:
+        sys.path.insert(0, str(ROOT))
+    from benchmarks._env_speed import _ClosedLoop
+
+    if loop == "controller":
+        env = SoftPVTOLVectorEnv(num_envs=n, action_mode="residual", task="hover", tier="nominal")
+        policy = PassivityController.from_loop("exact")
+    else:
+        env = SoftPVTOLVectorEnv(num_envs=n, task="hover", tier="nominal")
+        policy = PassivityPolicy.from_env(env, loop=loop)
+    closed = _ClosedLoop(env, policy, (0, 6), 3, single=n == 1)
+    assert [len(calls) for _, calls, _ in closed.windows] == [3, 3]
+    for snapshot, calls, outputs in closed.windows:
+        fn = closed.caller(snapshot)
+        for call, want in zip(calls, outputs, strict=True):
+            got = closed.output(fn(*call))
+            assert got.shape == ((4,) if n == 1 else (n, 4)) and got.tobytes() == want.tobytes()
+    if loop in ("integral", "extended"):  # (the exact loop's outputs do not depend on its memory's warm start)
+        wrong = closed.caller(closed.windows[0][0])  # the start's copy on the second window's calls
+        (_, calls, outputs) = closed.windows[1]
+        assert any(closed.output(wrong(*c)).tobytes() != w.tobytes() for c, w in zip(calls, outputs))
+    assert closed.timer()() > 0.0
+
+
 def test_readme_performance_table_is_the_generated_one():
     """The Performance table (docs/performance.md, where benchmarks/run.py writes it) = benchmarks/run.py's table
     from the committed results.json."""
