@@ -365,7 +365,9 @@ def test_lazy_bracket_gives_the_eager_bracket_solution(imap):
 @pytest.mark.parametrize("m", [1, 7, CK.CTRL_LANES])
 def test_lane_allocation_equals_scalar_allocation_bit_for_bit(imap, m):
     """allocate_exact_lanes (the controller's interleaved Newton) = allocate_exact lane by lane, on
-    heavy-tailed forces, cold and wild warm starts, clipped curvatures; inactive lanes untouched."""
+    heavy-tailed forces, cold and wild warm starts, clipped curvatures; inactive lanes untouched. As the
+    algebraic loop's later passes call it (theta's sin and cos from the call before, the residual left NaN and
+    computed once by allocation_residual), the results are the same."""
     rng = np.random.default_rng(m + 100 * imap)
     L, p = CK.CTRL_LANES, tuple(P.array)
     for trial in range(25):
@@ -376,8 +378,15 @@ def test_lane_allocation_equals_scalar_allocation_bit_for_bit(imap, m):
         qmax = math.pi if trial % 2 else 0.5
         # the flat lane block: rows tau (0-2), theta (3), warm start (4-7), active (8), out (9-12), info (13-15)
         X = np.concatenate([tau, theta[None], warm, active[None], np.full((4 + CK.N_INFO, L), -7.0)]).ravel()
-        CK.allocate_exact_lanes(m, X, 0, 3, 4, 8, 9, 13, np.zeros(CK.N_AW * L), True, p, imap, qmax)
-        X = X.reshape(-1, L)
+        A = np.zeros(CK.N_AW * L)
+        X0 = X.copy()
+        CK.allocate_exact_lanes(m, X, 0, 3, 4, 8, 9, 13, A, True, p, imap, qmax)
+        # an algebraic loop's later pass: theta's sin and cos kept in A from the call before, no residual
+        X0[4 * L:8 * L] = np.where(rng.random(L) < 0.5, X0[4 * L:8 * L].reshape(4, L), np.nan).ravel()
+        X1 = X0.copy()
+        CK.allocate_exact_lanes(m, X0, 0, 3, 4, 8, 9, 13, np.zeros(CK.N_AW * L), True, p, imap, qmax)
+        CK.allocate_exact_lanes(m, X1, 0, 3, 4, 8, 9, 13, A, True, p, imap, qmax, True, False)
+        X, X0, X1 = X.reshape(-1, L), X0.reshape(-1, L), X1.reshape(-1, L)
         out, info = X[9:13], X[13:16]
         for j in range(L):
             if j < m and active[j]:
@@ -385,8 +394,15 @@ def test_lane_allocation_equals_scalar_allocation_bit_for_bit(imap, m):
                                          True, qmax)
                 np.testing.assert_array_equal(out[:, j], o)
                 np.testing.assert_array_equal(info[:, j], i)
+                np.testing.assert_array_equal(X1[9:13, j], X0[9:13, j])
+                np.testing.assert_array_equal(X1[14:16, j], X0[14:16, j])
+                assert np.isnan(X1[13, j])
+                st, ct = math.sin(theta[j]), math.cos(theta[j])
+                Tl, Tr, ql, qr = X1[9:13, j]
+                assert CK.allocation_residual(st, ct, ql, qr, Tl, Tr, *tau[:, j], p, imap) == X0[13, j]
             else:
                 assert (out[:, j] == -7.0).all() and (info[:, j] == -7.0).all()
+                assert (X1[9:16, j] == -7.0).all()
 
 
 @pytest.mark.parametrize("loop", ["exact", "paper", "improved"])

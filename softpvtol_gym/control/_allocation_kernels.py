@@ -106,8 +106,13 @@ def _bracket_point(x, lo, hi, lo_raw, hi_raw, uz, h, tt, ll, lr, eps, input_map)
 def _exact_setup(t0, t1, t2, theta, p, input_map, w0, w2, use_warm):
     """Start of :func:`allocate_exact`: the body force in body axes, the bracket and the first point.
     Returns ((x, lo, hi, lo_raw, hi_raw), (uz, h, tt, scale, st, ct))."""
+    return _exact_setup_sc(t0, t1, t2, math.sin(theta), math.cos(theta), p, input_map, w0, w2, use_warm)
+
+
+@MK.inline
+def _exact_setup_sc(t0, t1, t2, st, ct, p, input_map, w0, w2, use_warm):
+    """:func:`_exact_setup` given st, ct = sin(theta), cos(theta)."""
     ll, lr, eps = p[P_LL], p[P_LR], p[P_EPS]
-    ct, st = math.cos(theta), math.sin(theta)
     ux = ct * t0 + st * t1
     uz = -st * t0 + ct * t1
     tt = t2
@@ -153,6 +158,13 @@ def _exact_newton(x, lo, hi, lo_raw, hi_raw, Gl, dGl, Gr, dGr, uz, h, tt, scale,
 def _exact_result(x, evaluated, ql, Tl, qr, Tr, uz, h, st, ct, t0, t1, t2, p, input_map, qmax, it):
     """End of :func:`allocate_exact` at the solution x (the split v_l = x): curvatures, thrusts, the
     curvature clip and the residual. (ql, Tl, qr, Tr): those of the levers at x if ``evaluated``."""
+    o, feasible = _exact_solution(x, evaluated, ql, Tl, qr, Tr, uz, h, qmax)
+    return o, (allocation_residual(st, ct, o[2], o[3], o[0], o[1], t0, t1, t2, p, input_map), float(it), feasible)
+
+
+@MK.inline
+def _exact_solution(x, evaluated, ql, Tl, qr, Tr, uz, h, qmax):
+    """:func:`_exact_result` without the residual: ((T_l, T_r, q_l^d, q_r^d), feasible)."""
     if not evaluated:
         vl = x
         vr = uz - x
@@ -165,10 +177,15 @@ def _exact_result(x, evaluated, ql, Tl, qr, Tr, uz, h, st, ct, t0, t1, t2, p, in
         feasible = 0.0
         ql = min(max(ql, -qmax), qmax)
         qr = min(max(qr, -qmax), qmax)
-    # residual: realised body force (through the chosen input map) minus the requested one
+    return (Tl, Tr, ql, qr), feasible
+
+
+@MK.inline
+def allocation_residual(st, ct, ql, qr, Tl, Tr, t0, t1, t2, p, input_map):
+    """The realised body force of an allocation (T_l, T_r, q_l^d, q_r^d) through the chosen input map, minus
+    the requested one (t0, t1, t2): the largest absolute difference (st, ct = sin(theta), cos(theta))."""
     tr = MK.thrust_body_forces(st, ct, ql, qr, Tl, Tr, p, input_map)
-    residual = max(abs(tr[0] - t0), abs(tr[1] - t1), abs(tr[2] - t2))
-    return (Tl, Tr, ql, qr), (residual, float(it), feasible)
+    return max(abs(tr[0] - t0), abs(tr[1] - t1), abs(tr[2] - t2))
 
 
 @_jit
@@ -232,7 +249,8 @@ def lever_poly_lanes(A, ll, lr, eps, input_map):
 
 
 @_jit
-def allocate_exact_lanes(m, X, r_tau, r_theta, r_warm, r_active, r_out, r_info, A, use_warm, p, input_map, qmax):
+def allocate_exact_lanes(m, X, r_tau, r_theta, r_warm, r_active, r_out, r_info, A, use_warm, p, input_map, qmax,
+                         trig_ready=False, with_residual=True):
     """:func:`allocate_exact` for the m problems of a lane block at once, every lane's arithmetic
     that of allocate_exact, bit for bit.
 
@@ -243,6 +261,11 @@ def allocate_exact_lanes(m, X, r_tau, r_theta, r_warm, r_active, r_out, r_info, 
     work. The Newton iterations of the lanes are interleaved: one lane's iteration is a chain of
     dependent libm calls and polynomials, so lanes side by side keep the CPU busy, and the
     polynomials of all lanes run as one SIMD loop.
+
+    For the passes of the controller's algebraic loop (the same theta, another force each): ``trig_ready``
+    says that A's rows ``AW_ST``, ``AW_CT`` already hold sin and cos of every active lane's theta (an earlier
+    call on these lanes wrote them); ``with_residual=False`` leaves the residual (info row 0) NaN, to be filled
+    by :func:`allocation_residual` for the last pass only. The other results are the same either way.
     """
     L = CTRL_LANES
     ll, lr, eps = p[P_LL], p[P_LR], p[P_EPS]
@@ -254,8 +277,13 @@ def allocate_exact_lanes(m, X, r_tau, r_theta, r_warm, r_active, r_out, r_info, 
     live = 0
     for j in range(m):
         if X[act_ + j] != 0.0:
-            (x, lo, hi, lo_raw, hi_raw), (uz, h, tt, scale, st, ct) = _exact_setup(
-                X[tau0 + j], X[tau1 + j], X[tau2 + j], X[th_ + j], p, input_map, X[r_warm * L + j],
+            if trig_ready:
+                st, ct = A[st_ + j], A[ct_ + j]
+            else:
+                th = X[th_ + j]
+                st, ct = math.sin(th), math.cos(th)
+            (x, lo, hi, lo_raw, hi_raw), (uz, h, tt, scale, st, ct) = _exact_setup_sc(
+                X[tau0 + j], X[tau1 + j], X[tau2 + j], st, ct, p, input_map, X[r_warm * L + j],
                 X[(r_warm + 2) * L + j], use_warm)
             A[x_ + j], A[lo_ + j], A[hi_ + j] = x, lo, hi
             A[lor_ + j], A[hir_ + j] = 1.0 if lo_raw else 0.0, 1.0 if hi_raw else 0.0
@@ -292,12 +320,16 @@ def allocate_exact_lanes(m, X, r_tau, r_theta, r_warm, r_active, r_out, r_info, 
     # (a lane not converged in 100 iterations ends at its last iterate, not evaluated)
     for j in range(m):
         if X[act_ + j] != 0.0:
-            o, inf = _exact_result(A[x_ + j], A[live_ + j] == 2.0, A[ql_ + j], A[tl_ + j], A[qr_ + j], A[tr_ + j],
-                                   A[uz_ + j], A[h_ + j], A[st_ + j], A[ct_ + j], X[tau0 + j], X[tau1 + j],
-                                   X[tau2 + j], p, input_map, qmax,
-                                   100 if A[live_ + j] == 1.0 else int(A[it_ + j]))
+            o, feasible = _exact_solution(A[x_ + j], A[live_ + j] == 2.0, A[ql_ + j], A[tl_ + j], A[qr_ + j],
+                                          A[tr_ + j], A[uz_ + j], A[h_ + j], qmax)
+            residual = math.nan
+            if with_residual:
+                residual = allocation_residual(A[st_ + j], A[ct_ + j], o[2], o[3], o[0], o[1], X[tau0 + j],
+                                               X[tau1 + j], X[tau2 + j], p, input_map)
             X[r_out * L + j], X[(r_out + 1) * L + j], X[(r_out + 2) * L + j], X[(r_out + 3) * L + j] = o
-            X[r_info * L + j], X[(r_info + 1) * L + j], X[(r_info + 2) * L + j] = inf
+            X[r_info * L + j] = residual
+            X[(r_info + 1) * L + j] = 100.0 if A[live_ + j] == 1.0 else float(int(A[it_ + j]))
+            X[(r_info + 2) * L + j] = feasible
 
 
 @_jit

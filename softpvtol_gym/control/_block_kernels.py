@@ -11,7 +11,17 @@ from numba import njit
 
 from .. import model as MK
 from .._layout import Layout
-from ._allocation_kernels import ALLOC_PAPER, CTRL_LANES, N_AW, N_INFO, allocate_exact_lanes, allocate_paper
+from ._allocation_kernels import (
+    ALLOC_PAPER,
+    AW_CT,
+    AW_ST,
+    CTRL_LANES,
+    N_AW,
+    N_INFO,
+    allocate_exact_lanes,
+    allocate_paper,
+    allocation_residual,
+)
 from ._passivity_kernels import model_entries, passivity_rows
 
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
@@ -319,8 +329,9 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg, integ):
                     put_lane4(B, CB_ALLOC, j, alloc)
                     put_lane3(B, CB_INFO, j, info)
         else:
+            # (theta is the same in every pass: its sin and cos from the first; the residual of the last pass only)
             allocate_exact_lanes(m, B, CB_TAU, CB_Q + 2, CB_ALLOC, CB_ACTIVE, CB_ALLOC, CB_INFO, A, True, p, imap,
-                                 qmax)
+                                 qmax, it > 1, False)
         for j in range(m):
             if B[lane_index(CB_ACTIVE, j)] != 0.0:
                 new_l, new_r = B[lane_index(CB_ALLOC + 2, j)], B[lane_index(CB_ALLOC + 3, j)]
@@ -339,6 +350,13 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg, integ):
                 else:
                     B[lane_index(CB_REF, j)] = old_l + w * (new_l - old_l)
                     B[lane_index(CB_REF + 1, j)] = old_r + w * (new_r - old_r)
+    if method != ALLOC_PAPER:  # the exact allocation's residual, of each row's last pass
+        for j in range(m):
+            if B[lane_index(CB_ERR, j)] == ERR_NONE:
+                Tl, Tr, ql, qr = lane4(B, CB_ALLOC, j)
+                t0, t1, t2 = lane3(B, CB_TAU, j)
+                B[lane_index(CB_INFO, j)] = allocation_residual(A[AW_ST * CTRL_LANES + j], A[AW_CT * CTRL_LANES + j],
+                                                                ql, qr, Tl, Tr, t0, t1, t2, p, imap)
     for j in range(m):
         ents, q, qd, br, refs, res = _lane_inputs(B, j)
         err = B[lane_index(CB_ERR, j)]
