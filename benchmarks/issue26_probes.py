@@ -10,6 +10,8 @@
                                                    # 1-pass algebraic loop (benchmarks/run.py item 3 times the
                                                    # controllers along their closed loops instead)
     python benchmarks/issue26_probes.py vector     # the vector env's step, N = 256 and 4096, random actions
+    python benchmarks/issue26_probes.py passes     # the algebraic loop's passes along closed loops, the cost of
+                                                   # a pass, the extended loop's law (one thread, N = 4096)
     python benchmarks/issue26_probes.py split      # the step kernel of N = 4096 envs in one thread and split
                                                    # over the threads: when each chunk starts and ends
     python benchmarks/issue26_probes.py training   # the SB3 adapter's step (step_infos on/off), 128 sub-envs;
@@ -144,6 +146,67 @@ def probe_vector(reps: int = 7) -> None:
               f"(median of {reps})")
 
 
+def probe_passes() -> None:
+    import copy
+
+    import numpy as np
+
+    import softpvtol_gym._parallel as parallel
+    from softpvtol_gym import PassivityPolicy, SoftPVTOLVectorEnv
+    from softpvtol_gym.control import _kernels as CK
+
+    for task in ("hover", "track_random"):  # mean passes per block of 100 steps, 512 envs, nominal tier, seed 0
+        for loop in ("exact", "integral"):
+            env = SoftPVTOLVectorEnv(num_envs=512, task=task, tier="nominal")
+            obs = env.reset(seed=0)[0]
+            policy = PassivityPolicy.from_env(env, loop=loop)
+            passes = []
+            for _ in range(1000):
+                action, _ = policy.predict(obs)
+                passes.append(policy._work[1][:, CK.OUT_LOOP + 1].mean())  # (its kernel's per-row outputs)
+                obs = env.step(action)[0]
+            blocks = " ".join(f"{np.mean(passes[i:i + 100]):.2f}" for i in range(0, 1000, 100))
+            print(f"{task}, loop {loop}: algebraic passes per call, mean by 100 steps: {blocks}")
+    parallel.thread_count = lambda: 1  # one thread from here on: costs per env without the split
+    n = 4096
+    env = SoftPVTOLVectorEnv(num_envs=n, task="hover", tier="nominal")
+    obs = env.reset(seed=0)[0]
+    policy = PassivityPolicy.from_env(env)
+    inputs = []
+    for _ in range(130):  # a closed loop's observations, steps 100-129 timed (past the first transient)
+        inputs.append(obs.copy())
+        obs = env.step(policy.predict(obs)[0])[0]
+    actions = np.zeros((n, 4), np.float32)
+
+    def per_env(snapshot, calls) -> float:
+        """ns per env of predict on calls, each repetition from a copy of the policy ``snapshot`` (None: the env
+        step kernel)."""
+        times = []
+        for _ in range(5):
+            fn = (lambda a: env.sim.step(a, True)) if snapshot is None else copy.deepcopy(snapshot).predict
+            t0 = time.perf_counter()
+            for c in calls:
+                fn(c)
+            times.append((time.perf_counter() - t0) / len(calls) / n)
+        return 1e9 * statistics.median(times)
+
+    cases = {"env step kernel (actuators, zero actions)": (None, [actions] * 30)}
+    for k in (1, 2, 3):  # exactly k passes (tolerance 0), from the loop's state at step 100
+        fixed = PassivityPolicy.from_env(env, controller_options=dict(algebraic_iterations=k, algebraic_tolerance=0.0))
+        for o in inputs[:100]:
+            fixed.predict(o)
+        cases[f"PassivityPolicy.predict, exactly {k} pass{'es' if k > 1 else ''}"] = (fixed, inputs[100:])
+    for held in ("midpoint", "start"):
+        ext = PassivityPolicy.from_env(env, loop="extended")
+        ext.controller.held_command = held
+        for o in inputs[:100]:
+            ext.predict(o)
+        cases[f"ExtendedPolicy.predict, held_command={held!r}"] = (ext, inputs[100:])
+    for name, (snapshot, calls) in cases.items():
+        print(f"one thread, N = {n}, steps 100-129 of a hover loop: {name}: {per_env(snapshot, calls):.0f} ns per "
+              "env (median of 5)")
+
+
 def probe_split(reps: int = 7) -> None:
     import threading
 
@@ -190,6 +253,18 @@ def probe_split(reps: int = 7) -> None:
           f"{us[0]:.0f} us; split over {len(ranges)} chunks and the threads {us[1]:.0f} us (one thread / 2 = "
           f"{us[0] / 2:.0f} us). In the split call: this thread's first chunk starts at {us[2]:.0f} us, the pool's at "
           f"{us[3]:.0f} us, and the call returns {us[4]:.0f} us after the last chunk ends")
+    import concurrent.futures
+
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:  # a submit that wakes an idle (sleeping) worker
+        pool.submit(int).result()
+        submit = []
+        for _ in range(200):
+            time.sleep(0.0005)
+            t0 = time.perf_counter()
+            future = pool.submit(int)
+            submit.append(time.perf_counter() - t0)
+            future.result()
+    print(f"ThreadPoolExecutor.submit to an idle worker: {1e6 * statistics.median(submit):.1f} us (median of 200)")
 
 
 def probe_training() -> None:
@@ -240,6 +315,7 @@ def main(argv=None) -> int:
     sub.add_parser("policy", help="PassivityPolicy.predict (default, integral, extended) and PassivityController() "
                                   "for one state")
     sub.add_parser("vector", help="the vector env's step at N = 256 and 4096")
+    sub.add_parser("passes", help="the algebraic loop's passes, a pass's cost, the extended loop's law")
     sub.add_parser("split", help="the step kernel of 4096 envs in one thread and split over the threads")
     sub.add_parser("training", help="the SB3 adapter's step; a periodic evaluation")
     args = ap.parse_args(argv)
@@ -253,6 +329,8 @@ def main(argv=None) -> int:
         probe_vector()
     elif args.probe == "split":
         probe_split()
+    elif args.probe == "passes":
+        probe_passes()
     elif args.probe == "training":
         probe_training()
     else:
