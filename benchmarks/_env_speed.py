@@ -341,7 +341,13 @@ def bench_controller(quick: bool) -> dict:
                          f"{entry[key]:.2f}x", "<= 1.0x", verdict(entry[key] <= 1.0)])
         rows.append([f"{label} (N = {n})", "one env step (actuators mode), the unit",
                      fmt_time(entry["env step (actuators)"] / per) + (" per env" if n > 1 else ""), "1.00x", "-", "-"])
-    text = table(["case", "controller + allocation", "time", "ratio to one env step", "target", "verdict"], rows)
+    text = ("Each controller is timed along its own closed loop (a hover episode, nominal tier, seed 0): copies of it "
+            "replay the episode's calls, "
+            + ("in one short window (--quick)" if quick else f"in windows of {WINDOW['single']} steps (one state) and "
+               f"{WINDOW['batched']} steps (batched) from steps {', '.join(map(str, STARTS[:3]))}, ..., {STARTS[-1]}")
+            + ". The residual mode's base controller: the difference of a residual-mode and an actuators-mode env "
+              "step (actions near hover).\n\n")
+    text += table(["case", "controller + allocation", "time", "ratio to one env step", "target", "verdict"], rows)
     targets = {}
     for label, entry in results.items():
         for key in ("ratio_residual_extra", *_TIMED):
