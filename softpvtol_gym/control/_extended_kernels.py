@@ -52,13 +52,13 @@ def sinc_derivatives(x):
 
 
 @MK.jit
-def torque_arm(q, length, eps, input_map):
-    """(h, h', h'') of a rotor's moment arm (:func:`softpvtol_gym.control.extended.torque_arm`)."""
+def torque_arm(q, s, c, length, eps, input_map):
+    """(h, h', h'') of a rotor's moment arm (:func:`softpvtol_gym.control.extended.torque_arm`); s, c = sin q,
+    cos q (libm: the law needs them too)."""
     if input_map == MK.INPUT_MAP_PAPER:
         f0, f1, f2 = sinc_derivatives(2.0 * q)
         return length * f0, 2.0 * length * f1, 4.0 * length * f2
     f0, f1, f2 = sinc_derivatives(q)
-    c, s = math.cos(q), math.sin(q)
     return eps * c + length * f0, -eps * s + length * f1, -eps * c + length * f2
 
 
@@ -111,13 +111,13 @@ def extended_law(q, qd, T_raw, Td, ref, p, input_map, k):
     vdd = ref[4, 2] - ga1 * (vd - ref[3, 2]) - ga0 * (v - ref[2, 2])
     vs = -gs1 * (vl + vr) - gs0 * (ql + qr)
     # thrust map
-    hl, hl1, hl2 = torque_arm(ql, ll, eps, input_map)
-    hr, hr1, hr2 = torque_arm(qr, ll, eps, input_map)
+    sl, cl, sr, cr = math.sin(ql), math.cos(ql), math.sin(qr), math.cos(qr)
+    hl, hl1, hl2 = torque_arm(ql, sl, cl, ll, eps, input_map)
+    hr, hr1, hr2 = torque_arm(qr, sr, cr, ll, eps, input_map)
     H = hl + hr
     small_h = abs(H) < k[K_MIN_ARM]
     if small_h:
         H = (-1.0 if H < 0 else 1.0) * k[K_MIN_ARM]
-    sl, cl, sr, cr = math.sin(ql), math.cos(ql), math.sin(qr), math.cos(qr)
     ul0, ul1, ur0, ur1 = sl, cl, -sr, cr  # u_l, u_r
     dl0, dl1, dr0, dr1 = cl, -sl, -cr, -sr  # their derivatives
     A0 = _quotient1(hr * ul0 + hl * ur0, hr * dl0 + hl1 * ur0, hr1 * ul0 + hl * dr0, hr * -ul0 + hl2 * ur0,
@@ -144,8 +144,9 @@ def extended_law(q, qd, T_raw, Td, ref, p, input_map, k):
     Phid0, Phid1 = thd * RJV0 + RVd0, thd * RJV1 + RVd1
     Phidd00 = -thd * thd * RV0 + v * RJV0 + 2.0 * thd * RJVd0 + RVdd0
     Phidd01 = -thd * thd * RV1 + v * RJV1 + 2.0 * thd * RJVd1 + RVdd1
-    # outputs: the centre of mass and its derivatives
-    _, _, d03, d13, d04, d14, d33, d44 = MK.mass_entries(ql, qr, p)
+    # outputs: the centre of mass and its derivatives (D, C and g from one evaluation of each arm's series)
+    bl, br = MK.arm_basis(ql), MK.arm_basis(qr)
+    _, _, d03, d13, d04, d14, d33, d44 = MK.mass_entries_basis(bl, br, p)
     lx, lz = MK.arm_offset(ql, p[P_LL], p[P_EPS], -1.0)
     rx, rz = MK.arm_offset(qr, p[P_LL + 1], p[P_EPS], 1.0)
     ml, mr = p[P_ML], p[P_MR]
@@ -169,9 +170,9 @@ def extended_law(q, qd, T_raw, Td, ref, p, input_map, k):
     Tl = (T_raw * hr - inertia * v) / H
     Tr = (T_raw * hl + inertia * v) / H
     # arm torques by computed torque
-    F = MK.generalized_forces(q, (Tl, Tr, 0.0, 0.0), p, input_map)
-    c03, c13, c04, c14, c33, c44 = MK.coriolis_entries(ql, qr, vl, vr, p)
-    g1, g3, g4 = MK.gravity_entries(ql, qr, p)
+    F = MK.generalized_forces_sc(s, c, ql, qr, (Tl, Tr, 0.0, 0.0), p, input_map)
+    c03, c13, c04, c14, c33, c44 = MK.coriolis_entries_basis(bl, br, vl, vr, p)
+    g1, g3, g4 = MK.gravity_entries_basis(bl, br, p)
     Cq0, Cq1, Cq3, Cq4 = c03 * vl + c04 * vr, c13 * vl + c14 * vr, c33 * vl, c44 * vr
     pdd0 = (F[0] - (d03 * wl + d04 * wr) - Cq0) / M
     pdd1 = (F[1] - (d13 * wl + d14 * wr) - Cq1 - g1) / M
