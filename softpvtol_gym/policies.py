@@ -7,6 +7,7 @@ import math
 import numpy as np
 from numba import njit
 
+from . import model as MK
 from ._batching import MAX_CURVATURE
 from ._parallel import row_ranges, run_split
 from .control import PassivityController
@@ -500,6 +501,8 @@ class ExtendedPolicy:
         out = np.empty((n, 4), dtype=np.float32)
         args = (obs, theta, self._acc_hist, self._hist_len, ctrl._xi, self._weights, self._p, self._map_code,
                 self._constants, ctrl.held_command == "midpoint", out, err)
+        if n >= MK.LANES:  # the midpoint predictions of full lane blocks as SIMD code (compiled for such batches)
+            args += (1,)
         if len(ranges) == 1:
             bad = EK.extended_policy_rows(0, n, *args)
         else:

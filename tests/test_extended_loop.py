@@ -256,3 +256,31 @@ def test_compiled_policy_is_the_numpy_reference(tier):
             b, _ = ref.predict_reference(o, episode_start=k == 0)
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
             o = one.step(b)[0]
+
+
+@pytest.mark.parametrize("held", ["midpoint", "start"])
+def test_a_rows_action_does_not_depend_on_its_batch(held):
+    """The midpoint predictions of a batch of 64 rows or more run as SIMD lane blocks (model.rk4_lanes), a smaller
+    batch's lane by lane: every row's actions and extension equal those of the row alone (its own policy, a batch
+    of one), bit for bit, along 70 envs' episodes (a full block and a partial one), one row's arms sent beyond the
+    model's range at the midpoint (the start's command held) at one step."""
+    from softpvtol_gym import SoftPVTOLVectorEnv
+
+    n = 70
+    env = SoftPVTOLVectorEnv(num_envs=n, action_mode="actuators", task="track_random", tier="wind")
+    batch = PassivityPolicy.from_env(env, loop="extended")
+    alone = [PassivityPolicy.from_env(env, loop="extended") for _ in range(n)]
+    for pol in (batch, *alone):
+        pol.controller.held_command = held
+    obs, _ = env.reset(seed=4)
+    start = np.ones(n, dtype=bool)
+    for k in range(40):
+        if k == 20:  # row 5: arms at 3 rad bending at 1000 rad/s, past pi at the midpoint
+            obs[5, 5], obs[5, 10] = 3.0, 1000.0
+        a, _ = batch.predict(obs, episode_start=start)
+        for i, pol in enumerate(alone):
+            b, _ = pol.predict(obs[i:i + 1], episode_start=start[i:i + 1])
+            assert a[i].tobytes() == b[0].tobytes(), (k, i)
+            assert batch.controller.thrust_state[i].tobytes() == pol.controller.thrust_state[0].tobytes()
+        obs, _, terminated, truncated, _ = env.step(a)
+        start = terminated | truncated

@@ -1,6 +1,7 @@
 """Compiled kernels of the dynamically extended loop (issue 24; issue 26 item 3): the law of
-:meth:`ExtendedController.evaluate <softpvtol_gym.control.extended.ExtendedController.evaluate>`, its held
-step and :class:`~softpvtol_gym.policies.ExtendedPolicy`'s whole ``predict`` for one row, as scalar code.
+:meth:`ExtendedController.evaluate <softpvtol_gym.control.extended.ExtendedController.evaluate>` for one row, as
+scalar code, and :class:`~softpvtol_gym.policies.ExtendedPolicy`'s whole ``predict`` (its held step: the law,
+the RK4 half step to the midpoint, the law there), whose half steps run in lane blocks (SIMD for 64 rows).
 
 The numpy controller (:mod:`.extended`) is the readable reference: the tests compare these kernels with it
 (the same operations, in an order that differs only where numpy's einsum sums; values agree to round-off).
@@ -182,90 +183,135 @@ def extended_law(q, qd, T_raw, Td, ref, p, input_map, k):
 
 
 @MK.jit
-def extended_held_step(q, qd, T_raw, Td, ref, ref_mid, p, input_map, k, midpoint):
-    """:meth:`ExtendedController.held_step` for one row: (actuators, u_1, degenerate, T_next, Tdot_next)."""
-    h = k[K_DT]
-    act, u0, degen = extended_law(q, qd, T_raw, Td, ref, p, input_map, k)
-    if midpoint:
-        m = 0.5 * h
-        qm, vm = MK.rk4_step_tuple(q, qd, (act[0], act[1], act[2], act[3], 0.0), (0.0, 0.0), p, m, input_map)
-        ok = abs(qm[3]) <= math.pi and abs(qm[4]) <= math.pi
-        for i in range(5):
-            ok = ok and math.isfinite(qm[i]) and math.isfinite(vm[i])
-        if ok:
-            act, u0, degen = extended_law(qm, vm, T_raw + m * Td + 0.5 * m * m * u0, Td + m * u0, ref_mid, p,
-                                          input_map, k)
-        else:  # the start's command (a midpoint predicted outside the model's range)
-            act, u0, degen = extended_law(q, qd, T_raw, Td, ref, p, input_map, k)
-    return act, u0, degen, T_raw + h * Td + 0.5 * h * h * u0, Td + h * u0
+def _row_start(r, obs, theta, hist, hist_len, xi, weights, p, k, ref, mid):
+    """The start of row r of :func:`extended_policy_rows`: its reference-acceleration memory advanced, its
+    reference jets at the step's start and midpoint into ``ref`` and ``mid`` (5, 3), and (q, qdot, T, Tdot): the
+    state and the extension (a fresh one: the thrust the reference needs, at rest)."""
+    n_hist = hist.shape[1]
+    m = 0.5 * k[K_DT]
+    o = obs[r]
+    q = (o[0], o[1], theta[r], o[5], o[6])
+    qd = (o[7], o[8], o[9], o[10], o[11])
+    for j in range(n_hist - 1, 0, -1):
+        for c in range(3):
+            hist[r, j, c] = hist[r, j - 1, c]
+    for c in range(3):
+        hist[r, 0, c] = o[15 + c]
+    hist_len[r] = min(hist_len[r] + 1, n_hist)
+    for c in range(3):
+        ref[0, c] = 0.0
+        ref[1, c] = o[12 + c]
+        ref[2, c] = o[15 + c]
+        ref[3, c] = 0.0
+        ref[4, c] = 0.0
+        mid[3, c] = 0.0
+        mid[4, c] = 0.0
+    ref[0, 2] = theta[r] - o[2]
+    if hist_len[r] == n_hist:
+        for c in range(3):
+            j3 = j4 = m3 = m4 = 0.0
+            for i in range(n_hist):
+                a = hist[r, i, c]
+                j3 += weights[0, i] * a
+                j4 += weights[1, i] * a
+                m3 += weights[2, i] * a
+                m4 += weights[3, i] * a
+            ref[3, c], ref[4, c], mid[3, c], mid[4, c] = j3, j4, m3, m4
+    for c in range(3):
+        mid[0, c] = (ref[0, c] + m * ref[1, c] + m * m / 2 * ref[2, c] + m ** 3 / 6 * ref[3, c]
+                     + m ** 4 / 24 * ref[4, c])
+        mid[1, c] = ref[1, c] + m * ref[2, c] + m * m / 2 * ref[3, c] + m ** 3 / 6 * ref[4, c]
+        mid[2, c] = ref[2, c] + m * ref[3, c] + m * m / 2 * ref[4, c]
+    T0, Td0 = xi[r, 0], xi[r, 1]
+    if math.isnan(T0):  # a fresh extension: the thrust the reference needs, at rest
+        T0 = k[K_INITIAL_THRUST]
+        if math.isnan(T0):
+            T0 = (p[P_M] + p[P_ML] + p[P_MR]) * math.hypot(o[15], o[16] + p[P_G])
+        T0 = max(T0, k[K_MIN_THRUST])
+        Td0 = 0.0
+    return q, qd, T0, Td0
+
+
+@MK.accessor
+def _lane_put_step(W, j, q, qd, act, p):
+    """Lane j of an RK4 lane block (``MK.RK4_LANES``): the state, the actuators held (the fifth entry 0), no
+    external force, the parameters."""
+    L = MK.LANES
+    for i in range(5):
+        W[(MK.LANE_Q + i) * L + j] = q[i]
+        W[(MK.LANE_QD + i) * L + j] = qd[i]
+    for i in range(4):
+        W[(MK.LANE_U + i) * L + j] = act[i]
+    W[(MK.LANE_U + 4) * L + j] = 0.0
+    W[MK.LANE_EXT * L + j] = 0.0
+    W[(MK.LANE_EXT + 1) * L + j] = 0.0
+    for i in range(p.shape[0]):
+        W[(MK.LANE_P + i) * L + j] = p[i]
 
 
 @MK.jit
 def extended_policy_rows(lo, hi, obs, theta, hist, hist_len, xi, weights, p, input_map, k, midpoint,
-                         out, err):
+                         out, err, simd=None):
     """``ExtendedPolicy.predict`` for rows lo..hi-1: observations (n, 18) and numpy's theta (n,); memory
     ``hist`` (n, H, 3), ``hist_len`` (n,), the extension ``xi`` (n, 2) (NaN: fresh) updated in place;
     ``weights`` (4, H) of the cubic fit; actions into ``out`` (n, 4) float32; per row ``err`` (ERR_*).
-    Returns the number of rows with an error (their memory is left as it was)."""
-    n_hist = hist.shape[1]
-    ref = np.zeros((5, 3))
-    mid = np.zeros((5, 3))
-    m = 0.5 * k[K_DT]
+    Returns the number of rows with an error (their extension is left as it was).
+
+    Each row is :meth:`ExtendedController.held_step <softpvtol_gym.control.extended.ExtendedController.held_step>`:
+    the law at the step's start; with ``midpoint``, the RK4 half step of the model under that command, and the
+    law at the predicted midpoint (the start's command if the midpoint leaves the model's range); the extension
+    advanced by Tddot. The half steps of up to ``MK.LANES`` rows run as one lane block: ``MK.rk4_lanes``, SIMD
+    for a full block, when ``simd`` is not None (numba prunes the other branch: a small batch does not compile
+    the SIMD step), else ``MK.rk4_lanes_partial`` lane by lane; every lane's operations are the scalar step's."""
+    L = MK.LANES
+    lanes = min(L, hi - lo)  # (a single row's call allocates for one)
+    refs = np.empty((lanes, 5, 3))  # (every entry written by _row_start)
+    mids = np.empty((lanes, 5, 3))
+    start = np.empty((lanes, 7))  # per lane: T, Tdot, the start's actuators (4) and Tddot
+    W = np.empty(MK.LANE_ROWS_RK4 * L if midpoint else 0)
+    h = k[K_DT]
+    m = 0.5 * h
     bad = 0
-    for r in range(lo, hi):
-        o = obs[r]
-        q = (o[0], o[1], theta[r], o[5], o[6])
-        qd = (o[7], o[8], o[9], o[10], o[11])
-        for j in range(n_hist - 1, 0, -1):
-            for c in range(3):
-                hist[r, j, c] = hist[r, j - 1, c]
-        for c in range(3):
-            hist[r, 0, c] = o[15 + c]
-        hist_len[r] = min(hist_len[r] + 1, n_hist)
-        for c in range(3):
-            ref[0, c] = 0.0
-            ref[1, c] = o[12 + c]
-            ref[2, c] = o[15 + c]
-            ref[3, c] = 0.0
-            ref[4, c] = 0.0
-            mid[3, c] = 0.0
-            mid[4, c] = 0.0
-        ref[0, 2] = theta[r] - o[2]
-        if hist_len[r] == n_hist:
-            for c in range(3):
-                j3 = j4 = m3 = m4 = 0.0
-                for i in range(n_hist):
-                    a = hist[r, i, c]
-                    j3 += weights[0, i] * a
-                    j4 += weights[1, i] * a
-                    m3 += weights[2, i] * a
-                    m4 += weights[3, i] * a
-                ref[3, c], ref[4, c], mid[3, c], mid[4, c] = j3, j4, m3, m4
-        for c in range(3):
-            mid[0, c] = (ref[0, c] + m * ref[1, c] + m * m / 2 * ref[2, c] + m ** 3 / 6 * ref[3, c]
-                         + m ** 4 / 24 * ref[4, c])
-            mid[1, c] = ref[1, c] + m * ref[2, c] + m * m / 2 * ref[3, c] + m ** 3 / 6 * ref[4, c]
-            mid[2, c] = ref[2, c] + m * ref[3, c] + m * m / 2 * ref[4, c]
-        T0, Td0 = xi[r, 0], xi[r, 1]
-        if math.isnan(T0):  # a fresh extension: the thrust the reference needs, at rest
-            T0 = k[K_INITIAL_THRUST]
-            if math.isnan(T0):
-                T0 = (p[P_M] + p[P_ML] + p[P_MR]) * math.hypot(o[15], o[16] + p[P_G])
-            T0 = max(T0, k[K_MIN_THRUST])
-            Td0 = 0.0
-        act, u1, degen, T1, Td1 = extended_held_step(q, qd, T0, Td0, ref, mid, p, input_map, k, midpoint)
-        a0 = 2.0 * act[0] / k[K_TMAX] - 1.0
-        a1 = 2.0 * act[1] / k[K_TMAX] - 1.0
-        a2 = act[2] / k[K_TAUMAX]
-        a3 = act[3] / k[K_TAUMAX]
-        if not (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(a2) and math.isfinite(a3)):
-            err[r] = ERR_NONFINITE
-            bad += 1
-            continue
-        err[r] = ERR_NONE
-        xi[r, 0], xi[r, 1] = T1, Td1
-        out[r, 0] = min(max(a0, -1.0), 1.0)
-        out[r, 1] = min(max(a1, -1.0), 1.0)
-        out[r, 2] = min(max(a2, -1.0), 1.0)
-        out[r, 3] = min(max(a3, -1.0), 1.0)
+    for b0 in range(lo, hi, L):
+        nb = min(L, hi - b0)
+        for j in range(nb):
+            q, qd, T0, Td0 = _row_start(b0 + j, obs, theta, hist, hist_len, xi, weights, p, k, refs[j], mids[j])
+            act, u0, _ = extended_law(q, qd, T0, Td0, refs[j], p, input_map, k)
+            start[j, 0], start[j, 1], start[j, 6] = T0, Td0, u0
+            for i in range(4):
+                start[j, 2 + i] = act[i]
+            if midpoint:
+                _lane_put_step(W, j, q, qd, act, p)
+        if midpoint:
+            if simd is not None:
+                MK.rk4_lanes(W, m, nb, input_map)
+            else:
+                MK.rk4_lanes_partial(W, m, nb, input_map)
+        for j in range(nb):
+            r = b0 + j
+            T0, Td0, u0 = start[j, 0], start[j, 1], start[j, 6]
+            act = (start[j, 2], start[j, 3], start[j, 4], start[j, 5])
+            if midpoint:
+                qm, vm, _, _, _ = MK.lane_load(W, j)
+                ok = abs(qm[3]) <= math.pi and abs(qm[4]) <= math.pi
+                for i in range(5):
+                    ok = ok and math.isfinite(qm[i]) and math.isfinite(vm[i])
+                if ok:  # (else the start's command: a midpoint predicted outside the model's range)
+                    act, u0, _ = extended_law(qm, vm, T0 + m * Td0 + 0.5 * m * m * u0, Td0 + m * u0, mids[j], p,
+                                              input_map, k)
+            T1, Td1 = T0 + h * Td0 + 0.5 * h * h * u0, Td0 + h * u0
+            a0 = 2.0 * act[0] / k[K_TMAX] - 1.0
+            a1 = 2.0 * act[1] / k[K_TMAX] - 1.0
+            a2 = act[2] / k[K_TAUMAX]
+            a3 = act[3] / k[K_TAUMAX]
+            if not (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(a2) and math.isfinite(a3)):
+                err[r] = ERR_NONFINITE
+                bad += 1
+                continue
+            err[r] = ERR_NONE
+            xi[r, 0], xi[r, 1] = T1, Td1
+            out[r, 0] = min(max(a0, -1.0), 1.0)
+            out[r, 1] = min(max(a1, -1.0), 1.0)
+            out[r, 2] = min(max(a2, -1.0), 1.0)
+            out[r, 3] = min(max(a3, -1.0), 1.0)
     return bad
