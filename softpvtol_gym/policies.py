@@ -178,7 +178,24 @@ def actuator_action(actuators: np.ndarray, thrust_max: float, arm_torque_max: fl
     return u
 
 
-class PassivityPolicy:
+class _OneObservationPath:
+    """What PassivityPolicy and ExtendedPolicy share for their one-observation path: the buffers
+    (:class:`_OneObservation`), built at first use and left out of a copy (they hold views of themselves, which a
+    copy would turn into independent arrays)."""
+
+    _one = None
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_one": None}
+
+    def _load_one(self, observation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_OneObservation.load` of the policy's buffers."""
+        if self._one is None:
+            self._one = _OneObservation()
+        return self._one.load(observation)
+
+
+class PassivityPolicy(_OneObservationPath):
     """The paper's passivity controller acting from SoftPVTOL observations only.
 
     ``predict(observation, state=None, episode_start=None, deterministic=True) -> (action, state)``
@@ -254,14 +271,9 @@ class PassivityPolicy:
         self._taumax = config.arm_torque_max
         self._kind = ACTION_VIRTUAL if config.action_mode == "virtual" else ACTION_ACTUATORS
         self._action_dim = config.action_dim
-        # predict's path for one observation (_predict_one): the actuated loops' compiled pass, and its buffers
+        # predict's path for one observation (_predict_one): the actuated loops' compiled pass
         self._compiled = (config.action_mode != "residual" and self.controller.allocation != "ideal"
                           and config.obs_dim == OBS_DIM)
-        self._one: _OneObservation | None = None
-
-    def __getstate__(self) -> dict:
-        # the one-observation buffer holds views of itself, which a copy would turn into independent arrays
-        return {**self.__dict__, "_one": None}
 
     @classmethod
     def from_env(cls, env, loop: str | None = None, gains: PassivityGains | None = None,
@@ -323,9 +335,7 @@ class PassivityPolicy:
     def _predict_one(self, observation) -> np.ndarray:
         """:meth:`predict` of one float observation (18,) for the actuated loops, the batch size staying 1, no
         episode start: the same kernel on the same values with less around it (an evaluation loop's case)."""
-        if self._one is None:
-            self._one = _OneObservation()
-        buf, theta = self._one.load(observation)
+        buf, theta = self._load_one(observation)
         ctrl = self.controller
         S, S_new = ctrl._state, ctrl._spare
         if S is None or S_new is None or S.shape[0] != 1:  # (the controller was reset: memory_pair's checks)
@@ -419,7 +429,7 @@ def _cubic_fit_weights(n: int, dt: float) -> np.ndarray:
     return np.array(rows)
 
 
-class ExtendedPolicy:
+class ExtendedPolicy(_OneObservationPath):
     """The dynamically extended loop (:class:`~softpvtol_gym.control.extended.ExtendedController`) acting
     from SoftPVTOL observations, with :class:`PassivityPolicy`'s ``predict`` interface
     (``PassivityPolicy.from_env(env, loop="extended")`` builds it).
@@ -465,11 +475,6 @@ class ExtendedPolicy:
         self._map_code = input_map_code(config.input_map)
         self._constants = EK.extended_constants(self.controller, self._tmax, self._taumax)
         self._work = None
-        self._one: _OneObservation | None = None  # predict's buffers for one observation (18,)
-
-    def __getstate__(self) -> dict:
-        # the one-observation buffer holds views of itself, which a copy would turn into independent arrays
-        return {**self.__dict__, "_one": None}
 
     def reset(self) -> None:
         self.controller.reset()
@@ -484,9 +489,7 @@ class ExtendedPolicy:
         if (episode_start is None and self._n == 1 and self.config.obs_dim == OBS_DIM
                 and _is_one_observation(observation)):
             # one float observation, the batch size staying 1, no episode start (an evaluation loop's case)
-            if self._one is None:
-                self._one = _OneObservation()
-            obs, theta = self._one.load(observation)
+            obs, theta = self._load_one(observation)
             single, n = True, 1
         else:
             obs, single, n = self._prepare(observation, episode_start)
