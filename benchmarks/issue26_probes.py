@@ -12,8 +12,18 @@
     python benchmarks/issue26_probes.py vector     # the vector env's step, N = 256 and 4096, random actions
     python benchmarks/issue26_probes.py passes     # the algebraic loop's passes along closed loops, the cost of
                                                    # a pass, the extended loop's law (one thread, N = 4096)
+    python benchmarks/issue26_probes.py parts      # the step kernel's parts, N = 4096, one thread, random actions
+                                                   # (each part timed as the kernel runs it, in 64-env blocks)
     python benchmarks/issue26_probes.py split      # the step kernel of N = 4096 envs in one thread and split
                                                    # over the threads: when each chunk starts and ends
+    python benchmarks/issue26_probes.py bound      # the vector env's step at N = 4096 with every part in one
+                                                   # thread, and the bound of a perfect split over two threads,
+                                                   # against CartPoleVectorEnv in the same run
+    python benchmarks/issue26_probes.py simd       # the RK4 step of a full lane block (SIMD) against lane by
+                                                   # lane, and libm's sin and cos (what the lanes cannot vectorise)
+    python benchmarks/issue26_probes.py extended   # ExtendedPolicy.predict's parts (one thread, N = 4096): its law
+                                                   # alone, predict with one law (held_command="start") and with
+                                                   # the midpoint (two laws and an RK4 half step)
     python benchmarks/issue26_probes.py training   # the SB3 adapter's step (step_infos on/off), 128 sub-envs;
                                                    # one periodic evaluation (10 track_random episodes)
 
@@ -207,6 +217,78 @@ def probe_passes() -> None:
               "env (median of 5)")
 
 
+def probe_parts(reps: int = 31) -> None:
+    """The step kernel's parts for N = 4096 envs in one thread (default env, random actions, after 50 steps):
+    a compiled loop over the 64-env blocks runs the kernel's parts up to a given one, as ``_step_block`` does;
+    each part's time is the difference to the loop that stops before it. Every repetition steps a copy of the
+    same state (untimed copies)."""
+    import numpy as np
+    from numba import njit
+
+    from softpvtol_gym import SoftPVTOLVectorEnv
+    from softpvtol_gym import model as MK
+    from softpvtol_gym.envs import step as ST
+    from softpvtol_gym.envs.diagnostics import diag_lanes
+    from softpvtol_gym.envs.layout import SC, SK
+    from softpvtol_gym.envs.rows import nominal_params, vec5
+
+    n = 4096
+    env = SoftPVTOLVectorEnv(num_envs=n)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1.0, 1.0, (n, 4))
+    for _ in range(50):
+        env.step(actions.astype(np.float32))
+    s = env.sim
+    state = (s.F, s.obs, s.key, s.I, s.C, s.K, s._ctl)
+
+    @njit(nogil=True)
+    def upto(last, act, F, obs, keys, I, C, K, ctl):
+        """The kernel's parts 0 .. last of every block (0: the actions clipped, then as _step_block)."""
+        lanes, cmd = np.empty(ST.LANE_BLOCK), np.empty(10)
+        ST.clip_actions(0, F.shape[0], act, F, I, K[SK.action_dim])
+        for n0 in range(0, F.shape[0], MK.LANES):
+            hi = n0 + MK.LANES
+            if last >= 1:
+                ST._begin_range(n0, hi, F, I, C, K, ctl, lanes, cmd, None)
+            if last >= 2:
+                MK.rk4_lanes(lanes, C[SC.dt_physics], MK.LANES, K[SK.imap])
+            if last >= 3:
+                ST._end_range(n0, hi, F, keys, I, C, lanes)
+            if last >= 4:
+                diag_lanes(lanes, MK.LANES, nominal_params(C), vec5(C, SC.lam), vec5(C, SC.kg))
+            if last >= 5:
+                ST.observe_range(n0, hi, F, keys, I, C, obs)
+            if last >= 6:
+                ST._reward_range(n0, hi, F, I, C, K, lanes)
+
+    names = ("actions clipped", "command (clock, reference, scaling, lag; lanes filled)", "RK4 step (lanes, SIMD)",
+             "termination, state back from the lanes", "diagnostics (energy, storage; lanes, SIMD)",
+             "observation", "reward")
+    totals = []
+    for last in range(len(names)):
+        upto(last, actions, *[a.copy() for a in state])
+        times = []
+        for _ in range(reps):
+            arrays = [a.copy() for a in state]
+            t0 = time.perf_counter()
+            upto(last, actions, *arrays)
+            times.append(time.perf_counter() - t0)
+        totals.append(statistics.median(times))
+    full = []
+    for _ in range(reps):
+        arrays = [a.copy() for a in state]
+        t0 = time.perf_counter()
+        ST.step_physics_rows(0, n, actions, *arrays)
+        full.append(time.perf_counter() - t0)
+    print(f"step kernel, N = {n}, one thread, random actions (medians of {reps}):")
+    for k, name in enumerate(names):
+        part = totals[k] - (totals[k - 1] if k else 0.0)
+        print(f"  {name}: {1e6 * part:.0f} us, {1e9 * part / n:.0f} ns per env")
+    print(f"  the parts together: {1e6 * totals[-1]:.0f} us; the kernel (step_physics_rows): "
+          f"{1e6 * statistics.median(full):.0f} us, {1e9 * statistics.median(full) / n:.0f} ns per env")
+
+
 def probe_split(reps: int = 7) -> None:
     import threading
 
@@ -267,6 +349,176 @@ def probe_split(reps: int = 7) -> None:
     print(f"ThreadPoolExecutor.submit to an idle worker: {1e6 * statistics.median(submit):.1f} us (median of 200)")
 
 
+def probe_bound(reps: int = 7) -> None:
+    """Item 2's vector target at N = 4096 against the best any split over two threads can do.
+
+    An env built with one thread does all of a step's work in this thread: the kernel, the resets' uniforms
+    (``side``), the outputs' gather and the new episodes (``after``), and the Python around them. Only the work
+    inside ``BatchSim.step`` can be split (the Python of ``SoftPVTOLVectorEnv.step`` around it runs in the calling
+    thread), so a perfect split over two threads, with no wake-up and no wait, takes at least
+    (env step - BatchSim.step) + BatchSim.step / 2. Timed with item 2's random actions (its seed, its four
+    action sets), interleaved with CartPoleVectorEnv and the env with its real threads."""
+    import gymnasium as gym
+    import numpy as np
+    from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
+
+    import softpvtol_gym  # noqa: F401  (registers the env)
+    import softpvtol_gym._parallel as parallel
+
+    n, steps = 4096, 100
+    threads = parallel.thread_count
+    parallel.thread_count = lambda: 1
+    one = gym.make_vec("SoftPVTOL-v0", num_envs=n, vectorization_mode="vector_entry_point")
+    parallel.thread_count = threads
+    real = gym.make_vec("SoftPVTOL-v0", num_envs=n, vectorization_mode="vector_entry_point")
+    cart = CartPoleVectorEnv(num_envs=n)
+    sim = one.unwrapped.sim
+    inner = []
+    step = sim.step
+
+    def timed_step(*args, **kwargs):
+        t0 = time.perf_counter()
+        step(*args, **kwargs)
+        inner.append(time.perf_counter() - t0)
+
+    sim.step = timed_step  # (an instance attribute: this env only)
+    rng = np.random.default_rng(0)
+    actions = [rng.uniform(-1.0, 1.0, real.action_space.shape).astype(np.float32) for _ in range(4)]
+    pushes = [rng.integers(0, 2, n) for _ in range(4)]
+    for env in (one, real, cart):
+        env.reset(seed=0)
+
+    def run(env, acts) -> float:
+        t0 = time.perf_counter()
+        for k in range(steps):
+            env.step(acts[k & 3])
+        return (time.perf_counter() - t0) / steps
+
+    for env, acts in ((one, actions), (real, actions), (cart, pushes)):
+        run(env, acts)  # past the first steps (and their compiles)
+    t_one, t_inner, t_real, t_cart = [], [], [], []
+    for _ in range(reps):
+        inner.clear()
+        t_one.append(run(one, actions))
+        t_inner.append(statistics.mean(inner))
+        t_real.append(run(real, actions))
+        t_cart.append(run(cart, pushes))
+    one_t, inner_t, real_t, cart_t = (statistics.median(x) for x in (t_one, t_inner, t_real, t_cart))
+    ended = 0
+    for k in range(steps):  # (after the timing) how many episodes end per step: each is reset at the next step
+        _, _, terminated, truncated, _ = real.step(actions[k & 3])
+        ended += int((terminated | truncated).sum())
+    bound = one_t - inner_t + inner_t / 2
+    print(f"N = {n}, item 2's random actions ({ended / steps:.0f} episodes end per step), medians of {reps} x "
+          f"{steps} steps, interleaved:")
+    print(f"  one thread: {one_t * 1e6:.0f} us per step, of which BatchSim.step {inner_t * 1e6:.0f} us (the kernel, "
+          f"resets and outputs) and the Python around it {(one_t - inner_t) * 1e6:.0f} us")
+    print(f"  perfect split over 2 threads (no wake-up, no wait): >= {bound * 1e6:.0f} us per step, "
+          f"<= {n / bound / 1e6:.2f} M env-steps/s")
+    print(f"  the env with its {threads()} threads: {real_t * 1e6:.0f} us per step, "
+          f"{n / real_t / 1e6:.2f} M env-steps/s")
+    print(f"  CartPoleVectorEnv: {cart_t * 1e6:.0f} us per step, {n / cart_t / 1e6:.2f} M env-steps/s")
+    print(f"  ratio to CartPoleVectorEnv (target >= 0.25x): {cart_t / real_t:.3f}x now, <= {cart_t / bound:.3f}x with "
+          f"a perfect split; 0.25x needs <= {4 * cart_t * 1e6:.0f} us per step")
+
+
+def probe_simd(reps: int = 201) -> None:
+    """What a lane block gains: the model's RK4 step of 64 states as SIMD code (``model.rk4_lanes``) against the
+    same step lane by lane (``model.rk4_lanes_partial``), and libm's sin and cos, which stay scalar calls (a lane
+    block computes them in a loop of their own before its SIMD loop). One thread, random states near hover."""
+    import math
+
+    import numpy as np
+    from numba import njit
+
+    from softpvtol_gym import model as MK
+    from softpvtol_gym.params import SoftPVTOLParams
+
+    L = MK.LANES
+    rng = np.random.default_rng(0)
+    W = np.zeros((MK.LANE_ROWS_RK4, L))
+    W[MK.LANE_Q:MK.LANE_Q + 5] = rng.uniform(-0.5, 0.5, (5, L))
+    W[MK.LANE_QD:MK.LANE_QD + 5] = rng.uniform(-0.5, 0.5, (5, L))
+    W[MK.LANE_U:MK.LANE_U + 4] = rng.uniform(0.0, 1.0, (4, L))
+    W[MK.LANE_P:MK.LANE_P + 10] = SoftPVTOLParams().array[:, None]
+    W = W.ravel()
+
+    @njit(nogil=True)
+    def sincos(x, out):
+        for i in range(x.shape[0]):
+            out[i] = math.sin(x[i]) + math.cos(x[i])
+
+    x, out = rng.uniform(-3.0, 3.0, 4096), np.empty(4096)
+    cases = {"RK4 step, full lane block (SIMD)": (lambda w: MK.rk4_lanes(w, 0.001, L, MK.INPUT_MAP_PAPER), L),
+             "RK4 step, lane by lane": (lambda w: MK.rk4_lanes_partial(w, 0.001, L, MK.INPUT_MAP_PAPER), L),
+             "libm sin and cos of one value": (lambda w: sincos(x, out), x.shape[0])}
+    for name, (fn, per) in cases.items():
+        fn(W.copy())
+        times = []
+        for _ in range(reps):
+            w = W.copy()
+            t0 = time.perf_counter()
+            fn(w)
+            times.append(time.perf_counter() - t0)
+        print(f"{name}: {1e9 * statistics.median(times) / per:.1f} ns per state (median of {reps})")
+
+
+def probe_extended(reps: int = 21) -> None:
+    """The parts of ``ExtendedPolicy.predict`` in one thread at N = 4096, from step 100 of a hover loop (nominal
+    tier, seed 0): the law alone (``extended_law`` on every row's state, the extension and a zero reference jet),
+    predict with one law (``held_command="start"``) and with the default midpoint (the law, the RK4 half step of
+    a lane block, the law at the midpoint). Each predict from a copy of the policy at that step."""
+    import copy
+    import functools
+
+    import numpy as np
+    from numba import njit
+
+    import softpvtol_gym._parallel as parallel
+    from softpvtol_gym import PassivityPolicy, SoftPVTOLVectorEnv
+    from softpvtol_gym.control import _extended_kernels as EK
+
+    parallel.thread_count = lambda: 1  # one thread: costs per env without the split
+    n = 4096
+    env = SoftPVTOLVectorEnv(num_envs=n, task="hover", tier="nominal")
+    obs = env.reset(seed=0)[0]
+    policy = PassivityPolicy.from_env(env, loop="extended")
+    for _ in range(100):
+        obs = env.step(policy.predict(obs)[0])[0]
+
+    @njit(nogil=True)
+    def laws(obs, theta, xi, p, input_map, k, ref, out):
+        for r in range(obs.shape[0]):
+            o = obs[r]
+            act, u1, _ = EK.extended_law((o[0], o[1], theta[r], o[5], o[6]), (o[7], o[8], o[9], o[10], o[11]),
+                                         xi[r, 0], xi[r, 1], ref, p, input_map, k)
+            out[r] = act[0] + u1
+
+    o64 = obs.astype(np.float64)
+    args = (o64, np.arctan2(o64[:, 3], o64[:, 4]), policy.controller._xi, policy._p, policy._map_code,
+            policy._constants, np.zeros((5, 3)), np.empty(n))
+    laws(*args)
+
+    def median_ns(prepare) -> float:
+        """ns per env of the call that ``prepare()`` returns (prepared anew for each repetition, untimed)."""
+        times = []
+        for _ in range(reps):
+            call = prepare()
+            t0 = time.perf_counter()
+            call()
+            times.append(time.perf_counter() - t0)
+        return 1e9 * statistics.median(times) / n
+
+    print(f"one thread, N = {n}, step 100 of a hover loop (medians of {reps}):")
+    print(f"  the law alone: {median_ns(lambda: lambda: laws(*args)):.0f} ns per env")
+    for held in ("start", "midpoint"):
+        snapshot = copy.deepcopy(policy)
+        snapshot.controller.held_command = held
+        copy.deepcopy(snapshot).predict(obs)  # (compiled before the timing)
+        ns = median_ns(lambda s=snapshot: functools.partial(copy.deepcopy(s).predict, obs))
+        print(f"  ExtendedPolicy.predict, held_command={held!r}: {ns:.0f} ns per env")
+
+
 def probe_training() -> None:
     import tempfile
     import timeit
@@ -316,7 +568,11 @@ def main(argv=None) -> int:
                                   "for one state")
     sub.add_parser("vector", help="the vector env's step at N = 256 and 4096")
     sub.add_parser("passes", help="the algebraic loop's passes, a pass's cost, the extended loop's law")
+    sub.add_parser("parts", help="the step kernel's parts, N = 4096, one thread")
     sub.add_parser("split", help="the step kernel of 4096 envs in one thread and split over the threads")
+    sub.add_parser("bound", help="the vector env at N = 4096: one thread, and the bound of a perfect split")
+    sub.add_parser("simd", help="the RK4 step of a lane block, SIMD and lane by lane; libm sin and cos")
+    sub.add_parser("extended", help="ExtendedPolicy.predict's parts: its law, one law, the midpoint")
     sub.add_parser("training", help="the SB3 adapter's step; a periodic evaluation")
     args = ap.parse_args(argv)
     if args.probe == "compile":
@@ -327,10 +583,18 @@ def main(argv=None) -> int:
         probe_policy()
     elif args.probe == "vector":
         probe_vector()
+    elif args.probe == "parts":
+        probe_parts()
     elif args.probe == "split":
         probe_split()
     elif args.probe == "passes":
         probe_passes()
+    elif args.probe == "bound":
+        probe_bound()
+    elif args.probe == "simd":
+        probe_simd()
+    elif args.probe == "extended":
+        probe_extended()
     elif args.probe == "training":
         probe_training()
     else:
