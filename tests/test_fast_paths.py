@@ -114,6 +114,28 @@ def test_the_issue_26_probe_of_the_reset_draws_runs(capsys):
     assert "compiled loop" in out and "Python loop" in out
 
 
+def test_the_issue_26_probes_of_the_kernel_parts_and_the_lanes_run(capsys):
+    """``issue26_probes.py parts`` and ``simd`` call the step kernel's private parts and the lane kernels by name:
+    they still run (their figures are not checked), and the parts add up to about the kernel they split."""
+    import importlib.util
+    import re
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "issue26_probes.py"
+    spec = importlib.util.spec_from_file_location("issue26_probes", path)
+    probes = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(probes)
+    probes.probe_simd(reps=3)
+    probes.probe_parts(reps=3)
+    out = capsys.readouterr().out
+    assert "RK4 step, full lane block (SIMD)" in out and "libm sin and cos" in out
+    for part in ("actions clipped", "RK4 step (lanes, SIMD)", "observation", "reward"):
+        assert f"  {part}" in out
+    together, kernel = (float(x) for x in re.search(r"together: (\d+) us; the kernel \(step_physics_rows\): (\d+) us",
+                                                     out).groups())
+    assert 0.5 * kernel < together < 2.0 * kernel
+
+
 def test_single_env_steps_every_float_array_as_its_float64_values():
     """The single env copies a float array of shape (A,) into its kernel's buffer; other inputs (lists, strided
     views, the wrong shape) take the general path: the same trajectory for the same values, and the buffer holds
