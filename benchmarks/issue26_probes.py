@@ -557,6 +557,12 @@ def probe_training() -> None:
     print(f"one periodic evaluation (10 track_random episodes, an untrained policy): {seconds:.3f} s (best of 5)")
 
 
+#: the probes without options, by their command's name
+PROBES = {"draws": probe_draws, "single": probe_single, "policy": probe_policy, "vector": probe_vector,
+          "parts": probe_parts, "split": probe_split, "passes": probe_passes, "bound": probe_bound,
+          "simd": probe_simd, "extended": probe_extended, "training": probe_training}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="probe", required=True)
@@ -577,28 +583,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.probe == "compile":
         probe_compile(args.mode)
-    elif args.probe == "draws":
-        probe_draws()
-    elif args.probe == "policy":
-        probe_policy()
-    elif args.probe == "vector":
-        probe_vector()
-    elif args.probe == "parts":
-        probe_parts()
-    elif args.probe == "split":
-        probe_split()
-    elif args.probe == "passes":
-        probe_passes()
-    elif args.probe == "bound":
-        probe_bound()
-    elif args.probe == "simd":
-        probe_simd()
-    elif args.probe == "extended":
-        probe_extended()
-    elif args.probe == "training":
-        probe_training()
     else:
-        probe_single()
+        PROBES[args.probe]()
     return 0
 
 
