@@ -45,6 +45,18 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 
+def _median_seconds(prepare, reps: int) -> float:
+    """Median wall time of the call that ``prepare()`` returns, prepared anew (untimed) for each of ``reps``
+    repetitions: a copy of the state it changes, so that every repetition starts from the same one."""
+    times = []
+    for _ in range(reps):
+        call = prepare()
+        t0 = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
 def probe_compile(mode: str) -> None:
     from numba.core import event
 
@@ -222,6 +234,8 @@ def probe_parts(reps: int = 31) -> None:
     a compiled loop over the 64-env blocks runs the kernel's parts up to a given one, as ``_step_block`` does;
     each part's time is the difference to the loop that stops before it. Every repetition steps a copy of the
     same state (untimed copies)."""
+    import functools
+
     import numpy as np
     from numba import njit
 
@@ -268,25 +282,16 @@ def probe_parts(reps: int = 31) -> None:
     totals = []
     for last in range(len(names)):
         upto(last, actions, *[a.copy() for a in state])
-        times = []
-        for _ in range(reps):
-            arrays = [a.copy() for a in state]
-            t0 = time.perf_counter()
-            upto(last, actions, *arrays)
-            times.append(time.perf_counter() - t0)
-        totals.append(statistics.median(times))
-    full = []
-    for _ in range(reps):
-        arrays = [a.copy() for a in state]
-        t0 = time.perf_counter()
-        ST.step_physics_rows(0, n, actions, *arrays)
-        full.append(time.perf_counter() - t0)
+        totals.append(_median_seconds(lambda k=last: functools.partial(upto, k, actions, *[a.copy() for a in state]),
+                                      reps))
+    full = _median_seconds(lambda: functools.partial(ST.step_physics_rows, 0, n, actions, *[a.copy() for a in state]),
+                           reps)
     print(f"step kernel, N = {n}, one thread, random actions (medians of {reps}):")
     for k, name in enumerate(names):
         part = totals[k] - (totals[k - 1] if k else 0.0)
         print(f"  {name}: {1e6 * part:.0f} us, {1e9 * part / n:.0f} ns per env")
     print(f"  the parts together: {1e6 * totals[-1]:.0f} us; the kernel (step_physics_rows): "
-          f"{1e6 * statistics.median(full):.0f} us, {1e9 * statistics.median(full) / n:.0f} ns per env")
+          f"{1e6 * full:.0f} us, {1e9 * full / n:.0f} ns per env")
 
 
 def probe_split(reps: int = 7) -> None:
@@ -426,6 +431,7 @@ def probe_simd(reps: int = 201) -> None:
     """What a lane block gains: the model's RK4 step of 64 states as SIMD code (``model.rk4_lanes``) against the
     same step lane by lane (``model.rk4_lanes_partial``), and libm's sin and cos, which stay scalar calls (a lane
     block computes them in a loop of their own before its SIMD loop). One thread, random states near hover."""
+    import functools
     import math
 
     import numpy as np
@@ -454,13 +460,8 @@ def probe_simd(reps: int = 201) -> None:
              "libm sin and cos of one value": (lambda w: sincos(x, out), x.shape[0])}
     for name, (fn, per) in cases.items():
         fn(W.copy())
-        times = []
-        for _ in range(reps):
-            w = W.copy()
-            t0 = time.perf_counter()
-            fn(w)
-            times.append(time.perf_counter() - t0)
-        print(f"{name}: {1e9 * statistics.median(times) / per:.1f} ns per state (median of {reps})")
+        seconds = _median_seconds(lambda f=fn: functools.partial(f, W.copy()), reps)
+        print(f"{name}: {1e9 * seconds / per:.1f} ns per state (median of {reps})")
 
 
 def probe_extended(reps: int = 21) -> None:
@@ -499,23 +500,14 @@ def probe_extended(reps: int = 21) -> None:
             policy._constants, np.zeros((5, 3)), np.empty(n))
     laws(*args)
 
-    def median_ns(prepare) -> float:
-        """ns per env of the call that ``prepare()`` returns (prepared anew for each repetition, untimed)."""
-        times = []
-        for _ in range(reps):
-            call = prepare()
-            t0 = time.perf_counter()
-            call()
-            times.append(time.perf_counter() - t0)
-        return 1e9 * statistics.median(times) / n
-
     print(f"one thread, N = {n}, step 100 of a hover loop (medians of {reps}):")
-    print(f"  the law alone: {median_ns(lambda: lambda: laws(*args)):.0f} ns per env")
+    ns = 1e9 * _median_seconds(lambda: functools.partial(laws, *args), reps) / n
+    print(f"  the law alone: {ns:.0f} ns per env")
     for held in ("start", "midpoint"):
         snapshot = copy.deepcopy(policy)
         snapshot.controller.held_command = held
         copy.deepcopy(snapshot).predict(obs)  # (compiled before the timing)
-        ns = median_ns(lambda s=snapshot: functools.partial(copy.deepcopy(s).predict, obs))
+        ns = 1e9 * _median_seconds(lambda s=snapshot: functools.partial(copy.deepcopy(s).predict, obs), reps) / n
         print(f"  ExtendedPolicy.predict, held_command={held!r}: {ns:.0f} ns per env")
 
 

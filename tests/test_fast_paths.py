@@ -101,7 +101,8 @@ def test_info_dicts_equal_the_reference_read_from_the_whole_state():
     assert infos["time"].max() > 0.0 and max(v.max() for v in infos["reward_terms"].values()) > 0.0
 
 
-def test_the_issue_26_probe_of_the_reset_draws_runs(capsys):
+def _issue26_probes():
+    """benchmarks/issue26_probes.py as a module (a script, not a package module)."""
     import importlib.util
     from pathlib import Path
 
@@ -109,7 +110,11 @@ def test_the_issue_26_probe_of_the_reset_draws_runs(capsys):
     spec = importlib.util.spec_from_file_location("issue26_probes", path)
     probes = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(probes)
-    assert probes.main(["draws"]) == 0
+    return probes
+
+
+def test_the_issue_26_probe_of_the_reset_draws_runs(capsys):
+    assert _issue26_probes().main(["draws"]) == 0
     out = capsys.readouterr().out
     assert "compiled loop" in out and "Python loop" in out
 
@@ -117,14 +122,9 @@ def test_the_issue_26_probe_of_the_reset_draws_runs(capsys):
 def test_the_issue_26_probes_of_the_kernel_parts_and_the_lanes_run(capsys):
     """``issue26_probes.py parts`` and ``simd`` call the step kernel's private parts and the lane kernels by name:
     they still run (their figures are not checked), and the parts add up to about the kernel they split."""
-    import importlib.util
     import re
-    from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "issue26_probes.py"
-    spec = importlib.util.spec_from_file_location("issue26_probes", path)
-    probes = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(probes)
+    probes = _issue26_probes()
     probes.probe_simd(reps=3)
     probes.probe_parts(reps=3)
     out = capsys.readouterr().out
