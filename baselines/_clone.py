@@ -1,7 +1,7 @@
 """The source checkout's paths, for its scripts (``python train.py``, ``python baselines/<script>.py``).
 
 Each script runs one ``softpvtol`` subcommand with this checkout's layout: results under
-``baselines/results/``, the generated tables in ``README.md`` and ``docs/``. This is the only place that
+``results/``, the generated tables in ``README.md`` and ``docs/``. This is the only place that
 knows where the checkout is; the library (``softpvtol_gym.baselines``) never looks for it.
 """
 
@@ -14,7 +14,7 @@ from softpvtol_gym.baselines.cli import leave_now_after_a_ray_interrupt, run_com
 from softpvtol_gym.baselines.util.paths import Layout
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-LAYOUT = Layout(results=REPO_ROOT / "baselines" / "results", root=REPO_ROOT, readme=REPO_ROOT / "README.md",
+LAYOUT = Layout(results=REPO_ROOT / "results", root=REPO_ROOT, readme=REPO_ROOT / "README.md",
                 docs=REPO_ROOT / "docs")
 
 

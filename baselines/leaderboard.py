@@ -1,4 +1,4 @@
-"""Build the leaderboard: baselines/results/leaderboard.{json,png}, docs/leaderboard.md, the README summary.
+"""Build the leaderboard: results/leaderboard.{json,png}, docs/leaderboard.md, the README summary.
 
 Runs ``softpvtol leaderboard`` with this checkout's paths (``baselines/_clone.py``); every option: ``--help``.
 """

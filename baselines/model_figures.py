@@ -1,4 +1,4 @@
-"""Integration error of the paper's loop at RK4 steps; baselines/results/model_figures.json.
+"""Integration error of the paper's loop at RK4 steps; results/model_figures.json.
 
 Runs ``softpvtol model-figures`` with this checkout's paths (``baselines/_clone.py``); every option: ``--help``.
 """

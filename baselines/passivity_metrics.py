@@ -1,4 +1,4 @@
-"""The passivity policy on every task x tier; baselines/results/passivity_metrics.json and its docs/control.md table.
+"""The passivity policy on every task x tier; results/passivity_metrics.json and its docs/control.md table.
 
 Runs ``softpvtol passivity-metrics`` with this checkout's paths (``baselines/_clone.py``); every option: ``--help``.
 """

@@ -1,4 +1,4 @@
-"""Reproduce the paper's simulation section; baselines/results/paper_reproduction/ and docs/control.md tables.
+"""Reproduce the paper's simulation section; results/paper_reproduction/ and docs/control.md tables.
 
 Runs ``softpvtol reproduce-paper`` with this checkout's paths (``baselines/_clone.py``); every option: ``--help``.
 """

@@ -1,4 +1,4 @@
-"""Run the leaderboard's jobs; results under baselines/results/leaderboard_runs/.
+"""Run the leaderboard's jobs; results under results/leaderboard_runs/.
 
 Runs ``softpvtol run-jobs`` with this checkout's paths (``baselines/_clone.py``); every option: ``--help``.
 """

@@ -1,4 +1,4 @@
-"""Tracking plots, learning curves (baselines/results/tracking/) and the GIF in docs/.
+"""Tracking plots, learning curves (results/tracking/) and the GIF in docs/.
 
 Runs ``softpvtol figures`` with this checkout's paths (``baselines/_clone.py``); every option: ``--help``.
 """

@@ -2,12 +2,12 @@
 
     python benchmarks/replay_drift.py [--out drift.json]
 
-The leaderboard's learned cells are replayed exactly as ``tests/test_leaderboard.py`` replays them (the same batch of
-episodes, the base loop each model was trained on). On the machine the leaderboard was computed on every value
-is equal to the last bit; on a CPU whose float32 GEMM sums in another order (torch's MKL/oneDNN kernels differ by
-CPU model) the closed loops drift. Per replay it prints the episodes whose crash or length changed, the largest
-relative change of an episode's return, RMS position and attitude error and control effort, and the relative
-change of the cell's mean RMS position error: the figures behind the test's ``REPLAY_TOLERANCE``.
+The leaderboard's learned cells are replayed exactly as ``tests/baselines/test_leaderboard.py`` replays them (the
+same batch of episodes, the base loop each model was trained on). On the machine the leaderboard was computed on
+every value is equal to the last bit; on a CPU whose float32 GEMM sums in another order (torch's MKL/oneDNN kernels
+differ by CPU model) the closed loops drift. Per replay it prints the episodes whose crash or length changed, the
+largest relative change of an episode's return, RMS position and attitude error and control effort, and the
+relative change of the cell's mean RMS position error: the figures behind the test's ``REPLAY_TOLERANCE``.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def main(argv=None) -> int:
     from softpvtol_gym.baselines.training.policy import LearnedPolicy
     from softpvtol_gym.baselines.util.atomic import atomic_write_text
 
-    data = json.loads((ROOT / "baselines" / "results" / "leaderboard.json").read_text())
+    data = json.loads((ROOT / "results" / "leaderboard.json").read_text())
     learned = sorted({(c["checkpoint"], c["train_tier"], c["task"]) for c in data["cells"] if c["checkpoint"]})
     rows = []
     for checkpoint, tier, task in learned:

@@ -48,7 +48,7 @@ if str(ROOT) not in sys.path:  # `python benchmarks/run.py`: the item modules ar
 from benchmarks._cold_start import bench_cold_start  # noqa: E402
 from benchmarks._common import machine_facts  # noqa: E402
 from benchmarks._env_speed import bench_controller, bench_single, bench_vector  # noqa: E402
-from benchmarks._report import (  # noqa: E402,F401  (README_*, readme_table: read by tests/test_benchmarks.py)
+from benchmarks._report import (  # noqa: E402,F401  (README_*, readme_table: read by tests/benchmarks/test_benchmarks.py)
     README,
     README_END,
     README_START,
@@ -56,7 +56,7 @@ from benchmarks._report import (  # noqa: E402,F401  (README_*, readme_table: re
     results_markdown,
     update_readme,
 )
-from benchmarks._training import (  # noqa: E402,F401  (time_to_beat: read by tests/test_benchmarks.py)
+from benchmarks._training import (  # noqa: E402,F401  (time_to_beat: read by tests/benchmarks/test_benchmarks.py)
     TIME_TO_BEAT_GOAL,
     TRAIN_TOTAL_GOAL,
     bench_ppo,

@@ -1,11 +1,11 @@
 """mkdocs hook: the pages link into the repository as they do on GitHub, and the site follows those links.
 
 The Markdown files are written to read well on GitHub, so a page in ``docs/`` links to a result image as
-``../baselines/results/leaderboard.png`` and the README links to ``docs/env.md``. mkdocs only knows the
+``../results/leaderboard.png`` and the README links to ``docs/env.md``. mkdocs only knows the
 files under ``docs/``; this hook
 
 * adds every repository file that a page links to outside ``docs/`` (the committed result images under
-  ``baselines/results/`` and ``benchmarks/``, a JSON or YAML file) to the site at its repository path, so
+  ``results/`` and ``benchmarks/``, a JSON or YAML file) to the site at its repository path, so
   that nothing is copied into ``docs/`` and no large binary is duplicated in git;
 * rewrites such links to point at that copy, and links to the repository's Markdown files that the site
   shows as pages (README.md, CHANGELOG.md, benchmarks/RESULTS.md) to those pages;

@@ -54,7 +54,7 @@ __all__ = ["LOOPS", "ControlOutput", "PassivityController", "simulate_closed_loo
 #: The longest zero-order-hold control period [s] under which the actuated loops with the default
 #: gains stay stable: the arm loop (K / D ~ 130 1/s) diverges from 0.013 s on (measured on the paper's
 #: case: ``simulate_closed_loop(loop, hold="step", dt=...)`` for "paper", "exact", "bounded": stable
-#: at 0.012 s, diverged at 0.013 s; tests/test_control_loops.py re-checks it). With other gains the
+#: at 0.012 s, diverged at 0.013 s; tests/control/test_loops.py re-checks it). With other gains the
 #: limit scales roughly with 1 / K of the arms.
 MAX_HELD_CONTROL_PERIOD = 0.012
 

@@ -16,7 +16,7 @@ is fixed by the attitude loop. The outputs:
 Why the centre of mass and not the body point p: with equal arms psi(q_a) = 0 wherever sigma = 0 (the
 rotor centroid is the body point), so y = p on the invariant set sigma = sigmadot = 0, where the body
 point itself has relative degree 4. Off it, p'' contains D_ba (1, -1)^T (w_l - w_r) / 2 / M, which is
-O(sigma): the body point has no vector relative degree near sigma = 0 (tests/test_extended_loop_derivation.py
+O(sigma): the body point has no vector relative degree near sigma = 0 (tests/control/test_extended_loop_derivation.py
 shows the decoupling matrix). The centre of mass has one everywhere, and p - y = -psi(q_a) = O(sigma)
 decays with the exactly linear sigma loop, so the body position error converges to round-off.
 

@@ -3,9 +3,9 @@
     softpvtol ablation --spec ablation.yml --root results/ablation_runs
 
 In a source checkout, ``python baselines/ablation.py`` reads ``baselines/ablation.yml`` and its runs under
-``baselines/results/ablation_runs`` (made by ``python baselines/run_jobs.py --spec baselines/ablation.yml --root
-baselines/results/ablation_runs``), takes its first row from the leaderboard's runs, and writes
-``baselines/results/ablation.json`` and the table in docs/baselines.md ("Ablation"). ``--from-json`` only
+``results/ablation_runs`` (made by ``python baselines/run_jobs.py --spec baselines/ablation.yml --root
+results/ablation_runs``), takes its first row from the leaderboard's runs, and writes
+``results/ablation.json`` and the table in docs/baselines.md ("Ablation"). ``--from-json`` only
 re-renders the table. Exit codes as the other commands: 0 done, 2 bad input (a missing run names itself).
 """
 
@@ -23,7 +23,7 @@ from softpvtol_gym.baselines.util.blocks import write_block
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.baselines.util.safe_load import loads_json
 
-SOURCE = "baselines/results/ablation.json"
+SOURCE = "results/ablation.json"
 BLOCK = ("ablation.py table", SOURCE)
 
 

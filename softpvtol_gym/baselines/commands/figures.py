@@ -5,7 +5,7 @@
     softpvtol figures --only curves        # one of them (repeat --only for more)
 
 Outputs go under ``./results/`` (``results/tracking/``); in a source checkout ``python
-baselines/tracking_figures.py`` writes the committed pictures (``baselines/results/tracking/``, the GIF in
+baselines/tracking_figures.py`` writes the committed pictures (``results/tracking/``, the GIF in
 ``docs/``). With ``--checkpoint`` the default tracking plot and GIF are ``checkpoint_track_paper.png`` and
 ``checkpoint_best_policy_track_paper.gif`` in the tracking folder: a policy given by hand never overwrites
 the leaderboard policy's pictures (pass ``--tracking-out`` / ``--gif-out`` to choose).

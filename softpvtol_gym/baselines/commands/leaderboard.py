@@ -3,8 +3,8 @@
     softpvtol leaderboard              # ./results/leaderboard_runs -> ./results/leaderboard.{json,md,png}
     softpvtol leaderboard --from-json  # only re-render the page and the chart from the JSON
 
-In a source checkout, ``python baselines/leaderboard.py`` writes ``baselines/results/leaderboard.json``, the
-page ``docs/leaderboard.md`` and the chart ``baselines/results/leaderboard.png``, and refreshes the README's
+In a source checkout, ``python baselines/leaderboard.py`` writes ``results/leaderboard.json``, the
+page ``docs/leaderboard.md`` and the chart ``results/leaderboard.png``, and refreshes the README's
 summary block.
 
 Inputs: the ``eval.json`` of every job of the spec (default: the package's ``leaderboard.yml``) under

@@ -2,7 +2,7 @@
 
     softpvtol model-figures [--t-final 10] [--json results/model_figures.json]
 
-(in a source checkout ``python baselines/model_figures.py`` writes ``baselines/results/model_figures.json``)
+(in a source checkout ``python baselines/model_figures.py`` writes ``results/model_figures.json``)
 
 The paper integrates its closed loop with Simulink's ode5 at a fixed 0.01 s and this package's
 reproduction with classical RK4 at 0.01 s; docs/model.md used to say the two "agree to plotting

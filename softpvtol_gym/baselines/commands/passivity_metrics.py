@@ -1,9 +1,9 @@
 """Passivity policy on every task x tier of SoftPVTOL-v0 (default env settings, actuators mode).
 
     softpvtol passivity-metrics [--episodes 10] [--seed 100] [--json results/passivity_metrics.json]
-    softpvtol passivity-metrics --render-only --json baselines/results/passivity_metrics.json  # table only
+    softpvtol passivity-metrics --render-only --json results/passivity_metrics.json  # table only
 
-In a source checkout ``python baselines/passivity_metrics.py`` writes ``baselines/results/passivity_metrics.json``
+In a source checkout ``python baselines/passivity_metrics.py`` writes ``results/passivity_metrics.json``
 and refreshes its table in ``docs/control.md``.
 
 For each cell: mean over episodes of the RMS position error [m] over the episode (until it ends) and
@@ -42,7 +42,7 @@ def run_cell(task: str, tier: str, episodes: int, seed: int) -> dict:
             "episodes": m["episodes"]}
 
 
-README_SOURCE = "baselines/results/passivity_metrics.json"
+README_SOURCE = "results/passivity_metrics.json"
 
 
 def metrics_table(report: dict) -> str:

@@ -1,9 +1,9 @@
 """Reproduce the simulation section of the Soft-PVTOL paper (Sec. 4) and write figures + metrics.
 
     softpvtol reproduce-paper [--out results/paper_reproduction] [--t-final 40] [--no-steady]
-    softpvtol reproduce-paper --render-only --out baselines/results/paper_reproduction  # tables only
+    softpvtol reproduce-paper --render-only --out results/paper_reproduction  # tables only
 
-In a source checkout ``python baselines/reproduce_paper.py`` writes ``baselines/results/paper_reproduction``
+In a source checkout ``python baselines/reproduce_paper.py`` writes ``results/paper_reproduction``
 and refreshes its two tables in ``docs/control.md``.
 
 The paper's case: default parameters and gains, q(0) = (5, 0, 0.2 pi, 0.01 pi, -0.15 pi), qdot(0) = 0,
@@ -117,7 +117,7 @@ def loops_table(report: dict) -> str:
     return "\n".join(lines)
 
 
-README_SOURCE = "baselines/results/paper_reproduction/metrics.json"
+README_SOURCE = "results/paper_reproduction/metrics.json"
 
 
 def plot_steady(study: dict, out: Path) -> str:

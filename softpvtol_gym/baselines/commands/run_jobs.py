@@ -5,7 +5,7 @@
     softpvtol run-jobs --executor ray --address auto    # the Ray cluster of `ray start`
 
 Run directories go under ``--root`` (default ``./results/leaderboard_runs``; in a source checkout
-``python baselines/run_jobs.py`` uses ``baselines/results/leaderboard_runs``). Jobs already done (their
+``python baselines/run_jobs.py`` uses ``results/leaderboard_runs``). Jobs already done (their
 ``eval.json`` under the root holds every task and
 tier they are evaluated on) are skipped, so an interrupted run is continued by running the command again;
 a task added to a cell's ``also_evaluated_on`` (a tier added to the spec) only runs the missing evaluations.

@@ -71,7 +71,7 @@ from softpvtol_gym.baselines.util.safe_load import loads_json
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
 #: the jobs' run directories by default: ``./results/leaderboard_runs`` (a checkout's scripts pass
-#: ``baselines/results/leaderboard_runs``)
+#: ``results/leaderboard_runs``)
 RUNS_DIR = Layout().runs
 EVAL_FILE = "eval.json"
 #: written into the job root while run_jobs(check_root=True) runs (see check_shared_root)

@@ -13,7 +13,7 @@ from softpvtol_gym.baselines.util.atomic import atomic_path
 from softpvtol_gym.baselines.util.blocks import markers
 
 #: the leaderboard JSON as the generated blocks name their source
-SOURCE = "baselines/results/leaderboard.json"
+SOURCE = "results/leaderboard.json"
 #: the headline block (name, source) inside the leaderboard page (docs/leaderboard.md in a checkout)
 HEADLINE_BLOCK = ("leaderboard.py headline", SOURCE)
 #: the short summary block (name, source) for the README
@@ -157,7 +157,7 @@ def summary_markdown(data: dict, page: str = "docs/leaderboard.md") -> str:
     return "\n".join(lines)
 
 
-def render_markdown(data: dict, chart: str = "../baselines/results/leaderboard.png") -> str:
+def render_markdown(data: dict, chart: str = "../results/leaderboard.png") -> str:
     """The leaderboard page; ``chart``: the chart's path relative to the page (its image link)."""
     meta = data["meta"]
     lines = [

@@ -51,7 +51,7 @@ class Layout:
     The console command (``softpvtol``) uses ``Layout()``: every output under the current directory
     (``./results/...``; training runs under ``./runs/``, as before), and no README or docs page is touched.
     A source checkout's scripts (``python baselines/<script>.py``, ``python train.py``) pass the checkout's
-    layout (``baselines/results/``, the README and ``docs/`` blocks); the library never finds a checkout by
+    layout (``results/``, the README and ``docs/`` blocks); the library never finds a checkout by
     itself.
 
     ``root``: paths recorded in result files (a checkpoint's path in a leaderboard job's ``eval.json``) are

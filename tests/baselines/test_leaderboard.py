@@ -1,0 +1,520 @@
+"""The leaderboard: the committed one and its rules.
+
+* docs/leaderboard.md re-renders identically from its JSON, the JSON's statistics match its per-episode data,
+  and every committed checkpoint loads and reproduces, on its training tier, the episodes the leaderboard was
+  computed from (so re-evaluating it lands on the leaderboard's numbers, inside its CIs).
+* Statistics per window with the crashed-window rule, the CI rule for identical episodes, the per-window
+  headline (learned vs model-based), the spec's analytic kinds (passivity, mpc) with their own episode counts,
+  and re-scoring stale results without training.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.evaluation import EPISODE_METRICS, run_episodes
+from softpvtol_gym.baselines.leaderboard.jobs import (
+    Job,
+    analytic_policy,
+    load_jobs,
+    run_job,
+    stale_evaluations,
+    stale_jobs,
+)
+from softpvtol_gym.baselines.leaderboard.render import render_chart, render_markdown
+from softpvtol_gym.baselines.leaderboard.stats import (
+    _matrix,
+    _seeded_interval_estimates,
+    _three_metrics,
+    aggregate,
+    validate_data,
+    window_headline,
+)
+from tests.conftest import LAYOUT, LEADERBOARD_JSON
+
+ROOT = Path(__file__).resolve().parents[2]
+DATA = json.loads(LEADERBOARD_JSON.read_text())
+LEADERBOARD_MD = LAYOUT.doc("leaderboard.md")
+CHART_PNG = LAYOUT.results / "leaderboard.png"
+# (checkpoint, training tier, evaluated task): every committed model on its training tier, on its own task
+# and on each task it is also evaluated on (issue 16: a track_random cell scored on track_paper)
+LEARNED = sorted({(c["checkpoint"], c["train_tier"], c["task"]) for c in DATA["cells"] if c["checkpoint"]})
+
+
+def test_markdown_regenerates_identically_from_the_committed_json():
+    assert render_markdown(DATA) == LEADERBOARD_MD.read_text()
+
+
+def test_chart_renders(tmp_path):
+    render_chart(DATA, tmp_path / "c.png")
+    assert (tmp_path / "c.png").stat().st_size > 10_000 and CHART_PNG.is_file()
+
+
+def test_every_job_of_the_spec_is_in_the_leaderboard():
+    assert DATA["meta"]["missing_jobs"] == []
+    names = {(c["policy"], c["action_mode"], c["task"], c["train_tier"], c["seed"]) for c in DATA["cells"]}
+    for job in load_jobs():
+        assert (job.policy, job.action_mode, job.task, job.train_tier, job.seed) in names
+
+
+def test_headline_is_the_best_learned_policy_on_both_tracking_tasks():
+    from softpvtol_gym.baselines.leaderboard.stats import HEADLINE_TASKS, headline
+
+    h = headline(DATA)
+    assert h is not None and len(h["rows"]) == len(HEADLINE_TASKS) * len(DATA["meta"]["tiers"])
+    keys = {(r["learned"]["action_mode"], r["learned"]["train_task"], r["learned"]["train_tier"]) for r in h["rows"]}
+    assert len(keys) == 1  # one policy for every (task, tier)
+    for r in h["rows"]:
+        analytic = [a for a in DATA["aggregates"] if (a["task"], a["tier"]) == (r["task"], r["tier"])
+                    and a["policy"] != "ppo"]
+        assert r["analytic"]["rms_position_error_iqm"] == min(a["rms_position_error_iqm"] for a in analytic)
+        assert r["lower"] == (r["learned"]["rms_position_error_iqm"] < r["analytic"]["rms_position_error_iqm"])
+        assert r["disjoint"] == (r["learned"]["rms_position_error_ci"][1] < r["analytic"]["rms_position_error_ci"][0])
+
+
+def test_trained_cells_have_at_least_five_seeds():
+    seeds: dict = {}
+    for c in DATA["cells"]:
+        if c["policy"] == "ppo":
+            seeds.setdefault((c["action_mode"], c["task"], c["train_tier"], c["tier"]), set()).add(c["seed"])
+    assert seeds and all(len(s) >= 5 for s in seeds.values())
+
+
+def test_statistics_match_the_per_episode_data():
+    groups: dict = {}
+    for c in DATA["cells"]:
+        groups.setdefault((c["task"], c["tier"], c["entry"]), []).append(c)
+    assert len(groups) == len(DATA["aggregates"])
+    from softpvtol_gym.baselines.evaluation import WINDOW_METRICS, window_scores
+    from softpvtol_gym.baselines.leaderboard.stats import deterministic_pairs
+
+    fixed = deterministic_pairs(DATA["cells"])
+    for row in DATA["aggregates"]:
+        cells = groups[(row["task"], row["tier"], row["entry"])]
+        if DATA["meta"].get("version", 2) >= 3:  # v3: a deterministic task and tier counts each run once
+            assert row["deterministic"] == ((row["task"], row["tier"]) in fixed)
+
+        def values(key, row=row, cells=cells):
+            if row.get("deterministic"):  # each run's mean over its episodes
+                return [np.mean(window_scores(c["episodes"], key)) for c in cells]
+            return [v for c in cells for v in window_scores(c["episodes"], key)]
+
+        for key in WINDOW_METRICS:
+            if f"{key}_iqm" in row:
+                want = stats.trim_mean(values(key), 0.25)
+                assert (row[f"{key}_iqm"] is None) if not np.isfinite(want) else \
+                    row[f"{key}_iqm"] == pytest.approx(want, rel=1e-12)
+        eps = [e for c in cells for e in c["episodes"]]
+        if row.get("deterministic"):
+            iqm = stats.trim_mean([np.mean([e["rms_position_error"] for e in c["episodes"]]) for c in cells], 0.25)
+        else:
+            iqm = stats.trim_mean([e["rms_position_error"] for e in eps], 0.25)
+        crash = np.mean([e["crashed"] for e in eps])
+        assert row["runs"] == len(cells)
+        assert row["rms_position_error_iqm"] == pytest.approx(iqm, rel=1e-12)
+        assert row["crash_rate"] == pytest.approx(crash, abs=1e-12)
+        lo, hi = row["rms_position_error_ci"]
+        assert lo <= row["rms_position_error_iqm"] <= hi
+        if "prob_improvement" in row:
+            lo, hi = row["prob_improvement_ci"]
+            assert 0.0 <= lo <= row["prob_improvement"] <= hi <= 1.0
+
+
+# The replays below compare with the leaderboard's episodes at a relative 1e-6, which needs the arithmetic of the
+# machine the leaderboard was computed on. torch's float32 GEMM sums in an order that depends on the batch size and
+# on the CPU model (its MKL/oneDNN kernels), and a closed loop carries the last-bit differences along. Measured on
+# a CPU other than the leaderboard's (an AMX-capable Xeon; the leaderboard's was an AMD EPYC, with the same
+# package versions; 2026-12-02, python benchmarks/replay_drift.py): of 105
+# replays 39 equal to 1e-6, the others drift; per cell the mean RMS error moved by at most 0.7 % on the nominal,
+# wind and mismatch tiers (no crash changed), and on the hard tier by up to 35 %, with up to 5 of 20 episodes
+# crashing or not. So: a reference cell replayed exactly (every value equal to the last bit) tells that this machine
+# has the leaderboard's arithmetic, and then every replay must match at 1e-6; on another machine the replays are
+# held to what the arithmetic allows (REPLAY_TOLERANCE), and the strict check is skipped with the drift measured.
+REFERENCE_CELL = next(c for c in DATA["cells"] if c["checkpoint"] and c["task"] == "hover" and c["tier"] == "nominal"
+                      and c["action_mode"] == "residual" and c["train_tier"] == "nominal")
+REPLAYED_KEYS = ("return", "rms_position_error", "rms_attitude_error", "control_effort")
+#: on a machine without the leaderboard's arithmetic: the relative change allowed of a cell's mean RMS error and mean
+#: return, and the number of episodes whose crash may change (hard tier: chaotic closed loops near crashes)
+REPLAY_TOLERANCE = {"hard": (0.5, 6), "other": (0.02, 0)}
+
+
+def _replay(checkpoint: str, train_tier: str, task: str) -> tuple[list[dict], dict]:
+    from softpvtol_gym.baselines.training.policy import LearnedPolicy
+
+    path = ROOT / checkpoint
+    assert path.is_file() and path.stat().st_size < 1_000_000
+    policy, config = LearnedPolicy.load(path)
+    cell = next(c for c in DATA["cells"] if c["checkpoint"] == checkpoint and c["tier"] == train_tier
+                and c["task"] == task)
+    assert (config.task, config.tier) == (cell.get("train_task", task), train_tier)
+    # the same batch of episodes as the leaderboard: torch's matmul sums in a batch-size dependent order,
+    # and a closed loop carries such 1e-16 differences along (a 2-episode batch drifts by ~3 % in effort)
+    episodes = run_episodes(policy, config.action_mode, task, train_tier, len(cell["episodes"]), cell["eval_seed"],
+                            env_kwargs=config.eval_env_kwargs())  # on the base loop it was trained on
+    return episodes, cell
+
+
+@functools.cache
+def leaderboard_arithmetic() -> tuple[bool, float]:
+    """(this machine replays the reference cell to the last bit, the largest relative drift of its values)."""
+    got, cell = _replay(REFERENCE_CELL["checkpoint"], "nominal", "hover")
+    pairs = [(g[k], w[k]) for g, w in zip(got, cell["episodes"], strict=True) for k in REPLAYED_KEYS]
+    return all(a == b for a, b in pairs), max(abs(a - b) / max(abs(b), 1e-12) for a, b in pairs)
+
+
+def check_replay(got: list[dict], want: list[dict], tier: str) -> None:
+    """Replayed episodes against the leaderboard's: at 1e-6 on a machine with its arithmetic, else within
+    REPLAY_TOLERANCE."""
+    if leaderboard_arithmetic()[0]:
+        for g, w in zip(got, want, strict=True):
+            assert g["crashed"] == w["crashed"] and g["length"] == w["length"]
+            for key in REPLAYED_KEYS:
+                assert g[key] == pytest.approx(w[key], rel=1e-6, abs=1e-12), key
+        return
+    rel, crashes = REPLAY_TOLERANCE["hard" if tier == "hard" else "other"]
+    assert len(got) == len(want)
+    changed = sum(g["crashed"] != w["crashed"] for g, w in zip(got, want))
+    assert changed <= crashes, f"{changed} episodes crashed differently (at most {crashes} on the {tier} tier)"
+    for key in ("rms_position_error", "return"):
+        mean_got, mean_want = np.mean([g[key] for g in got]), np.mean([w[key] for w in want])
+        assert np.isfinite(mean_got) and mean_got == pytest.approx(mean_want, rel=rel), key
+
+
+def test_replays_are_exact_on_the_leaderboards_arithmetic():
+    """The strict check's gate, reported: skipped (with the drift) on a machine whose float32 GEMM differs."""
+    same, drift = leaderboard_arithmetic()
+    if not same:
+        pytest.skip(f"this CPU's float32 arithmetic differs from the machine the leaderboard was computed on: the "
+                    f"reference cell drifts by up to {drift:.1e} (relative); the replays are checked within "
+                    f"REPLAY_TOLERANCE instead")
+    assert drift == 0.0
+
+
+@pytest.mark.slow  # one replay per committed checkpoint and evaluated task (about 105), ~1-2 min
+@pytest.mark.parametrize(
+    "checkpoint, train_tier, task", LEARNED, ids=[c[0].split("leaderboard_runs/")[-1] for c in LEARNED]
+)
+def test_committed_checkpoint_reproduces_its_leaderboard_episodes(checkpoint, train_tier, task):
+    episodes, cell = _replay(checkpoint, train_tier, task)
+    check_replay(episodes, cell["episodes"], train_tier)
+
+
+def test_jobs_run_with_any_executor_and_reevaluate_identically(tmp_path):
+    """The job list is independent jobs: a thread pool stands in for a cluster engine here."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from softpvtol_gym.baselines.leaderboard.jobs import EVAL_FILE, reevaluate_job, run_jobs
+
+    spec = tmp_path / "spec.yml"
+    spec.write_text("evaluation: {episodes: 2, seed: 1000000, tiers: [nominal, wind]}\n"
+                    "passivity: [{name: passivity-exact, allocation: exact}, "
+                    "{name: passivity-paper, allocation: paper}]\n"
+                    "tasks: [hover]\ntrained: []\nseeds: [0]\n")
+    jobs = load_jobs(spec)
+    assert [j.name for j in jobs] == ["passivity-exact_hover", "passivity-paper_hover"]
+    with ThreadPoolExecutor(max_workers=2) as ex:
+        done = run_jobs(jobs, ex, tmp_path / "runs")
+    assert sorted(done) == sorted(j.name for j in jobs)
+    from softpvtol_gym.baselines.evaluation import without_timing
+
+    def episodes():
+        rec = json.loads((tmp_path / "runs" / jobs[0].name / EVAL_FILE).read_text())
+        return {tier: [without_timing(e) for e in eps] for tier, eps in rec["eval"].items()}
+
+    first = episodes()
+    assert set(first) == {"nominal", "wind"}
+    reevaluate_job(jobs[0], tmp_path / "runs")
+    assert episodes() == first  # all but the wall time (compute_us_per_step)
+
+
+def test_bootstrap_is_reproducible():
+    """rliable draws bootstrap indices from numpy's global RNG; the generator seeds it per call."""
+    from softpvtol_gym.baselines.leaderboard.stats import REFERENCE, aggregate
+
+    # the reference entry alone (its rows carry no P(better), which needs the reference's cells too)
+    cells = [c for c in DATA["cells"] if c["task"] == "hover" and c["entry"] == REFERENCE]
+    np.random.seed(123)
+    first = aggregate(cells)
+    np.random.rand(7)
+    assert aggregate(cells) == first
+    row = next(r for r in DATA["aggregates"] if r["task"] == "hover" and r["tier"] == "nominal"
+               and r["entry"] == REFERENCE)
+    again = next(r for r in first if r["tier"] == "nominal")
+    assert {k: again[k] for k in row} == row  # (a v2 JSON's rows lack the v3 keys)
+
+
+def _row(task, tier, entry, err, ci, crash=0.0, policy="ppo", mode="residual", train_task=None):
+    return {"task": task, "tier": tier, "entry": entry, "policy": policy, "action_mode": mode,
+            "train_task": train_task or task, "train_tier": "nominal", "rms_position_error_iqm": err,
+            "rms_position_error_ci": ci, "crash_rate": crash, "crash_rate_ci": [crash, crash]}
+
+
+def test_headline_picks_one_policy_for_every_pair_and_the_strongest_analytic_per_pair():
+    from softpvtol_gym.baselines.leaderboard.stats import headline
+
+    meta = {"tasks": ["hover", "track_paper", "track_random"], "tiers": ["nominal", "wind"]}
+    rows = []
+    for task in ("track_paper", "track_random"):
+        for tier, (a_err, b_err) in {"nominal": (1.0, 1.2), "wind": (2.0, 1.5)}.items():
+            rows += [_row(task, tier, "passivity-a", a_err, [a_err - 0.1, a_err + 0.1], policy="passivity-a"),
+                     _row(task, tier, "passivity-b", b_err, [b_err - 0.1, b_err + 0.1], policy="passivity-b")]
+        # a policy trained on track_random, better than either analytic controller everywhere
+        rows.append(_row(task, "nominal", "PPO-residual (x)", 0.5, [0.4, 0.95], crash=0.1, train_task="track_random"))
+        rows.append(_row(task, "wind", "PPO-residual (x)", 1.35, [1.3, 1.38], train_task="track_random"))
+        # one that is evaluated on its own task only does not qualify, however good
+        if task == "track_random":
+            rows += [_row(task, t, "PPO-actuators (y)", 0.01, [0.0, 0.02], mode="actuators") for t in meta["tiers"]]
+    h = headline({"meta": meta, "aggregates": rows})
+    assert h["policy"] == "PPO-residual trained on track_random (nominal tier)"
+    by = {(r["task"], r["tier"]): r for r in h["rows"]}
+    assert set(by) == {(t, tier) for t in ("track_paper", "track_random") for tier in ("nominal", "wind")}
+    assert by[("track_paper", "nominal")]["analytic"]["entry"] == "passivity-a"   # 1.0 < 1.2
+    assert by[("track_paper", "wind")]["analytic"]["entry"] == "passivity-b"      # 1.5 < 2.0
+    assert by[("track_paper", "nominal")]["lower"] and not by[("track_paper", "nominal")]["disjoint"]  # 0.95 > 0.9
+    assert by[("track_paper", "wind")]["disjoint"] and by[("track_paper", "wind")]["crash_no_higher"]
+    assert not by[("track_paper", "nominal")]["crash_no_higher"]
+    # no learned policy on every pair: no headline
+    assert headline({"meta": meta, "aggregates": [r for r in rows if r["entry"] != "PPO-residual (x)"]}) is None
+
+
+@pytest.mark.slow  # one evaluate.py subprocess, 20 hover episodes
+def test_evaluate_script_reproduces_a_committed_cell(tmp_path):
+    """``baselines/evaluate.py`` on a committed checkpoint gives the leaderboard's episodes (one torch thread,
+    the base loop from the checkpoint's config)."""
+    import os
+    import subprocess
+    import sys
+
+    cell = REFERENCE_CELL
+    out = tmp_path / "eval.json"
+    script = ROOT / "baselines" / "evaluate.py"
+    r = subprocess.run([sys.executable, str(script), "--policy", str(ROOT / cell["checkpoint"]), "--task", "hover",
+                        "--tier", "nominal", "--episodes", str(len(cell["episodes"])), "--seed", str(cell["eval_seed"]),
+                        "--json", str(out)],
+                       capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=300)
+    assert r.returncode == 0, r.stderr
+    check_replay(json.loads(out.read_text())["episodes"], cell["episodes"], "nominal")
+
+
+STEADY = "rms_position_error_steady"
+
+
+def ep(v: float, crashed: bool = False, steady: float | None = "same", ret: float = 100.0) -> dict:
+    """An episode whose errors are all ``v`` (its last half ``steady``; None: crashed there)."""
+    steady = v if steady == "same" else steady
+    e = {k: v for k in EPISODE_METRICS} | {"return": ret, "crashed": crashed, "length": 100,
+                                           STEADY: None if crashed else steady,
+                                           "max_position_error_final_5s": None if crashed else v}
+    return e | {"compute_us_per_step": 12.0, "compute_us_per_step_p99": 20.0, "compute_us_per_step_max": 900.0}
+
+
+def cell(entry: str, seed: int, episodes: list[dict], policy: str = "ppo") -> dict:
+    return {"task": "track_paper", "tier": "nominal", "entry": entry, "policy": policy, "action_mode": "residual",
+            "train_task": "track_paper", "train_tier": None if policy != "ppo" else "nominal", "seed": seed,
+            "episodes": episodes}
+
+
+# --------------------------------------------------------------------------------- statistics
+def test_an_analytic_entry_with_identical_episodes_has_one_value_and_a_ci_of_zero_width():
+    (row,) = aggregate([cell("passivity-bounded", 0, [ep(1.868)] * 20, policy="passivity-bounded")])
+    assert row["deterministic"] and row["ci_over"].startswith("none")
+    for key in ("rms_position_error", STEADY, "rms_position_error_transient", "max_position_error_final_5s"):
+        assert row[f"{key}_iqm"] == pytest.approx(1.868) and row[f"{key}_ci"] == [pytest.approx(1.868)] * 2, key
+    assert row["crash_rate"] == 0.0 and row["compute_us_per_step_median"] == 12.0
+    assert (row["compute_us_per_step_p99"], row["compute_us_per_step_max"]) == (20.0, 900.0)
+
+
+def test_a_learned_entry_with_identical_episodes_gets_its_ci_from_the_training_seeds_only():
+    values = [1.30, 1.35, 1.40, 1.50, 1.60]
+    cells = [cell("PPO", s, [ep(v)] * 20) for s, v in enumerate(values)]
+    (row,) = aggregate(cells)
+    assert row["deterministic"] and row["ci_over"] == "training seeds only (a deterministic task and tier)"
+    assert row["rms_position_error_iqm"] == pytest.approx(stats.trim_mean(values, 0.25))  # 1.35, 1.40, 1.50
+    seeds_only = np.stack([_matrix(cells, k, per_run=True) for k in ("rms_position_error", "return", "crashed")],
+                          axis=-1)
+    _, ci = _seeded_interval_estimates({"x": seeds_only}, _three_metrics, 2000)
+    assert row["rms_position_error_ci"] == pytest.approx(list(ci["x"][:, 0]))
+    # the runs x episodes bootstrap of the 20 copies would claim a narrower CI: the rule widens it
+    every = np.stack([_matrix(cells, k) for k in ("rms_position_error", "return", "crashed")], axis=-1)
+    _, narrow = _seeded_interval_estimates({"x": every}, _three_metrics, 2000)
+    assert narrow["x"][1, 0] - narrow["x"][0, 0] < row["rms_position_error_ci"][1] - row["rms_position_error_ci"][0]
+    lo, hi = row[f"{STEADY}_ci"]
+    assert min(values) <= lo <= row[f"{STEADY}_iqm"] <= hi <= max(values)
+    # one run whose episodes differ: no longer deterministic on its own, every episode counts
+    cells[2] = cell("PPO", 2, [ep(1.40), ep(1.41)] * 10)
+    (row,) = aggregate(cells)
+    assert not row["deterministic"] and row["ci_over"] == "runs and episodes"
+    # unless an analytic entry shows the task and tier are deterministic: the episodes of that run differ by
+    # numerical noise only, and count once, as their mean
+    rows = aggregate(cells + [cell("passivity-bounded", 0, [ep(1.868)] * 20, policy="passivity-bounded")])
+    row = next(r for r in rows if r["entry"] == "PPO")
+    assert row["deterministic"] and row["rms_position_error_iqm"] == pytest.approx(
+        stats.trim_mean([1.30, 1.35, 1.405, 1.50, 1.60], 0.25))
+
+
+def test_crashed_windows_count_as_worse_than_any_value_not_as_missing():
+    finite = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7]
+    eps = [ep(v) for v in finite] + [ep(0.05, crashed=True)]
+    (row,) = aggregate([cell("PPO", 0, eps)])
+    # 8 episodes: the IQM trims 2 at each end; the crashed one is the worst, so the middle is 0.3 .. 0.6
+    assert row[f"{STEADY}_iqm"] == pytest.approx(np.mean([0.3, 0.4, 0.5, 0.6]))
+    assert row[f"{STEADY}_iqm"] > stats.trim_mean(finite, 0.25)  # dropping the crash would look better
+    assert row["rms_position_error_iqm"] == pytest.approx(stats.trim_mean([0.05] + finite, 0.25))  # as in v2
+    assert row["crash_rate"] == pytest.approx(1 / 8)
+    # three of eight crashed: the interquartile range reaches crashed windows
+    eps = [ep(v) for v in finite[:5]] + [ep(0.05, crashed=True)] * 3
+    (row,) = aggregate([cell("PPO", 0, eps)])
+    assert row[f"{STEADY}_iqm"] is None and row[f"{STEADY}_ci"][1] is None
+    assert row["rms_position_error_iqm"] is not None and row["crash_rate"] == pytest.approx(3 / 8)
+    data = {"meta": {"command": "x", "commit": "x", "date": "x", "tasks": ["track_paper"], "tiers": ["nominal"],
+                     "episodes": 8, "eval_seed": 1_000_000, "seeds": 1, "bootstrap_reps": 2000,
+                     "poi_bootstrap_reps": 300}, "aggregates": [row], "cells": []}
+    assert validate_data(data, "test") is data  # null is a valid window statistic
+    row[f"{STEADY}_iqm"] = float("nan")
+    with pytest.raises(ConfigError, match="not a finite number"):
+        validate_data(data, "test")
+
+
+def _row(entry, policy, steady, ci, crash=0.0, whole=1.0):
+    return {"task": "hover", "tier": "wind", "entry": entry, "policy": policy, "crash_rate": crash,
+            "rms_position_error_iqm": whole, "rms_position_error_ci": [whole - 0.1, whole + 0.1],
+            f"{STEADY}_iqm": steady, f"{STEADY}_ci": ci}
+
+
+def test_the_headline_compares_the_strongest_learned_and_model_based_entry_per_window():
+    meta = {"tasks": ["hover"], "tiers": ["wind"]}
+
+    def verdicts(rows):
+        return {r["window"]: (r["winner"], r["model_based"]["entry"], r["learned"]["entry"])
+                for r in window_headline({"meta": meta, "aggregates": rows})}
+
+    rows = [_row("passivity-bounded", "passivity-bounded", 0.6, [0.5, 0.7]),
+            _row("passivity-integral", "passivity-integral", 0.01, [0.008, 0.012], whole=0.9),
+            _row("PPO-a", "ppo", 0.02, [0.015, 0.03], whole=0.2),
+            _row("PPO-b", "ppo", None, [0.5, None], crash=0.2, whole=0.1)]  # crashes: never the strongest there
+    v = verdicts(rows)
+    assert v["steady"] == ("model-based", "passivity-integral", "PPO-a")
+    assert v["whole"][0] == "neither"  # PPO-b is lower but crashes more; its CI is below: no clear winner
+    rows[1][f"{STEADY}_ci"] = [0.008, 0.016]  # overlapping CIs
+    assert verdicts(rows)["steady"][0] == "neither"
+    rows = [r for r in rows if r["entry"] != "PPO-b"]
+    assert verdicts(rows)["whole"] == ("learned", "passivity-integral", "PPO-a")
+    assert "transient" not in verdicts(rows)  # rows without a window's statistics leave it out
+
+
+# ---------------------------------------------------------------------------------------- spec
+HEAD = "evaluation: {episodes: 20, seed: 1000000, tiers: [nominal, model_gap]}\ntasks: [hover]\ntrained: []\n" \
+       "seeds: [0]\n"
+
+
+def _spec(tmp_path, analytic: str):
+    path = tmp_path / "spec.yml"
+    path.write_text(HEAD + f"analytic: {analytic}\n")
+    return path
+
+
+def test_analytic_entries_of_each_kind_become_jobs_with_their_own_episode_counts(tmp_path):
+    jobs = load_jobs(_spec(tmp_path, "[{name: passivity-bounded, kind: passivity, allocation: exact, loop: bounded}, "
+                                     "{name: mpc, kind: mpc, episodes: 5, options: {horizon: 20, weights: [1, 2]}}]"))
+    bounded, mpc = jobs
+    assert (bounded.kind, bounded.loop, bounded.eval_episodes) == ("passivity", "bounded", 20)
+    assert (mpc.kind, mpc.eval_episodes, mpc.name) == ("mpc", 5, "mpc_hover")
+    assert mpc.options == (("horizon", 20), ("weights", (1, 2))) and mpc.eval_tiers == ("nominal", "model_gap")
+    # the shipped spec (leaderboard v3) is valid and lists every analytic kind
+    shipped = load_jobs()
+    assert {j.kind for j in shipped if not j.learned} == {"passivity", "mpc"}
+    assert "model_gap" in shipped[0].eval_tiers
+    assert next(j for j in shipped if j.kind == "mpc").eval_episodes < shipped[0].eval_episodes
+
+
+@pytest.mark.parametrize("analytic, message", [
+    ("[{name: m, kind: mpc, episodes: 0}]", r"analytic\[0\]\.episodes must be an integer in \[1, 10,000\]"),
+    ("[{name: m, kind: mpc, episodes: 10001}]", r"analytic\[0\]\.episodes must be an integer"),
+    ("[{name: m, kind: mpc, episodes: '5'}]", r"analytic\[0\]\.episodes must be an integer"),
+    ("[{name: m, kind: mpc, episodes: true}]", r"analytic\[0\]\.episodes must be an integer"),
+    ("[{name: m, kind: mpc, episodes: 2.5}]", r"analytic\[0\]\.episodes must be an integer"),
+    ("[{name: m, kind: lqr}]", r"analytic\[0\]\.kind must be one of \['passivity', 'mpc'\], got 'lqr'"),
+    ("[{name: m}]", r"analytic\[0\] lacks the keys \['kind'\]"),
+    ("[{name: m, kind: mpc, loop: bounded}]", r"\(kind mpc\) has keys \['loop'\] that only other kinds take"),
+    ("[{name: p, kind: passivity, allocation: exact, options: {a: 1}}]", r"\(kind passivity\) has keys \['options'\]"),
+    ("[{name: p, kind: passivity}]", r"\(kind passivity\) lacks the keys \['allocation'\]"),
+    ("[{name: p, kind: passivity, allocation: exact, loop: nope}]", r"analytic\[0\]\.loop .* must be one of"),
+    ("[{name: m, kind: mpc, options: [1]}]", r"options must be a mapping of option names"),
+    ("[{name: m, kind: mpc, options: {horizon: {a: 1}}}]", r"options\.horizon must be a number"),
+    ("[{name: m, kind: mpc, colour: red}]", r"analytic\[0\] has unknown keys \['colour'\]"),
+    ("[{name: ppo, kind: mpc}]", r"is taken"),
+    ("[{name: m, kind: mpc}, {name: m, kind: mpc}]", r"analytic\[1\]\.name 'm' is taken"),
+    ("{name: m, kind: mpc}", r"analytic must be a list"),
+])
+def test_bad_analytic_entries_are_refused_naming_the_key(tmp_path, analytic, message):
+    with pytest.raises(ConfigError, match=message):
+        load_jobs(_spec(tmp_path, analytic))
+
+
+def test_the_older_passivity_list_still_works_and_shares_the_names(tmp_path):
+    path = tmp_path / "spec.yml"
+    path.write_text(HEAD + "passivity: [{name: p, allocation: exact, episodes: 3}]\n"
+                           "analytic: [{name: p, kind: mpc}]\n")
+    with pytest.raises(ConfigError, match=r"analytic\[0\]\.name 'p' is taken"):
+        load_jobs(path)
+    path.write_text(HEAD + "passivity: [{name: p, allocation: exact, episodes: 3}]\n")
+    (job,) = load_jobs(path)
+    assert (job.kind, job.loop, job.eval_episodes) == ("passivity", "exact", 3)
+    path.write_text(HEAD + "passivity: [{name: p, allocation: exact, kind: mpc}]\n")
+    with pytest.raises(ConfigError, match=r"passivity\[0\] has unknown keys \['kind'\]"):
+        load_jobs(path)
+
+
+def test_an_mpc_job_without_the_mpc_extra_fails_with_a_clear_error(monkeypatch):
+    from softpvtol_gym.control.mpc import _casadi
+
+    def missing(name, *args, **kwargs):
+        raise ImportError(f"No module named {name!r}")
+
+    monkeypatch.setattr(_casadi.importlib, "import_module", missing)
+    job = Job(policy="mpc", action_mode="actuators", task="hover", train_tier=None, seed=0, eval_tiers=("nominal",),
+              eval_episodes=1, eval_seed=1_000_000, kind="mpc")
+    with pytest.raises(ConfigError, match=r"job mpc_hover: the nonlinear MPC .* needs CasADi .*softpvtol-gym\[mpc\]"):
+        analytic_policy(job)
+
+
+# ------------------------------------------------------------------------------------- re-scoring
+def _learned_job(**kw) -> Job:
+    return Job(**{"policy": "ppo", "action_mode": "residual", "task": "hover", "train_tier": "nominal", "seed": 0,
+                  "eval_tiers": ("nominal", "model_gap"), "eval_episodes": 2, "eval_seed": 1_000_000,
+                  "timesteps": 64, **kw})
+
+
+def test_results_without_the_windowed_metrics_a_tier_or_the_episode_count_are_stale(tmp_path):
+    job = _learned_job()
+    fresh = [ep(0.1), ep(0.2)]
+    v2 = [{k: v for k, v in e.items() if k in ("return", "rms_position_error", "rms_attitude_error",
+                                                "control_effort", "crashed", "length")} for e in fresh]
+    record = {"job": dataclasses.asdict(job), "eval": {"nominal": fresh, "model_gap": fresh}}
+    assert stale_evaluations(job, record) == []
+    assert stale_evaluations(job, record | {"eval": {"nominal": fresh}}) == [("hover", "model_gap")]
+    assert stale_evaluations(job, record | {"eval": {"nominal": v2, "model_gap": fresh}}) == [("hover", "nominal")]
+    assert stale_evaluations(job, record | {"eval": {"nominal": fresh * 2, "model_gap": fresh}}) == [
+        ("hover", "nominal")]
+    # stale_jobs: a job with a stale result is re-scored, one without a result is left to a plain run
+    import json
+
+    other = _learned_job(seed=1)
+    job.folder(tmp_path).mkdir(parents=True)
+    (job.folder(tmp_path) / "eval.json").write_text(json.dumps(
+        {"job": dataclasses.asdict(job), "checkpoint": None, "train_seconds": None, "eval": {"nominal": v2}}))
+    assert stale_jobs([job, other], tmp_path) == ([job], [other])
+
+
+def test_rescoring_never_trains(tmp_path):
+    with pytest.raises(ConfigError, match="re-scoring never trains"):
+        run_job(_learned_job(), tmp_path, train_missing=False)
+    assert not any(tmp_path.rglob("*.run"))  # no training folder was made
