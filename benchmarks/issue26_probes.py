@@ -175,7 +175,7 @@ def probe_passes() -> None:
 
     import softpvtol_gym._parallel as parallel
     from softpvtol_gym import PassivityPolicy, SoftPVTOLVectorEnv
-    from softpvtol_gym.control import _kernels as CK
+    from softpvtol_gym.control import kernels as CK
 
     for task in ("hover", "track_random"):  # mean passes per block of 100 steps, 512 envs, nominal tier, seed 0
         for loop in ("exact", "integral"):
@@ -477,7 +477,7 @@ def probe_extended(reps: int = 21) -> None:
 
     import softpvtol_gym._parallel as parallel
     from softpvtol_gym import PassivityPolicy, SoftPVTOLVectorEnv
-    from softpvtol_gym.control import _extended_kernels as EK
+    from softpvtol_gym.control import extended_kernels as EK
 
     parallel.thread_count = lambda: 1  # one thread: costs per env without the split
     n = 4096

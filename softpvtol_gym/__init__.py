@@ -22,10 +22,10 @@ __all__ = [
 
 
 def __getattr__(name: str):
-    """``MPCPolicy`` (:mod:`softpvtol_gym.control.mpc`), imported on first use (PEP 562): the package
+    """``MPCPolicy`` (:mod:`softpvtol_gym.policies.mpc`), imported on first use (PEP 562): the package
     imports without CasADi, the MPC's optional dependency."""
     if name == "MPCPolicy":
-        from .control.mpc import MPCPolicy
+        from .policies.mpc import MPCPolicy
 
         return MPCPolicy
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -7,7 +7,7 @@ from .passivity import PassivityGains, passivity_control, storage_function
 from .references import hover_reference, paper_reference
 
 __all__ = [
-    "MPCPolicy", "MPCOptions",
+    "MPCOptions",
     "ALLOCATION_METHODS", "AllocationInfo", "allocate", "LOOPS", "MAX_HELD_CONTROL_PERIOD", "ControlOutput",
     "PassivityController", "ExtendedController", "ExtendedGains", "ExtendedOutput", "simulate_extended_loop",
     "simulate_closed_loop", "PassivityGains", "passivity_control", "storage_function",
@@ -16,10 +16,13 @@ __all__ = [
 
 
 def __getattr__(name: str):
-    """``MPCPolicy`` and ``MPCOptions`` (:mod:`.mpc`), imported on first use (PEP 562) so that importing
-    the package does not load the MPC's modules; building an MPCPolicy needs CasADi."""
-    if name in ("MPCPolicy", "MPCOptions"):
-        from . import mpc
+    """``MPCOptions`` (:mod:`.mpc`), imported on first use (PEP 562) so that importing the package does not load
+    the MPC's modules."""
+    if name == "MPCOptions":
+        from .mpc import MPCOptions
 
-        return getattr(mpc, name)
+        return MPCOptions
+    if name == "MPCPolicy":
+        raise AttributeError("MPCPolicy acts from observations and lives with the other policies: "
+                             "from softpvtol_gym import MPCPolicy (softpvtol_gym.policies.MPCPolicy)")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

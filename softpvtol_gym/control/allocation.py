@@ -11,7 +11,7 @@ from .._batching import as_batch, broadcast_batch, param_matrix
 from .._parallel import run_rows
 from ..dynamics import input_map_code
 from ..params import SoftPVTOLParams
-from . import _kernels as CK
+from . import kernels as CK
 
 __all__ = ["ALLOCATION_METHODS", "AllocationInfo", "allocate"]
 

@@ -44,7 +44,7 @@ from .._parallel import run_rows
 from ..dynamics import forward_dynamics, generalized_forces, input_map_code
 from ..integrators import rk4_step, rk4_step_actuated
 from ..params import SoftPVTOLParams
-from . import _kernels as CK
+from . import kernels as CK
 from .allocation import ALLOCATION_METHODS, AllocationInfo, _allocation_info
 from .passivity import PassivityGains, passivity_control, storage_function
 from .references import paper_reference
@@ -141,7 +141,7 @@ class PassivityController:
             a speed of at most lambda * limit, instead of a force demand proportional to the
             distance). Actuated loops only.
 
-    A call of the actuated loops is one compiled kernel per batch (``control._kernels.controller_lanes``
+    A call of the actuated loops is one compiled kernel per batch (``control.kernels.controller_lanes``
     on blocks of ``CTRL_LANES`` rows, built from the same passivity and allocation kernels as
     :func:`passivity_control` and :func:`allocate`; every row computed alone, so its result does not
     depend on the batch); the env's residual mode and :class:`~softpvtol_gym.PassivityPolicy` run the
@@ -218,7 +218,7 @@ class PassivityController:
         cc[CK.CC_IMAX:CK.CC_IMAX + 3] = self.integral_limits
         cc[CK.CC_EMAX:CK.CC_EMAX + 3] = self.integral_error_limits
         cc[CK.CC_PMAX:CK.CC_PMAX + 3] = self.error_limits
-        #: kernel constants (``control._kernels.CC_*``)
+        #: kernel constants (``control.kernels.CC_*``)
         self.kernel_constants = cc
         self._no_residual = np.zeros((1, 5))
         self.reset()

@@ -11,7 +11,7 @@ import numpy as np
 from .._batching import broadcast_batch, param_matrix
 from .._parallel import run_rows
 from ..params import SoftPVTOLParams
-from . import _kernels as CK
+from . import kernels as CK
 
 __all__ = ["PassivityGains", "passivity_control", "storage_function"]
 

@@ -8,10 +8,10 @@ import numpy as np
 
 from .. import model as MK
 from .._parallel import row_ranges, run_split
-from ..control import _kernels as CK
+from .._validation import bounded_number, real_array, short_repr
+from ..control import kernels as CK
 from ..control.closed_loop import MAX_HELD_CONTROL_PERIOD, PassivityController
 from ..references import reference_block
-from ._validation import bounded_number, real_array, short_repr
 from .config import EnvConfig
 from .episodes import MAX_START_ERROR_SCALE, START_SCALE_REASON, apply_options, sample_episodes
 from .layout import CONST, ISTATE, STATE, S

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 from .. import model as MK
-from ..control import _kernels as CK
+from ..control import kernels as CK
 from ..model.jit import jit
 from .actions import MODE_ACT, MODE_IDEAL, MODE_RES_ACT
 from .layout import SC, SI, S

@@ -13,14 +13,14 @@ import math
 import numpy as np
 
 from .. import model as MK
-from ..control import _kernels as CK
+from .._validation import bounded_number, choice, short_repr
+from ..control import kernels as CK
 from ..control.closed_loop import LOOPS
 from ..control.passivity import PassivityGains
 from ..params import G_MIN, PARAM_BOUNDS, SoftPVTOLParams
 from ..registry import EPISODE_SECONDS_REASON, MAX_EPISODE_SECONDS
 from ..tasks import TaskSpec, get_task
 from . import tiers as _tiers
-from ._validation import bounded_number, choice, short_repr
 from .actions import ACTION_MODE_SPECS, ACTION_MODES
 from .episodes import MAX_START_ERROR_SCALE, START_DISTRIBUTIONS, START_SCALE_REASON
 from .layout import CODES, CONST, SC, SK

@@ -4,7 +4,7 @@ function of every env (``info["total_energy"]``, ``info["storage_function"]``), 
 from __future__ import annotations
 
 from .. import model as MK
-from ..control import _kernels as CK
+from ..control import kernels as CK
 from ..model.jit import accessor, inline, jit
 from .layout import SL
 

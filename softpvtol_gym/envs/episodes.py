@@ -10,10 +10,10 @@ import numpy as np
 from numba import njit
 
 from .._layout import Layout
+from .._validation import bounded_number, real_array, short_repr
 from ..params import PARAM_FIELDS
 from ..references import N_REF_PARAMS, RP, RP_Z0
 from ..tasks import HOVER_SETPOINT, PAPER_Q0, SAMPLE_CUSTOM, SAMPLE_HOVER, SAMPLE_PAPER, SAMPLE_SETPOINT
-from ._validation import bounded_number, real_array, short_repr
 from .termination import BOX_X, BOX_Z, GROUND_Z, Q_LIMITS
 from .tiers import MISMATCH_FIELDS
 

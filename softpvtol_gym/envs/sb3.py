@@ -13,7 +13,7 @@ except ImportError as e:
     raise ImportError("softpvtol_gym.envs.sb3 needs stable-baselines3 (and torch), which the 'train' extra "
                       'installs: pip install "softpvtol-gym[train]"') from e
 
-from ._validation import real_array, short_repr
+from .._validation import real_array, short_repr
 from .vector import SoftPVTOLVectorEnv
 
 

@@ -7,8 +7,8 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
+from .._validation import choice, seed_value
 from ..params import SoftPVTOLParams
-from ._validation import choice, seed_value
 from .batch_sim import BatchSim
 from .config import RENDER_MODES, EnvConfig
 from .episodes import N_UNIFORMS, check_reset_options

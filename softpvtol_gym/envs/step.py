@@ -3,7 +3,7 @@ command held), clock, wind, termination, observation and reward of a range of en
 
 The physics of up to ``MK.LANES`` envs at a time runs in a lane block (structure of arrays, layout
 :data:`~softpvtol_gym.envs.layout.LANES`) that LLVM turns into SIMD code. The residual mode's base
-controller is the controller block driver of :mod:`softpvtol_gym.control._kernels`, fed the
+controller is the controller block driver of :mod:`softpvtol_gym.control.kernels`, fed the
 measured state. Entry points: :func:`serial_step_kernel` (one call, small batches) and, for large batches
 split over threads by BatchSim, :func:`step_check_actions`, then :func:`step_residual_rows` (the residual
 mode: controller and physics of a range in one pass) or :func:`step_physics_rows`. An error code changes
@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from .. import model as MK
-from ..control import _kernels as CK
+from ..control import kernels as CK
 from ..references import REF_CONSTANT, REF_CUSTOM, reference_row
 from .actions import MODE_IDEAL, MODE_RES_ACT, MODE_VIRTUAL
 from .command import check_actions, clip_actions, command

@@ -13,8 +13,8 @@ built-in ones.
 
 from __future__ import annotations
 
+from .._validation import bounded_number, short_repr
 from ..registry import EFFECT_OPTIONS, MAX_EPISODE_SECONDS, TierSpec, get_tier, register_tier, registered_tiers
-from ._validation import bounded_number, short_repr
 
 __all__ = [
     "TIERS",  # noqa: F822 (a live lookup: module __getattr__)

@@ -9,8 +9,8 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from .._validation import choice, seed_value, short_repr
 from ..params import SoftPVTOLParams
-from ._validation import choice, seed_value, short_repr
 from .batch_sim import BatchSim
 from .config import EnvConfig
 from .episodes import N_UNIFORMS, check_reset_options

@@ -21,7 +21,7 @@ from softpvtol_gym import PassivityPolicy, SoftPVTOLEnv, SoftPVTOLParams, SoftPV
 from softpvtol_gym import model as MK
 from softpvtol_gym._parallel import row_ranges
 from softpvtol_gym.control import PassivityController, allocate, passivity_control, storage_function
-from softpvtol_gym.control import _kernels as CK
+from softpvtol_gym.control import kernels as CK
 from softpvtol_gym.control.closed_loop import LOOPS
 from softpvtol_gym.envs.config import EnvConfig
 from softpvtol_gym.envs.episodes import N_UNIFORMS, sample_episodes

@@ -222,7 +222,7 @@ def test_policy_in_the_env_tracks_without_saturating():
 
 @pytest.mark.parametrize("tier", ["nominal", "hard"])
 def test_compiled_policy_is_the_numpy_reference(tier):
-    """ExtendedPolicy.predict (one compiled pass, control._extended_kernels) against predict_reference (numpy,
+    """ExtendedPolicy.predict (one compiled pass, control.extended_kernels) against predict_reference (numpy,
     through ExtendedController): the same actions and extension along the vector env's episodes, with
     memories reset at random steps, a batch large enough to be split over threads,
     and a controller that holds the start's command."""

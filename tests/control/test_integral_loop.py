@@ -13,7 +13,7 @@ import pytest
 
 from softpvtol_gym import PassivityPolicy, SoftPVTOLParams
 from softpvtol_gym.control import LOOPS, PassivityController, hover_reference, simulate_closed_loop
-from softpvtol_gym.control import _kernels as CK
+from softpvtol_gym.control import kernels as CK
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
 

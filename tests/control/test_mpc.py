@@ -14,8 +14,9 @@ from softpvtol_gym.envs.config import EnvConfig
 
 pytest.importorskip("casadi", reason="the mpc extra (pip install -e '.[mpc]') provides CasADi")
 
-from softpvtol_gym.control.mpc import MPCOptions, MPCPolicy, symbolic  # noqa: E402
+from softpvtol_gym.control.mpc import MPCOptions, symbolic  # noqa: E402
 from softpvtol_gym.control.mpc.ocp import TrackingOCP, hover_input  # noqa: E402
+from softpvtol_gym.policies import MPCPolicy  # noqa: E402
 
 PARAMS = (SoftPVTOLParams(), SoftPVTOLParams(m=4.0, m_l=0.7, m_r=1.3, I=0.8, I_l=0.05, I_r=0.2, l_l=0.4, l_r=0.6,
                                              g=9.81, epsilon=0.1))

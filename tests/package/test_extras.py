@@ -91,7 +91,7 @@ except ImportError as e:
 
 # the MPC's names import without casadi; building one says which extra installs it
 from softpvtol_gym import MPCPolicy
-from softpvtol_gym.control import MPCPolicy as MPCPolicy2
+from softpvtol_gym.policies import MPCPolicy as MPCPolicy2
 out["mpc_same"] = MPCPolicy is MPCPolicy2
 try:
     MPCPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, task="hover"))

@@ -1,5 +1,5 @@
-"""Issue 21: the baselines library's layout. ``softpvtol_gym.baselines`` imports point one way (no cycle),
-sit at module top (except the optional heavy extras, imported where used), no module is over 600 lines,
+"""The baselines library's layout (the layers of the whole package: test_layers.py). ``softpvtol_gym.baselines``
+imports sit at module top (except the optional heavy extras, imported where used), no module is over 600 lines,
 the env package does not import the baselines, the wheel installs only ``softpvtol*`` names, and the
 ``softpvtol`` console command lists every subcommand and answers ``--help`` for each."""
 
@@ -33,61 +33,6 @@ def _modules() -> dict[str, Path]:
 
 
 MODULES = _modules()
-
-
-def _imported(node: ast.AST, module: str, is_package: bool) -> list[str]:
-    """The modules an import statement names (relative imports resolved against ``module``)."""
-    if isinstance(node, ast.Import):
-        return [a.name for a in node.names]
-    base = node.module or ""
-    if node.level:
-        anchor = module.split(".") if is_package else module.split(".")[:-1]
-        anchor = anchor[:len(anchor) - node.level + 1]
-        base = ".".join(anchor + ([base] if base else []))
-    # ``from pkg import name``: the submodule pkg.name where there is one, else pkg itself
-    return [f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base for a in node.names]
-
-
-def _graph() -> dict[str, set[str]]:
-    graph = {}
-    for name, path in MODULES.items():
-        edges = set()
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, (ast.Import, ast.ImportFrom)):
-                for target in _imported(node, name, path.name == "__init__.py"):
-                    # importing a.b.c runs the __init__ of a.b too
-                    parts = target.split(".")
-                    edges |= {".".join(parts[:i]) for i in range(3, len(parts) + 1)} & set(MODULES)
-        graph[name] = edges - {name, PREFIX} if name != PREFIX else edges - {name}
-    return graph
-
-
-def test_the_import_graph_has_no_cycle():
-    graph = _graph()
-    assert len(graph) > 30 and any(graph.values())
-    state: dict[str, int] = {}  # 1: on the current path, 2: done
-
-    def visit(node: str, path: list[str]) -> None:
-        state[node] = 1
-        for nxt in sorted(graph[node]):
-            if state.get(nxt) == 1:
-                pytest.fail("import cycle: " + " -> ".join(path[path.index(nxt):] + [nxt]))
-            if nxt not in state:
-                visit(nxt, path + [nxt])
-        state[node] = 2
-
-    for node in sorted(graph):
-        if node not in state:
-            visit(node, [node])
-
-
-def test_a_cycle_would_be_found(monkeypatch):
-    """The check above is not vacuous: an edge back from a low module to a command is reported."""
-    graph = _graph()
-    graph[f"{PREFIX}.util.atomic"] = graph[f"{PREFIX}.util.atomic"] | {f"{PREFIX}.commands.evaluate"}
-    monkeypatch.setattr(sys.modules[__name__], "_graph", lambda: graph)
-    with pytest.raises(pytest.fail.Exception, match="import cycle"):
-        test_the_import_graph_has_no_cycle()
 
 
 def test_imports_sit_at_module_top_except_the_optional_extras():

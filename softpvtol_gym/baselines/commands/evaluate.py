@@ -41,11 +41,12 @@ from softpvtol_gym.baselines.util.args import Parser, check_output_file, command
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.control import LOOPS
-from softpvtol_gym.control.mpc import MPCOptions, MPCPolicy
+from softpvtol_gym.control.mpc import MPCOptions
 from softpvtol_gym.envs.actions import ACTION_MODES
 from softpvtol_gym.envs.config import EnvConfig
 from softpvtol_gym.envs.tiers import registered_tiers
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
+from softpvtol_gym.policies import MPCPolicy
 from softpvtol_gym.tasks import registered_tasks
 
 MAX_EPISODES = 10_000

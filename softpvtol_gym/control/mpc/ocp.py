@@ -32,7 +32,7 @@ import warnings
 
 import numpy as np
 
-from ...envs._validation import short_repr
+from ..._validation import short_repr
 from ...params import SoftPVTOLParams
 from . import symbolic
 from ._casadi import import_casadi

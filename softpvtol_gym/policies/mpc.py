@@ -6,17 +6,10 @@ import time
 
 import numpy as np
 
-from ...envs._validation import short_repr
-from ...envs.config import EnvConfig
-from ...policies import (
-    PassivityPolicy,
-    _episode_start_mask,
-    actuator_action,
-    env_config,
-    policy_observations,
-)
-from ._casadi import import_casadi
-from .ocp import NU, NX, MPCOptions, TrackingOCP, hover_input
+from .._validation import short_repr
+from ..control.mpc import NU, NX, MPCOptions, TrackingOCP, hover_input, import_casadi
+from ..envs.config import EnvConfig
+from ._common import _episode_start_mask, actuator_action, env_config, policy_observations, state_from_observation
 
 
 class MPCPolicy:
@@ -172,7 +165,7 @@ class MPCPolicy:
             self._n = n
         elif mask is not None and mask.any():
             self._reset_entries(mask)
-        q, qd = PassivityPolicy.state_from_observation(obs)[:2]
+        q, qd = state_from_observation(obs)[:2]
         u = np.stack([self._act(i, obs[i], q[i], qd[i]) for i in range(n)])
         action = np.clip(actuator_action(u, self.config.thrust_max, self.config.arm_torque_max), -1.0, 1.0)
         action = action.astype(np.float32)
