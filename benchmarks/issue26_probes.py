@@ -243,7 +243,7 @@ def probe_parts(reps: int = 31) -> None:
     from softpvtol_gym import model as MK
     from softpvtol_gym.envs import step as ST
     from softpvtol_gym.envs.diagnostics import diag_lanes
-    from softpvtol_gym.envs.layout import SC, SK
+    from softpvtol_gym.envs.packed_state import SC, SK
     from softpvtol_gym.envs.rows import nominal_params, vec5
 
     n = 4096

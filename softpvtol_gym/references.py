@@ -16,12 +16,12 @@ import math
 import numpy as np
 from numba import njit
 
-from ._layout import Layout
+from ._columns import Columns
 
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 
 #: columns of a reference parameter row (refp)
-REF_PARAMS = Layout("reference_params", [("setpoint", 3), ("x_sinusoids", 9), ("z_sinusoids", 9)])
+REF_PARAMS = Columns("reference_params", [("setpoint", 3), ("x_sinusoids", 9), ("z_sinusoids", 9)])
 RP = REF_PARAMS.at
 #: track_random's mean height z0 [m]: the set-point's z column
 RP_Z0 = RP.setpoint + 1
@@ -45,16 +45,45 @@ def _sinusoids(A, n, c, t):
 
 
 @_jit
+def paper_row(t):
+    """The paper's eq. (traj_des) at time t [s]: x = 4 sin(t/2), z = 3 cos(-t/10) + 4 (theta = 0), as (x and its
+    first four time derivatives, z and its first four). The derivatives are computed correctly: zdot = -0.3 sin(t/10)
+    (the paper prints -0.3 sin(-t/10), a sign error; docs/model.md). The one definition of the trajectory: the
+    step kernel reads its first three entries, :func:`softpvtol_gym.control.paper_reference` all five."""
+    s, co = math.sin(0.5 * t), math.cos(0.5 * t)
+    sz, cz = math.sin(0.1 * t), math.cos(0.1 * t)
+    x = (4.0 * s, 2.0 * co, -s, -0.5 * co, 0.25 * s)
+    z = (3.0 * math.cos(-0.1 * t) + 4.0, -0.3 * sz, -0.03 * cz, 0.003 * sz, 0.0003 * cz)
+    return x, z
+
+
+@njit(cache=True, nogil=True)
+def paper_block(t, out):
+    """out[n] = paper_row(t[n]) as (2, 5): row 0 x and its derivatives, row 1 z and its derivatives."""
+    for n in range(t.shape[0]):
+        x, z = paper_row(t[n])
+        for k in range(5):
+            out[n, 0, k] = x[k]
+            out[n, 1, k] = z[k]
+
+
+def paper_derivatives(t) -> np.ndarray:
+    """:func:`paper_row` at times ``t`` [s] (any shape): (..., 2, 5), x and z with their first four derivatives."""
+    t = np.asarray(t, dtype=np.float64)
+    flat = np.ascontiguousarray(t.reshape(-1))
+    out = np.empty((flat.shape[0], 2, 5))
+    paper_block(flat, out)
+    return out.reshape(t.shape + (2, 5))
+
+
+@_jit
 def reference_row(code, t, A, n, c):
     """((x, z, theta), their rates, their accelerations) at time t of a built-in reference ``code``
     whose parameters are A[n, c:c + N_REF_PARAMS]."""
     zero = (0.0, 0.0, 0.0)
     if code == REF_PAPER:
-        # the paper's eq. (traj_des): x = 4 sin(t/2), z = 3 cos(-t/10) + 4, theta = 0 (derivatives
-        # computed correctly, see docs/model.md)
-        s, co = math.sin(0.5 * t), math.cos(0.5 * t)
-        sz, cz = math.sin(0.1 * t), math.cos(0.1 * t)
-        return (4.0 * s, 3.0 * math.cos(-0.1 * t) + 4.0, 0.0), (2.0 * co, -0.3 * sz, 0.0), (-s, -0.03 * cz, 0.0)
+        x, z = paper_row(t)
+        return (x[0], z[0], 0.0), (x[1], z[1], 0.0), (x[2], z[2], 0.0)
     if code == REF_SINUSOIDS:
         x, xd, xdd = _sinusoids(A, n, c + RP.x_sinusoids, t)
         z, zd, zdd = _sinusoids(A, n, c + RP.z_sinusoids, t)

@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from .. import model as MK
-from .._layout import Layout
+from .._columns import Columns
 from ..params import P_EPS, P_LL, P_LR
 
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
@@ -226,7 +226,7 @@ def allocate_exact(t0, t1, t2, theta, p, input_map, w0, w2, use_warm, qmax):
 
 
 #: rows of the work array of :func:`allocate_exact_lanes` (one column per lane)
-WORK = Layout("allocation_work", [(f, 1) for f in (
+WORK = Columns("allocation_work", [(f, 1) for f in (
     "x", "lo", "hi", "lo_raw", "hi_raw", "uz", "h", "tt", "scale", "st", "ct", "ql", "tl", "qr", "tr", "gl", "dgl",
     "gr", "dgr", "live", "it")])
 (AW_X, AW_LO, AW_HI, AW_LO_RAW, AW_HI_RAW, AW_UZ, AW_H, AW_TT, AW_SCALE, AW_ST, AW_CT, AW_QL, AW_TL, AW_QR, AW_TR,

@@ -10,7 +10,7 @@ import numpy as np
 from numba import njit
 
 from .. import model as MK
-from .._layout import Layout
+from .._columns import Columns
 from ._allocation_kernels import (
     ALLOC_PAPER,
     AW_CT,
@@ -37,7 +37,7 @@ _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 #: controller memory per row: warm start (T_l, T_r, q_l^d, q_r^d), the last four allocated arm
 #: curvatures (oldest first, (q_l^d, q_r^d) each), a flag "no history" (fresh, 1.0) and the integral
 #: of the body error (x, z, theta) of the integral loop (zero in the other loops)
-MEMORY = Layout("controller_memory", [("warm", 4), ("hist", 8), ("fresh", 1), ("integral", 3)], version=2)
+MEMORY = Columns("controller_memory", [("warm", 4), ("hist", 8), ("fresh", 1), ("integral", 3)], version=2)
 ST_WARM, ST_HIST, ST_FRESH, ST_INT = MEMORY.at
 ST_LEN = MEMORY.size
 if ST_LEN != 16:  # pragma: no cover (put_lane_inputs / put_lane_memory copy the memory written out)
@@ -46,7 +46,7 @@ if ST_LEN != 16:  # pragma: no cover (put_lane_inputs / put_lane_memory copy the
 #: feedforward flag, dt, the feedforward limits (rad/s, rad/s^2), curvature limit, then params (10),
 #: Lambda (5), K (5), and the integral loop's body terms (x, z, theta): gains Lambda_I, the integral's
 #: bounds, the bound on the error it integrates, the bound on the error of the law (all 0 / inf: off)
-CONSTANTS = Layout("controller_constants", [("method", 1), ("imap", 1), ("iters", 1), ("tol", 1), ("ff", 1),
+CONSTANTS = Columns("controller_constants", [("method", 1), ("imap", 1), ("iters", 1), ("tol", 1), ("ff", 1),
                                             ("dt", 1), ("vmax", 1), ("amax", 1), ("qmax", 1), ("p", 10), ("lam", 5),
                                             ("kg", 5), ("lam_i", 3), ("int_max", 3), ("err_max", 3), ("pos_max", 3)],
                    version=2)
@@ -92,7 +92,7 @@ def lane_index(row, lane):
 #: this order: ``batch_controller`` copies them as one run), the algebraic loop's residual and passes;
 #: work: D, C, g entries (17), arm references with their derivatives (6), allocation (4), active flag,
 #: the algebraic loop's relaxation factor and previous residual, the body error (integral loop)
-BLOCK = Layout("controller_block", [
+BLOCK = Columns("controller_block", [
     ("q", 5), ("qd", 5), ("qr", 5), ("qdr", 5), ("qddr", 5), ("res", 5), ("st", ST_LEN), ("stn", ST_LEN),
     ("err", 1), ("tau", 5), ("act", 4), ("arm", 2), ("info", N_INFO), ("loop", 2),
     ("ents", 17), ("ref", 6), ("alloc", 4), ("active", 1), ("relax", 2), ("qt", 3),
@@ -428,12 +428,12 @@ def row5(A, n, c):
 
 #: per-row inputs of the driver (X): q, qdot, body reference (arm entries ignored), its velocity and
 #: acceleration, tau residual (5 each)
-INPUTS = Layout("controller_inputs", [("q", 5), ("qd", 5), ("qr", 5), ("qdr", 5), ("qddr", 5), ("res", 5)])
+INPUTS = Columns("controller_inputs", [("q", 5), ("qd", 5), ("qr", 5), ("qdr", 5), ("qddr", 5), ("res", 5)])
 IN_Q, IN_QD, IN_QR, IN_QDR, IN_QDDR, IN_RES = INPUTS.at
 IN_LEN = INPUTS.size
 #: per-row outputs (out): tau (5), actuators (4), arm references (2), allocation info (residual,
 #: iterations, feasible), the algebraic loop's residual and passes, in the order of the block's output rows
-OUTPUTS = Layout("controller_outputs", [("tau", 5), ("act", 4), ("arm", 2), ("info", N_INFO), ("loop", 2)])
+OUTPUTS = Columns("controller_outputs", [("tau", 5), ("act", 4), ("arm", 2), ("info", N_INFO), ("loop", 2)])
 OUT_TAU, OUT_ACT, OUT_ARM, OUT_INFO, OUT_LOOP = OUTPUTS.at
 OUT_LEN = OUTPUTS.size
 

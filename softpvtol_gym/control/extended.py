@@ -34,7 +34,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .._series import COEFFICIENTS
+from .._series_coefficients import COEFFICIENTS
 from ..dynamics import (
     arm_tip_positions,
     coriolis_matrix,

@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from .. import model as MK
-from .._series import COEFFICIENTS
+from .._series_coefficients import COEFFICIENTS
 from ..params import P_EPS, P_G, P_I, P_LL, P_M, P_ML, P_MR
 
 _S0 = COEFFICIENTS["S0"]

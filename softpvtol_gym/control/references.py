@@ -7,11 +7,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..references import paper_derivatives
+
 __all__ = ["paper_reference", "hover_reference"]
 
 
 def paper_reference(t, order: int = 2) -> tuple[np.ndarray, ...]:
-    """The paper's eq. (traj_des): x = 4 sin(t/2), z = 3 cos(-t/10) + 4, theta = 0.
+    """The paper's eq. (traj_des): x = 4 sin(t/2), z = 3 cos(-t/10) + 4, theta = 0, from its one definition
+    (:func:`softpvtol_gym.references.paper_row`, which the env's step kernel evaluates too).
 
     Derivatives are computed correctly: zdot = -0.3 sin(t/10) (the paper prints -0.3 sin(-t/10), a sign
     error) and zddot = -0.03 cos(t/10). ``t`` [s] scalar or array; outputs (..., 5): (q, qdot, qddot),
@@ -20,23 +23,13 @@ def paper_reference(t, order: int = 2) -> tuple[np.ndarray, ...]:
     if order not in (2, 4):
         raise ValueError(f"order must be 2 (q, qdot, qddot) or 4 (also the third and fourth derivatives), "
                          f"got {order!r}")
-    t = np.asarray(t, dtype=np.float64)
-    z = np.zeros(t.shape + (5,))
-    q, qd, qdd = z.copy(), z.copy(), z.copy()
-    q[..., 0] = 4.0 * np.sin(0.5 * t)
-    qd[..., 0] = 2.0 * np.cos(0.5 * t)
-    qdd[..., 0] = -np.sin(0.5 * t)
-    q[..., 1] = 3.0 * np.cos(-0.1 * t) + 4.0
-    qd[..., 1] = -0.3 * np.sin(0.1 * t)
-    qdd[..., 1] = -0.03 * np.cos(0.1 * t)
-    if order == 2:
-        return q, qd, qdd
-    q3, q4 = z.copy(), z.copy()
-    q3[..., 0] = -0.5 * np.cos(0.5 * t)
-    q4[..., 0] = 0.25 * np.sin(0.5 * t)
-    q3[..., 1] = 0.003 * np.sin(0.1 * t)
-    q4[..., 1] = 0.0003 * np.cos(0.1 * t)
-    return q, qd, qdd, q3, q4
+    xz = paper_derivatives(t)  # (..., 2, 5): x and z with their first four derivatives
+    out = []
+    for k in range(order + 1):
+        d = np.zeros(xz.shape[:-2] + (5,))
+        d[..., 0], d[..., 1] = xz[..., 0, k], xz[..., 1, k]
+        out.append(d)
+    return tuple(out)
 
 
 def hover_reference(x=0.0, z=0.0, theta=0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -14,7 +14,7 @@ from ..control.closed_loop import MAX_HELD_CONTROL_PERIOD, PassivityController
 from ..references import reference_block
 from .config import EnvConfig
 from .episodes import MAX_START_ERROR_SCALE, START_SCALE_REASON, apply_options, sample_episodes
-from .layout import CONST, ISTATE, STATE, S
+from .packed_state import CONST, ISTATE, STATE, S
 from .reset import reset_rows
 from .step import (
     STEP_BAD_ACTION,
@@ -54,7 +54,7 @@ class BatchSim:
 
     The state is ``F`` (N, STATE.size) float64, ``I`` (N, ISTATE.size) int64, ``key`` (N,) uint64 and
     ``obs`` (N, cfg.obs_dim) float32 (18 entries, 21 with ``observe_error_integral``; layouts:
-    :mod:`softpvtol_gym.envs.layout`); every field of STATE and
+    :mod:`softpvtol_gym.envs.packed_state`); every field of STATE and
     ISTATE is also an attribute, a view into them (``q``, ``qd``, ``qm``, ``qdm``, ``qr``, ``qdr``,
     ``qddr``, ``refp``, ``lag``, ``applied``, ``wind``, ``u`` (the clipped action), ``reward``,
     ``terms``, ``P``, ``t``, the diagnostics, ``counter``, ``steps``, ``reason``, ``clipped``, ...).

@@ -9,7 +9,7 @@ from .. import model as MK
 from ..control import kernels as CK
 from ..model.jit import jit
 from .actions import MODE_ACT, MODE_IDEAL, MODE_RES_ACT
-from .layout import SC, SI, S
+from .packed_state import SC, SI, S
 from .rows import nominal_params, row5
 
 

@@ -23,8 +23,8 @@ from ..tasks import TaskSpec, get_task
 from . import tiers as _tiers
 from .actions import ACTION_MODE_SPECS, ACTION_MODES
 from .episodes import MAX_START_ERROR_SCALE, START_DISTRIBUTIONS, START_SCALE_REASON
-from .layout import CODES, CONST, SC, SK
 from .observation import N_ERROR_INTEGRALS, OBS_DIM
+from .packed_state import CODES, CONST, SC, SK
 
 PHYSICS_DT = 0.01  # s, the paper's RK4 step
 INPUT_MAPS = ("paper", "exact")

@@ -6,7 +6,7 @@ from __future__ import annotations
 from .. import model as MK
 from ..control import kernels as CK
 from ..model.jit import accessor, inline, jit
-from .layout import SL
+from .packed_state import SL
 
 
 @inline

@@ -9,7 +9,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .._layout import Layout
+from .._columns import Columns
 from .._validation import bounded_number, real_array, short_repr
 from ..params import PARAM_FIELDS
 from ..references import N_REF_PARAMS, RP, RP_Z0
@@ -24,7 +24,7 @@ _N_MISMATCH = len(_MISMATCH_COLUMNS)
 #: initial-state perturbation (a registered task's ``initial_state`` gets them), the setpoint task's
 #: set-point, track_random's sinusoids (x, then z), the plant mismatch (one per scaled parameter), spare
 #: columns (drawn, unused) and the episode's noise key
-UNIFORMS = Layout("reset_uniforms", [("state", 10), ("setpoint", 3), ("sinusoids", 18), ("mismatch", _N_MISMATCH),
+UNIFORMS = Columns("reset_uniforms", [("state", 10), ("setpoint", 3), ("sinusoids", 18), ("mismatch", _N_MISMATCH),
                                       ("spare", 7), ("key", 2)])
 U = UNIFORMS.at
 N_UNIFORMS = UNIFORMS.size

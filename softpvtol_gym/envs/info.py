@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from .layout import SI, S
+from .packed_state import SI, S
 from .reward import REWARD_TERMS
 from .termination import R_NONE, REASONS
 

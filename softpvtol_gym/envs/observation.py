@@ -6,15 +6,15 @@ import math
 
 from numba import njit
 
-from .._layout import Layout
-from .layout import SC, SI, S
+from .._columns import Columns
 from .noise import STREAM_Q, STREAM_QD, counter_normal
+from .packed_state import SC, SI, S
 
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 
 OBS_CLIP = 1.0e6
 #: the observation's entries, declared once (the env writes them, PassivityPolicy reads them back)
-OBSERVATION = Layout("observation", [
+OBSERVATION = Columns("observation", [
     ("e_pos", 2),  # x - x_ref, z - z_ref [m]
     ("e_theta", 1),  # theta - theta_ref, wrapped to [-pi, pi) [rad]
     ("sin_cos", 2),  # sin theta, cos theta

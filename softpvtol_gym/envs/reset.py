@@ -10,9 +10,9 @@ from numba import njit
 from .. import model as MK
 from ..params import N_PARAMS
 from .diagnostics import energy_storage
-from .layout import SC, SI, S
 from .noise import STREAM_WIND, counter_normal
 from .observation import observe_range
+from .packed_state import SC, SI, S
 from .rows import nominal_params, row5, row10, vec5
 from .termination import R_NONE
 

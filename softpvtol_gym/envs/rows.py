@@ -7,7 +7,7 @@ from __future__ import annotations
 from .. import model as MK
 from ..model.jit import jit
 from ..params import N_PARAMS
-from .layout import SC
+from .packed_state import SC
 
 if N_PARAMS != 10:  # pragma: no cover
     raise RuntimeError("row10 and nominal_params read a parameter vector of 10 columns; update them")

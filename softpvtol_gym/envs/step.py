@@ -2,7 +2,7 @@
 command held), clock, wind, termination, observation and reward of a range of envs.
 
 The physics of up to ``MK.LANES`` envs at a time runs in a lane block (structure of arrays, layout
-:data:`~softpvtol_gym.envs.layout.LANES`) that LLVM turns into SIMD code. The residual mode's base
+:data:`~softpvtol_gym.envs.packed_state.LANES`) that LLVM turns into SIMD code. The residual mode's base
 controller is the controller block driver of :mod:`softpvtol_gym.control.kernels`, fed the
 measured state. Entry points: :func:`serial_step_kernel` (one call, small batches) and, for large batches
 split over threads by BatchSim, :func:`step_check_actions`, then :func:`step_residual_rows` (the residual
@@ -27,9 +27,9 @@ from ..references import REF_CONSTANT, REF_CUSTOM, reference_row
 from .actions import MODE_IDEAL, MODE_RES_ACT, MODE_VIRTUAL
 from .command import check_actions, clip_actions, command
 from .diagnostics import consistent_energy_lanes, diag_lanes, diag_lanes_partial
-from .layout import LANES, SC, SI, SK, SL, S
 from .noise import STREAM_WIND, counter_normal
 from .observation import observe_range, wrap
+from .packed_state import LANES, SC, SI, SK, SL, S
 from .reward import REWARD_TERMS, reward_terms
 from .rows import lane5, lane_put, nominal_params, row5, row10, vec5
 from .termination import R_NONE, R_NONFINITE, termination_reason

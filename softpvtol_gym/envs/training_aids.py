@@ -20,8 +20,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .layout import S
 from .observation import N_ERROR_INTEGRALS, OBS_DIM, wrap
+from .packed_state import S
 
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 

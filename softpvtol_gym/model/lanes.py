@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from .._layout import Layout
+from .._columns import Columns
 from ..params import N_PARAMS
 from .jit import accessor, jit
 from .rk4 import consistent_rk4_step_tuple, rk4_step_sc, rk4_step_tuple
@@ -18,7 +18,7 @@ from .rk4 import consistent_rk4_step_tuple, rk4_step_sc, rk4_step_tuple
 #: width of a lane block: W holds LANES states structure-of-arrays, W[row * LANES + lane]
 LANES = 64
 #: lane rows of :func:`rk4_lanes`: q, qdot, held command u, external force (f_x, f_z), params
-RK4_LANES = Layout("rk4_lanes", [("q", 5), ("qd", 5), ("u", 5), ("ext", 2), ("p", N_PARAMS), ("sc", 2)])
+RK4_LANES = Columns("rk4_lanes", [("q", 5), ("qd", 5), ("u", 5), ("ext", 2), ("p", N_PARAMS), ("sc", 2)])
 LANE_Q, LANE_QD, LANE_U, LANE_EXT, LANE_P, LANE_SC = RK4_LANES.at
 LANE_ROWS_RK4 = RK4_LANES.size
 

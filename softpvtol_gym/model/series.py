@@ -1,6 +1,6 @@
 """The curvature series of the arms, compiled: Horner's rule and the basis functions built on it.
 
-The coefficients come from :mod:`softpvtol_gym._series` (exact rationals); here they are evaluated
+The coefficients come from :mod:`softpvtol_gym._series_coefficients` (exact rationals); here they are evaluated
 branch-free as polynomials in s = q^2, so every model term is smooth at q = 0 and a lane loop stays
 SIMD code. Also the attitude rotation of an RK4 stage (:func:`rotate`), which uses the same series.
 """
@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import math
 
-from .._series import COEFFICIENTS
+from .._series_coefficients import COEFFICIENTS
 from .jit import inline, jit
 
-#: the coefficient vectors of the basis functions (``_series`` names: S0, C1, A, D1p, D2, D2pq)
+#: the coefficient vectors of the basis functions (``_series_coefficients`` names: S0, C1, A, D1p, D2, D2pq)
 S0_COEFFS = COEFFICIENTS["S0"]
 C1_COEFFS = COEFFICIENTS["C1"]
 A_COEFFS = COEFFICIENTS["A"]
@@ -20,7 +20,7 @@ D1P_COEFFS = COEFFICIENTS["D1p"]
 D2_COEFFS = COEFFICIENTS["D2"]
 D2PQ_COEFFS = COEFFICIENTS["D2pq"]
 
-#: coefficients of every series (``_series.N_TERMS``): :func:`horner` is written out for this many
+#: coefficients of every series (``_series_coefficients.N_TERMS``): :func:`horner` is written out for this many
 HORNER_TERMS = 18
 if any(len(c) != HORNER_TERMS for c in COEFFICIENTS.values()):  # pragma: no cover
     raise RuntimeError(f"model.series.horner is written out for {HORNER_TERMS} coefficients; update it for "

@@ -39,8 +39,9 @@ def test_table_has_one_row_per_argument_with_type_default_and_description():
 
 @pytest.mark.parametrize("cls, own", [(SoftPVTOLEnv, []), (SoftPVTOLVectorEnv, ["num_envs"])])
 def test_init_signature_lists_every_argument_with_envconfig_defaults(cls, own):
-    """The single and the vector env: ``render_mode`` and EnvConfig's fields, with its defaults (the vector
-    env also ``num_envs`` and ``autoreset_mode``)."""
+    """The single and the vector env: ``render_mode`` and EnvConfig's fields, in its order, with its defaults
+    and annotations (the vector env also ``num_envs`` and ``autoreset_mode``): the explicit signatures (for
+    editors and help()) are checked against EnvConfig, the one source of the keyword list."""
     params = inspect.signature(cls.__init__).parameters
     named = [n for n, p in params.items() if n not in ("self", "autoreset_mode") and p.kind is not p.VAR_KEYWORD]
     rows = argument_rows()
@@ -49,6 +50,7 @@ def test_init_signature_lists_every_argument_with_envconfig_defaults(cls, own):
     for f in dataclasses.fields(EnvConfig):
         p = params[f.name]
         assert p.kind is p.KEYWORD_ONLY, f.name
+        assert p.annotation == f.type, (f.name, p.annotation, f.type)  # the same type, written the same way
         expected = None if f.default_factory is not dataclasses.MISSING else f.default  # params: None -> default
         assert p.default == expected, f.name
         # the table's default is the signature's

@@ -12,7 +12,7 @@ from gymnasium.utils import seeding
 
 from softpvtol_gym import SoftPVTOLEnv, SoftPVTOLVectorEnv
 from softpvtol_gym.envs.info import FLAG_ENTRIES, FLOAT_ENTRIES, INFO_KEYS, batch_info, single_info
-from softpvtol_gym.envs.layout import SI, S
+from softpvtol_gym.envs.packed_state import SI, S
 from softpvtol_gym.envs.reward import REWARD_TERMS
 from softpvtol_gym.envs.uniforms import UniformDraws, python_draws
 

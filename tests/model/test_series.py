@@ -1,4 +1,4 @@
-"""The branch-free power series of softpvtol_gym._series against 110-digit sympy/mpmath references.
+"""The branch-free power series of softpvtol_gym._series_coefficients against 110-digit sympy/mpmath references.
 
 The references are the closed forms (sin q / q, ...) evaluated with mpmath at 110 significant
 digits, which survives the cancellation near q = 0 (at q = 1e-9 the worst basis function loses
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from softpvtol_gym._series import COEFFICIENTS, horner
+from softpvtol_gym._series_coefficients import COEFFICIENTS, horner
 
 _DPS = 110
 ATOL = 1e-14

@@ -29,7 +29,7 @@ TOP = "softpvtol_gym"
 
 #: (layer, module or subpackage prefixes); a module belongs to the longest prefix that names it
 LAYERS: tuple[tuple[int, tuple[str, ...]], ...] = (
-    (0, ("params", "_batching", "_cache", "_layout", "_parallel", "_series", "_validation", "_version")),
+    (0, ("params", "_batching", "_cache", "_columns", "_parallel", "_series_coefficients", "_validation", "_version")),
     (1, ("model",)),
     (2, ("dynamics", "integrators", "references")),
     (3, ("tasks", "registry")),

@@ -3,7 +3,7 @@
 The compiled kernels of :mod:`softpvtol_gym.model` are the single source of truth of the physics, but
 numba functions cannot take CasADi symbols. This module writes the same equations once more, term by
 term as :mod:`softpvtol_gym.model.paper` and :mod:`softpvtol_gym.model.input_map` write them (the
-same curvature series from :mod:`softpvtol_gym._series`, Horner's rule, the Schur-complement solve of
+same curvature series from :mod:`softpvtol_gym._series_coefficients`, Horner's rule, the Schur-complement solve of
 the mass matrix), and ``tests/control/test_mpc.py`` checks it against the kernels' public API
 (:func:`softpvtol_gym.dynamics.forward_dynamics`, :func:`~softpvtol_gym.dynamics.generalized_forces`,
 :func:`softpvtol_gym.integrators.rk4_step_actuated`) to ~1e-12 at random states. Only the paper's model

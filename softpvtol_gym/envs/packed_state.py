@@ -1,4 +1,4 @@
-"""The env's packed arrays, declared once (see :class:`softpvtol_gym._layout.Layout`).
+"""The env's packed arrays, declared once (see :class:`softpvtol_gym._columns.Columns`).
 
 The state of N envs is ``F`` (N, STATE.size) float64, ``I`` (N, ISTATE.size) int64, ``key`` (N,)
 uint64 (per-episode noise keys) and ``obs`` (N, OBS_DIM) float32; the constants of a config are ``C``
@@ -11,11 +11,11 @@ would cost two atomic reference-count updates per view, which dominated the step
 from __future__ import annotations
 
 from .. import model as MK
-from .._layout import Layout
+from .._columns import Columns
 from ..references import N_REF_PARAMS
 from .reward import REWARD_TERMS
 
-STATE = Layout("env_state", [
+STATE = Columns("env_state", [
     ("q", 5), ("qd", 5),  # true state
     ("qm", 5), ("qdm", 5),  # measured state (noise tiers: + noise)
     ("qr", 5), ("qdr", 5), ("qddr", 5),  # reference now (arm entries 0)
@@ -28,9 +28,9 @@ STATE = Layout("env_state", [
     ("storage_function", 1), ("curvature_violation", 1), ("arm_reference", 2),
     ("P", 10), ("t", 1),  # plant parameters, episode time
 ], version=2)
-ISTATE = Layout("env_int_state", [("counter", 1), ("steps", 1), ("reason", 1), ("lag_init", 1), ("clipped", 1)],
+ISTATE = Columns("env_int_state", [("counter", 1), ("steps", 1), ("reason", 1), ("lag_init", 1), ("clipped", 1)],
                 version=1)
-CONST = Layout("env_constants", [
+CONST = Columns("env_constants", [
     ("dt_physics", 1), ("frame_skip", 1), ("thrust_max", 1), ("arm_torque_max", 1),
     ("lag_a", 1), ("wind_a", 1), ("wind_b", 1), ("wind_std", 1),  # lag and OU wind coefficients
     ("noise_q", 5), ("noise_qd", 5),  # observation-noise stds
@@ -39,7 +39,7 @@ CONST = Layout("env_constants", [
     ("p_nominal", 10), ("lam", 5), ("kg", 5), ("dt_control", 1),
     ("consistent_plant", 1),  # 1.0: the plant integrates the consistent model (docs/model.md)
 ], version=2)
-CODES = Layout("env_codes", [("mode", 1), ("alloc", 1), ("imap", 1), ("res_virtual", 1), ("ref", 1),
+CODES = Columns("env_codes", [("mode", 1), ("alloc", 1), ("imap", 1), ("res_virtual", 1), ("ref", 1),
                              ("action_dim", 1)], version=1)
 #: the physics lane block of a step: the RK4 rows, then the body reference and rates for the
 #: energy/storage diagnostics and their results

@@ -2,9 +2,9 @@
 
 The compiled kernels keep the state of many envs (and the controller's memory, and the SIMD lane
 blocks) in a few flat arrays, because each extra argument of a compiled call costs time. A
-:class:`Layout` is the one declaration of such an array's columns: the offsets the kernels use
+:class:`Columns` is the one declaration of such an array's columns: the offsets the kernels use
 (``layout.at.q``: a namedtuple of ints, which numba freezes into compile-time constants), the named
-views the Python side reads (:meth:`Layout.views`) and a signature stored with pickled state, so
+views the Python side reads (:meth:`Columns.views`) and a signature stored with pickled state, so
 that state saved under another layout is refused instead of being read wrongly.
 """
 
@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections import namedtuple
 
 
-class Layout:
+class Columns:
     """Columns of a packed array: ``fields`` is an ordered sequence of (name, width).
 
     Attributes: ``at`` (namedtuple of the fields' first columns), ``size`` (total width),
@@ -42,9 +42,9 @@ class Layout:
     def signature(self) -> tuple:
         return (self.name, self.version, self.fields)
 
-    def extend(self, name: str, fields, version: int = 1) -> Layout:
+    def extend(self, name: str, fields, version: int = 1) -> Columns:
         """A layout with this one's fields first, then ``fields``."""
-        return Layout(name, self.fields + tuple(fields), version)
+        return Columns(name, self.fields + tuple(fields), version)
 
     def views(self, array) -> dict:
         """{field: view of array[:, columns]} (1-D views for width-1 fields)."""
@@ -63,4 +63,4 @@ class Layout:
             )
 
     def __repr__(self) -> str:
-        return f"Layout({self.name!r}, {list(self.fields)!r}, version={self.version})"
+        return f"Columns({self.name!r}, {list(self.fields)!r}, version={self.version})"
