@@ -13,7 +13,7 @@ import time
 
 from benchmarks._common import ROOT, fmt_time, median, table, verdict
 
-#: issue 26's targets, cold numba cache on 2 cores: the first step of a fresh process (import included)
+#: the targets, cold numba cache on 2 cores: the first step of a fresh process (import included)
 COLD_ACTUATORS_TARGET = 20.0
 COLD_RESIDUAL_TARGET = 30.0
 #: the longest a cold start may stay silent (stderr) while it compiles

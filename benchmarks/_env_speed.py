@@ -11,7 +11,7 @@ import numpy as np
 from benchmarks._common import fmt_rate, fmt_time, interleaved, median, ratios, table, verdict
 
 # ----------------------------------------------------------------------------- 1. single env
-#: issue 26's targets: SoftPVTOL-v0 / Pendulum-v1 (random actions, resets counted), idle and with one core busy
+#: the targets: SoftPVTOL-v0 / Pendulum-v1 (random actions, resets counted), idle and with one core busy
 SINGLE_TARGET = 0.6
 
 

@@ -74,7 +74,7 @@ def bench_ppo(quick: bool) -> dict:
                                                       "pass": fast["env_steps_per_second"] >= 50_000}}}
 
 
-#: the fast training recipe of issue 26, goal 4 (softpvtol_gym/baselines/data/hyperparams/recipes.yml)
+#: the fast training recipe (softpvtol_gym/baselines/data/hyperparams/recipes.yml)
 FAST_RECIPE = "residual-fast"
 
 

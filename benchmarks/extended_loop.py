@@ -1,4 +1,4 @@
-"""The extended loop (issue 24) on the paper's case, and one env episode; writes the JSON and the tables.
+"""The extended loop on the paper's case, and one env episode; writes the JSON and the tables.
 
     python benchmarks/extended_loop.py --out benchmarks/extended_loop.json --docs docs/control.md README.md
 

@@ -1,4 +1,4 @@
-"""The nonlinear MPC's tracking quality and solve times (issue 23), against the bounded passivity loop.
+"""The nonlinear MPC's tracking quality and solve times, against the bounded passivity loop.
 
     python benchmarks/mpc_quality.py                       # track_paper; tiers nominal, wind, noisy
     python benchmarks/mpc_quality.py --tiers nominal --seconds 20 --json /tmp/mpc.json

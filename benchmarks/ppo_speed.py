@@ -1,4 +1,4 @@
-"""PPO configurations compared by time to beat the passivity controller (issue 15, item 1).
+"""PPO configurations compared by time to beat the passivity controller.
 
     python benchmarks/ppo_speed.py --mode residual --timesteps 3000000 \
         --config "default16=n_envs=16;n_steps=256;batch_size=256;n_epochs=10" \
@@ -151,7 +151,7 @@ def markdown_table(results: list[dict]) -> str:
 
 
 def compare(results: list[dict], baseline: str, candidate: str) -> dict:
-    """Issue 26, goal 4: the ``candidate`` configuration against ``baseline`` on the seeds both ran (same task,
+    """The ``candidate`` configuration against ``baseline`` on the seeds both ran (same task,
     tier and mode). Quality is the mean over those seeds of the final held-out evaluation (10 episodes per
     seed): RMS position error and return. The candidate passes when its mean final RMS error is at most the
     baseline's, its mean return at least the baseline's, its mean training wall time (evaluations included) at
@@ -263,7 +263,7 @@ def main(argv=None) -> int:
     ap.add_argument("--config", action="append", help="name=key=value;key=value (repeatable)")
     ap.add_argument("--table", action="store_true", help="print the Markdown table of --out and exit")
     ap.add_argument("--compare", nargs=2, metavar=("BASELINE", "CANDIDATE"),
-                    help="print issue 26's goal-4 comparison of two configurations of --out and exit")
+                    help="print the comparison of two configurations of --out and exit")
     ap.add_argument("--plot", type=Path, help="with --compare: also draw their learning curves against wall time "
                                               "to this PNG")
     ap.add_argument("--timesteps", type=int, default=2_000_000)

@@ -1,4 +1,4 @@
-"""Benchmark suite of issue 7: the speed of the Soft-PVTOL env measured against gymnasium's own envs.
+"""Benchmark suite: the speed of the Soft-PVTOL env measured against gymnasium's own envs.
 
     python benchmarks/run.py            # full run (~5 min), writes benchmarks/RESULTS.md, results.json and
                                         # time_to_beat.png, and the Performance table of docs/performance.md

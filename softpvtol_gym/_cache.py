@@ -85,7 +85,7 @@ FIRST_RUN_MESSAGE = (f"softpvtol_gym: compiling kernels (first run only, about {
 COMPILE_START = "softpvtol_gym: compiling {name} (once; later runs load it from the cache) ..."
 COMPILE_PROGRESS = "softpvtol_gym: ... still compiling {name} ({seconds:.0f} s)"
 COMPILE_END = "softpvtol_gym: compiled {name} in {seconds:.1f} s"
-#: seconds between the progress lines of a long compile (issue 26: no silence over 10 s)
+#: seconds between the progress lines of a long compile (no silence over 10 s)
 PROGRESS_SECONDS = 5.0
 
 

@@ -174,8 +174,7 @@ def arm_tip_positions(q, params: SoftPVTOLParams, model: str = "paper") -> np.nd
     r_l = (-eps - l_l sin q_l / q_l, l_l (1 - cos q_l)/q_l) and its mirror image r_r. ``model="paper"``:
     p_v + r_i, the paper's eq. (coords), whose Lagrangian places the rotor masses there (not rotated by
     theta); ``"consistent"``: the physical tips p_v + R(theta) r_i, where the "exact" input map applies
-    the thrusts. The two agree at theta = 0. (Before issue 14 this function always returned the rotated
-    tips; see docs/model.md.)
+    the thrusts. The two agree at theta = 0 (docs/model.md).
     """
     code = model_code(model)
     lead, (qf,) = broadcast_batch(q=(q, 5))

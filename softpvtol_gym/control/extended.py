@@ -1,4 +1,4 @@
-"""The dynamically extended loop on (x, z, theta, sigma = q_l + q_r) (issue 24; docs/control.md).
+"""The dynamically extended loop on (x, z, theta, sigma = q_l + q_r) (docs/control.md).
 
 The paper's model, actuators a = (T_l, T_r, tau_l, tau_r). The arm torques are used by computed torque
 to give the arms any accelerations w = (w_l, w_r); the total thrust T = T_l + T_r is a state of the

@@ -1,4 +1,4 @@
-"""Compiled kernels of the dynamically extended loop (issue 24; issue 26 item 3): the law of
+"""Compiled kernels of the dynamically extended loop: the law of
 :meth:`ExtendedController.evaluate <softpvtol_gym.control.extended.ExtendedController.evaluate>` for one row, as
 scalar code, and :class:`~softpvtol_gym.policies.ExtendedPolicy`'s whole ``predict`` (its held step: the law,
 the RK4 half step to the midpoint, the law there), whose half steps run in lane blocks (SIMD for 64 rows).

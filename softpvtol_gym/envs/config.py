@@ -52,7 +52,7 @@ ACTUATOR_LIMIT_REASON = (f"> 0; {ACTUATOR_LIMIT_MAX:g} is 50 x the largest defau
                          "(2e18 N m), far inside float64")
 
 
-#: training aids (issue 25): the largest reward weight of the precision and action-rate terms and the
+#: training aids: the largest reward weight of the precision and action-rate terms and the
 #: largest error-integral bound (the start-error scale's bound and the start distributions: .episodes)
 MAX_AID_WEIGHT = 100.0
 ERROR_INTEGRAL_LIMIT_MAX = 1.0e6
@@ -148,7 +148,7 @@ class EnvConfig:
         "that do not rotate with theta) or the consistent one (tips rotated by theta, virtual-work input map); "
         'None: "consistent" in a tier with the consistent plant ("model_gap"), else "paper". The controllers '
         "use the paper's model in every case.")
-    # ---- training aids (issue 25): opt-in, the defaults leave observation, reward and dynamics as they were
+    # ---- training aids: opt-in, the defaults leave observation, reward and dynamics as they were
     observe_error_integral: bool = _argument(
         False, "bool",
         "True: the observation gets 3 more entries (18-20), the integrals over the episode of the measured "
@@ -256,7 +256,7 @@ class EnvConfig:
         self._check_physics()
 
     def _check_training_aids(self) -> None:
-        """The opt-in training aids (issue 25): types and ranges, and the residual gate only in residual mode."""
+        """The opt-in training aids: types and ranges, and the residual gate only in residual mode."""
         flag = self.observe_error_integral
         if not isinstance(flag, (bool, np.bool_)):
             raise ValueError(f"observe_error_integral must be a bool (True: 3 more observation entries), got "

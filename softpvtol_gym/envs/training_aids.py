@@ -1,4 +1,4 @@
-"""The env's opt-in training aids (issue 25), as batched kernels of the packed state that BatchSim runs
+"""The env's opt-in training aids, as batched kernels of the packed state that BatchSim runs
 around the step kernel for the single and the vector env alike (row by row: N = 1 and N > 1 give the
 same bits):
 

@@ -1,4 +1,4 @@
-"""Issue 23: the evaluator's windowed metrics (first quarter, last half, max over the last 5 s), the crashed-window
+"""The evaluator's windowed metrics (first quarter, last half, max over the last 5 s), the crashed-window
 rule and the compute per step, checked against a hand computation on a recorded trajectory."""
 
 from __future__ import annotations

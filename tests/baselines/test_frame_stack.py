@@ -1,4 +1,4 @@
-"""Issue 16's training plumbing: frame stacking (hyperparameter ``frame_stack``, SB3's VecFrameStack in
+"""the training plumbing: frame stacking (hyperparameter ``frame_stack``, SB3's VecFrameStack in
 training, the same stack in :class:`LearnedPolicy` for evaluation, recorded in the checkpoint's config) and
 env options of a run (``RunConfig.env_options``, ``train.py --env``)."""
 

@@ -1,4 +1,4 @@
-"""Issue 15, item 5: the hyperparameter files are keyed by env id in rl-baselines3-zoo's format, train.py and
+"""The hyperparameter files are keyed by env id in rl-baselines3-zoo's format, train.py and
 ``python -m rl_zoo3.train`` read the same files, and the per-mode env ids behave as SoftPVTOL-v0 with the
 mode fixed."""
 
@@ -118,7 +118,7 @@ def test_an_unknown_entry_names_the_mode_and_the_entries(tmp_path):
 @pytest.mark.slow  # rl_zoo3 in a subprocess (about 15 s)
 @pytest.mark.parametrize("env_id", [ENV_ID, MODE_ENV_IDS["residual"]])
 def test_rl_zoo3_trains_from_the_hyperparameter_file(env_id, tmp_path):
-    """The command of issue 15 (with a tiny budget and small rollouts)."""
+    """The command (with a tiny budget and small rollouts)."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
     cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", env_id, "--gym-packages", "softpvtol_gym",
            "--conf-file", str(HYPERPARAMS_DIR / "ppo.yml"), "-n", "256", "--eval-freq", "-1", "--seed", "0",

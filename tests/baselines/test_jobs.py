@@ -1,4 +1,4 @@
-"""Issue 16: a learned cell is scored on tasks it never trained on (``also_evaluated_on`` in the leaderboard
+"""A learned cell is scored on tasks it never trained on (``also_evaluated_on`` in the leaderboard
 spec): the spec is checked, a finished job only evaluates what a new task adds, and the leaderboard
 labels the cross-task rows with the training task."""
 

@@ -45,7 +45,7 @@ DATA = json.loads(LEADERBOARD_JSON.read_text())
 LEADERBOARD_MD = LAYOUT.doc("leaderboard.md")
 CHART_PNG = LAYOUT.results / "leaderboard.png"
 # (checkpoint, training tier, evaluated task): every committed model on its training tier, on its own task
-# and on each task it is also evaluated on (issue 16: a track_random cell scored on track_paper)
+# and on each task it is also evaluated on (a track_random cell scored on track_paper)
 LEARNED = sorted({(c["checkpoint"], c["train_tier"], c["task"]) for c in DATA["cells"] if c["checkpoint"]})
 
 

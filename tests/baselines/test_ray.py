@@ -1,4 +1,4 @@
-"""Issue 15, items 3 and 4: the job list on Ray (``run_jobs.py --executor ray``) gives the process pool's results,
+"""The job list on Ray (``run_jobs.py --executor ray``) gives the process pool's results,
 skips finished jobs, reports a failing job in one line; the shared-root check; the Tune search writes a valid
 best configuration with its provenance. Ray runs locally with 2 CPUs (no dashboard, a fresh short temp dir)."""
 

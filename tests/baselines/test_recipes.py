@@ -1,4 +1,4 @@
-"""Issue 25, part 2: training-only env options, the starting-error curriculum, training recipes (train.py
+"""Training-only env options, the starting-error curriculum, training recipes (train.py
 --recipe, leaderboard cells with a recipe) and the ablation table."""
 
 from __future__ import annotations
@@ -153,7 +153,7 @@ def test_train_recipe_sets_the_run_and_the_command_line_changes_it(tmp_path):
 
 
 def test_the_fast_recipe_trains_with_fused_adam_and_resumes(tmp_path):
-    """residual-fast (issue 26, goal 4): its hyperparameters, one rollout of 128 x 128 steps trained with torch's
+    """residual-fast: its hyperparameters, one rollout of 128 x 128 steps trained with torch's
     fused Adam, and a resumed run that continues with the same optimizer."""
     from softpvtol_gym.baselines.checkpoints.load import load_folder
 

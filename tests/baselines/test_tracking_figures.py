@@ -1,4 +1,4 @@
-"""baselines/tracking_figures.py (issue 16's pictures): the choice of the learned policy from a leaderboard
+"""baselines/tracking_figures.py (the pictures): the choice of the learned policy from a leaderboard
 JSON, short runs of each picture into tmp_path, bad input exits 2 before any work, and the committed
 pictures exist, are what they claim to be and are shown in the README."""
 

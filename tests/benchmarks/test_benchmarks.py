@@ -1,4 +1,4 @@
-"""Fast paths vs reference paths (issue 7), and the benchmark script end to end (quick mode).
+"""Fast paths vs reference paths, and the benchmark script end to end (quick mode).
 
 The fast paths: the SIMD lane kernels of the env's physics, the fused compiled controller step
 (PassivityController, the residual mode, PassivityPolicy), the lazily bracketed exact allocation and
@@ -641,7 +641,7 @@ def _ppo_speed_module():
 
 
 def test_fast_recipe_comparison_is_the_committed_runs_and_the_docs_table():
-    """Issue 26, goal 4: benchmarks/ppo_speed_fast.json holds the default entry and the residual-fast recipe as
+    """Benchmarks/ppo_speed_fast.json holds the default entry and the residual-fast recipe as
     shipped, five seeds each on the tracking cell; docs/performance.md's table is --compare's output for it."""
     from softpvtol_gym.baselines.config.recipes import load_recipe
 

@@ -1,5 +1,5 @@
-"""The committed tracking probes of issue 16 (benchmarks/tracking_probes.json, from
-``python benchmarks/tracking_probes.py``): the generated tables are the JSON's, every summary is its
+"""The committed tracking evaluation (benchmarks/tracking_evaluation.json, from
+``python benchmarks/tracking_evaluation.py``): the generated tables are the JSON's, every summary is its
 episodes', and the passivity reference still evaluates to the committed figures."""
 
 from __future__ import annotations
@@ -15,24 +15,24 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
-def probes():
-    path = ROOT / "benchmarks" / "tracking_probes.py"
-    spec = importlib.util.spec_from_file_location("softpvtol_tracking_probes", path)
+def evaluation():
+    path = ROOT / "benchmarks" / "tracking_evaluation.py"
+    spec = importlib.util.spec_from_file_location("softpvtol_tracking_evaluation", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return module, json.loads((ROOT / "benchmarks" / "tracking_probes.json").read_text())
+    return module, json.loads((ROOT / "benchmarks" / "tracking_evaluation.json").read_text())
 
 
-def test_tables_are_generated_from_the_json(probes):
-    module, data = probes
-    assert (ROOT / "benchmarks" / "TRACKING_PROBES.md").read_text() == module.markdown(data)
+def test_tables_are_generated_from_the_json(evaluation):
+    module, data = evaluation
+    assert (ROOT / "benchmarks" / "TRACKING_EVALUATION.md").read_text() == module.markdown(data)
     text = (ROOT / "docs" / "baselines.md").read_text()
     block = text[text.index(module.DOCS_START) + len(module.DOCS_START):text.index(module.DOCS_END)]
     assert block.strip() == module.summary_table(data).strip()
 
 
-def test_every_cell_summarises_its_episodes(probes):
-    module, data = probes
+def test_every_cell_summarises_its_episodes(evaluation):
+    module, data = evaluation
     runs = [data["reference"], *data["runs"]]
     assert len(data["runs"]) >= 10
     for run in runs:
@@ -49,13 +49,13 @@ def test_every_cell_summarises_its_episodes(probes):
         assert f"--seed {run['seed']}" in run["command"] and f"--tier {run['trained_tier']}" in run["command"]
 
 
-def test_the_passivity_reference_evaluates_to_the_committed_figures(probes):
+def test_the_passivity_reference_evaluates_to_the_committed_figures(evaluation):
     """One cell of the reference, run again with the current code (the env is deterministic given the seed)."""
     from softpvtol_gym import PassivityPolicy
     from softpvtol_gym.baselines.evaluation import run_episodes
     from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
-    module, data = probes
+    module, data = evaluation
     probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="residual", task="track_random", tier="nominal",
                                controller_loop="bounded")
     eps = run_episodes(PassivityPolicy.from_env(probe), "residual", "track_random", "nominal", module.EPISODES,

@@ -1,4 +1,4 @@
-"""The extended loop (issue 24): exact tracking in continuous time (the error is RK4's O(dt^4), not a floor
+"""The extended loop: exact tracking in continuous time (the error is RK4's O(dt^4), not a floor
 proportional to dt), the held implementation, the policy in the env, and bad input.
 
 The full 80 s study is benchmarks/extended_loop.py (its committed JSON backs the docs' table, re-checked

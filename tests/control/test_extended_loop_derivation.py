@@ -1,4 +1,4 @@
-"""The extended loop's analysis (issue 24), derived here with sympy from the Lagrangian, and the
+"""The extended loop's analysis, derived here with sympy from the Lagrangian, and the
 controller (control/extended.py) checked against it.
 
 Derived from scratch (the paper's Lagrangian: rotor masses at the unrotated tips p + r_i; the

@@ -1,4 +1,4 @@
-"""The analytic loops beyond the paper (issue 14): the solved algebraic loop, the "bounded" loop that
+"""The analytic loops beyond the paper: the solved algebraic loop, the "bounded" loop that
 is the env's default, controller_loop=, and the control periods the default gains allow."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The nonlinear MPC (issue 23): its symbolic model against the package's numeric one, the policy's
+"""The nonlinear MPC: its symbolic model against the package's numeric one, the policy's
 interface and bad input, the fallback, and short closed loops; the 40 s quality run is slow
 (benchmarks/mpc_quality.py prints the same figures)."""
 
@@ -253,7 +253,7 @@ def test_hover_from_an_offset_settles():
 
 @pytest.mark.slow  # a 40 s episode of the MPC and one of the passivity loop (~1.5 min on 2 cores)
 def test_track_paper_nominal_quality_targets():
-    """Issue 23's targets on track_paper nominal (actuators), rerun: 0-10 s RMS below the bounded passivity
+    """the targets on track_paper nominal (actuators), rerun: 0-10 s RMS below the bounded passivity
     loop's, 20-40 s RMS <= 1e-3 m, no crash. (Wind and noisy: the committed benchmark, checked below.)"""
     cfg = EnvConfig(task="track_paper")
     pol = MPCPolicy(cfg)
@@ -302,7 +302,7 @@ def test_evaluate_policy_mpc_writes_its_solver_statistics(tmp_path):
 
 def test_docs_table_is_the_committed_benchmark():
     """docs/control.md's MPC table = ``python benchmarks/mpc_quality.py --table benchmarks/mpc_quality.json``,
-    and the committed figures meet issue 23's targets (track_paper nominal: 0-10 s RMS below the bounded
+    and the committed figures meet the targets (track_paper nominal: 0-10 s RMS below the bounded
     loop's, 20-40 s RMS <= 1e-3 m, median solve <= 10 ms; no crash on nominal, wind, noisy)."""
     import importlib.util
     import json

@@ -1,4 +1,4 @@
-"""A readable reference of the SoftPVTOL-v0 env step in plain numpy (issue 12, part 4).
+"""A readable reference of the SoftPVTOL-v0 env step in plain numpy.
 
 Written from docs/env.md ("Step, in order", "Observation", "Actions", "Reward", "Episode end",
 "Tiers", "Counter-based noise") and docs/model.md (D, C, g, input maps, RK4), not from the env's

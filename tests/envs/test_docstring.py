@@ -58,7 +58,7 @@ def test_init_signature_lists_every_argument_with_envconfig_defaults(cls, own):
 
 
 def test_default_base_loop_is_documented_as_bounded():
-    """The residual mode's default base loop is "bounded" (issue 14); the docstring says so."""
+    """The residual mode's default base loop is "bounded"; the docstring says so."""
     assert EnvConfig(action_mode="residual").resolved_controller_loop == "bounded"
     action = " ".join(_docstring_section("Action Space").split())
     assert 'by default "bounded"' in action

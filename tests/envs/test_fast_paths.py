@@ -101,32 +101,32 @@ def test_info_dicts_equal_the_reference_read_from_the_whole_state():
     assert infos["time"].max() > 0.0 and max(v.max() for v in infos["reward_terms"].values()) > 0.0
 
 
-def _issue26_probes():
-    """benchmarks/issue26_probes.py as a module (a script, not a package module)."""
+def _kernel_timings():
+    """benchmarks/kernel_timings.py as a module (a script, not a package module)."""
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[2] / "benchmarks" / "issue26_probes.py"
-    spec = importlib.util.spec_from_file_location("issue26_probes", path)
-    probes = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(probes)
-    return probes
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "kernel_timings.py"
+    spec = importlib.util.spec_from_file_location("kernel_timings", path)
+    timings = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(timings)
+    return timings
 
 
-def test_the_issue_26_probe_of_the_reset_draws_runs(capsys):
-    assert _issue26_probes().main(["draws"]) == 0
+def test_the_reset_draws_timing_runs(capsys):
+    assert _kernel_timings().main(["draws"]) == 0
     out = capsys.readouterr().out
     assert "compiled loop" in out and "Python loop" in out
 
 
-def test_the_issue_26_probes_of_the_kernel_parts_and_the_lanes_run(capsys):
-    """``issue26_probes.py parts`` and ``simd`` call the step kernel's private parts and the lane kernels by name:
+def test_the_timings_of_the_kernel_parts_and_the_lanes_run(capsys):
+    """``kernel_timings.py parts`` and ``simd`` call the step kernel's private parts and the lane kernels by name:
     they still run (their figures are not checked), and the parts add up to about the kernel they split."""
     import re
 
-    probes = _issue26_probes()
-    probes.probe_simd(reps=3)
-    probes.probe_parts(reps=3)
+    timings = _kernel_timings()
+    timings.time_simd(reps=3)
+    timings.time_parts(reps=3)
     out = capsys.readouterr().out
     assert "RK4 step, full lane block (SIMD)" in out and "libm sin and cos" in out
     for part in ("actions clipped", "RK4 step (lanes, SIMD)", "observation", "reward"):

@@ -1,4 +1,4 @@
-"""The env's compiled step against the plain-numpy reference of tests/envs/reference_env.py (issue 12, part 4).
+"""The env's compiled step against the plain-numpy reference of tests/envs/reference_env.py.
 
 Every action mode (actuators; virtual with allocation exact / paper / ideal; residual with allocation
 exact / paper and residual_space virtual / actuators) x tier (nominal, mismatch, wind, noisy, hard) x

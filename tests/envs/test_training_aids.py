@@ -1,4 +1,4 @@
-"""The env's opt-in training aids (issue 25, part 1): each does what the docs say, the defaults change
+"""The env's opt-in training aids: each does what the docs say, the defaults change
 nothing, the single env and the vector env agree bit for bit, bad values are refused."""
 
 import math

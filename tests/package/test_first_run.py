@@ -1,4 +1,4 @@
-"""First-run experience (issue 13, item 7): the compile message, display-only pygame, the
+"""First-run experience: the compile message, display-only pygame, the
 ``"softpvtol_gym:SoftPVTOL-v0"`` id in worker processes that never imported the package."""
 
 import os

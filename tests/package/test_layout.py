@@ -159,7 +159,7 @@ def test_each_checkout_script_answers_help(script, capsys, monkeypatch):
 
 def test_a_policy_given_by_hand_never_overwrites_the_leaderboard_pictures(tmp_path):
     """tracking_figures.py --checkpoint RUN: the default tracking plot and GIF are other files than the
-    committed pictures of the leaderboard's policy (issue 21: no command overwrites a committed file)."""
+    committed pictures of the leaderboard's policy (no command overwrites a committed file)."""
     from softpvtol_gym.baselines.commands.figures import _default_outputs, build_parser
     from tests.conftest import LAYOUT
 

@@ -1,4 +1,4 @@
-"""Issue 21 (public API contract): the built wheel, installed (not editable) into a fresh environment, runs
+"""The built wheel, installed (not editable) into a fresh environment, runs
 ``softpvtol evaluate --policy passivity`` in a directory outside the checkout and writes its JSON there.
 
 No download: the wheel is built without build isolation from a copy of the project (nothing is written into

@@ -1,4 +1,4 @@
-"""Score the learned controller's ablation (issue 25) and render its table.
+"""Score the learned controller's ablation and render its table.
 
     softpvtol ablation --spec ablation.yml --root results/ablation_runs
 

@@ -1,4 +1,4 @@
-"""The pictures of issue 16: tracking plots, learning curves against wall-clock time, a GIF of the best policy.
+"""The pictures: tracking plots, learning curves against wall-clock time, a GIF of the best policy.
 
     softpvtol figures                      # all three, the learned policy from the leaderboard
     softpvtol figures --checkpoint results/leaderboard_runs/<cell>/seed_<k>

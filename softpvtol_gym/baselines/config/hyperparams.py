@@ -43,7 +43,7 @@ ENV_OPTION_KEYS = ("residual_scale", "residual_space", "residual_gate", "observe
 #: the env options that shape the residual action (residual mode only); the others apply in every mode
 RESIDUAL_ONLY_ENV_OPTIONS = ("residual_scale", "residual_space", "residual_gate")
 #: env arguments of the run's training env only (RunConfig.train_env_options, train.py --train-env): the
-#: training aids of issue 25 (extra reward terms, wider starts) that change what the agent is trained on but
+#: training aids (extra reward terms, wider starts) that change what the agent is trained on but
 #: not its interface; evaluations (periodic, leaderboard) use the task's own reward and starts
 TRAINING_ENV_OPTION_KEYS = ("precision_reward_weight", "precision_reward_scale", "action_rate_penalty",
                             "start_error_scale", "start_distribution")

@@ -1,4 +1,4 @@
-"""Training recipes (issue 25): a named training setup, ``softpvtol_gym/baselines/data/hyperparams/recipes.yml``.
+"""Training recipes: a named training setup, ``softpvtol_gym/baselines/data/hyperparams/recipes.yml``.
 
 A recipe is an entry of an algorithm's hyperparameter file (``<algo>.yml``, rl-baselines3-zoo's format, keyed by
 the action mode's env id) together with everything else a run needs to reproduce it: the residual mode's base

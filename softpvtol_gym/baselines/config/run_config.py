@@ -162,9 +162,9 @@ class RunConfig:
             # saved before the field existed (2026-12-01): those runs trained on the "exact" base loop
             data = {**data, "controller_loop": LEGACY_CONTROLLER_LOOP}
         if strict and "env_options" not in data:
-            # saved before the field existed (2026-12-01, issue 16): those runs used the env's defaults
+            # saved before the field existed (2026-12-01): those runs used the env's defaults
             data = {**data, "env_options": dict(LEGACY_ENV_OPTIONS)}
-        if strict:  # saved before the fields existed (2026-12-02, issue 25): no training aids
+        if strict:  # saved before the fields existed (2026-12-02): no training aids
             data = {"train_env_options": {}, "start_error_curriculum": None, **data}
         if strict:
             lost = [n for n in names if n not in data]

@@ -1,5 +1,5 @@
 """Tracking plots, learning curves and the GIF of a learned policy against the strongest analytic entry
-(the pictures of issue 16); ``softpvtol figures`` (:mod:`softpvtol_gym.baselines.commands.figures`) draws them."""
+(the pictures); ``softpvtol figures`` (:mod:`softpvtol_gym.baselines.commands.figures`) draws them."""
 
 from __future__ import annotations
 

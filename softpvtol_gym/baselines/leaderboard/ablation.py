@@ -1,4 +1,4 @@
-"""The ablation of the learned controller (issue 25): what each training ingredient does, per time window.
+"""The ablation of the learned controller: what each training ingredient does, per time window.
 
 An ablation spec (``baselines/ablation.yml`` in a checkout; the leaderboard spec's format) lists one trained cell
 per recipe (softpvtol_gym/baselines/data/hyperparams/recipes.yml), each adding one ingredient to the one before.

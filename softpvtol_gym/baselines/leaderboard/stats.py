@@ -328,7 +328,7 @@ def aggregate(cells: list[dict]) -> list[dict]:
 
 
 # ------------------------------------------------------------------------------------- headline
-HEADLINE_TASKS = ("track_paper", "track_random")  # the tracking tasks of issue 16's goal
+HEADLINE_TASKS = ("track_paper", "track_random")  # the tracking tasks: the headline
 
 
 def _policy_key(row: dict) -> tuple:

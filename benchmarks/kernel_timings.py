@@ -1,30 +1,30 @@
-"""Probes behind the before/after figures of issue 26 (docs/performance.md), each one command:
+"""Timings of the kernels and their parts, behind the figures of docs/performance.md, each one command:
 
-    SOFTPVTOL_GYM_CACHE_DIR=$(mktemp -d) python benchmarks/issue26_probes.py compile --mode actuators
+    SOFTPVTOL_GYM_CACHE_DIR=$(mktemp -d) python benchmarks/kernel_timings.py compile --mode actuators
         # a cold first step: import + reset + step, and the compile of every kernel (a tree, >= 0.25 s)
-    python benchmarks/issue26_probes.py draws      # reset uniforms: the compiled loop vs the Python loop
-    python benchmarks/issue26_probes.py single     # single env / Pendulum-v1, random actions, resets counted
-    python benchmarks/issue26_probes.py policy     # PassivityPolicy.predict for one state (default, integral,
+    python benchmarks/kernel_timings.py draws      # reset uniforms: the compiled loop vs the Python loop
+    python benchmarks/kernel_timings.py single     # single env / Pendulum-v1, random actions, resets counted
+    python benchmarks/kernel_timings.py policy     # PassivityPolicy.predict for one state (default, integral,
                                                    # extended loops) and PassivityController(), called again and
                                                    # again on one state: the Python around the kernel and a
                                                    # 1-pass algebraic loop (benchmarks/run.py item 3 times the
                                                    # controllers along their closed loops instead)
-    python benchmarks/issue26_probes.py vector     # the vector env's step, N = 256 and 4096, random actions
-    python benchmarks/issue26_probes.py passes     # the algebraic loop's passes along closed loops, the cost of
+    python benchmarks/kernel_timings.py vector     # the vector env's step, N = 256 and 4096, random actions
+    python benchmarks/kernel_timings.py passes     # the algebraic loop's passes along closed loops, the cost of
                                                    # a pass, the extended loop's law (one thread, N = 4096)
-    python benchmarks/issue26_probes.py parts      # the step kernel's parts, N = 4096, one thread, random actions
+    python benchmarks/kernel_timings.py parts      # the step kernel's parts, N = 4096, one thread, random actions
                                                    # (each part timed as the kernel runs it, in 64-env blocks)
-    python benchmarks/issue26_probes.py split      # the step kernel of N = 4096 envs in one thread and split
+    python benchmarks/kernel_timings.py split      # the step kernel of N = 4096 envs in one thread and split
                                                    # over the threads: when each chunk starts and ends
-    python benchmarks/issue26_probes.py bound      # the vector env's step at N = 4096 with every part in one
+    python benchmarks/kernel_timings.py bound      # the vector env's step at N = 4096 with every part in one
                                                    # thread, and the bound of a perfect split over two threads,
                                                    # against CartPoleVectorEnv in the same run
-    python benchmarks/issue26_probes.py simd       # the RK4 step of a full lane block (SIMD) against lane by
+    python benchmarks/kernel_timings.py simd       # the RK4 step of a full lane block (SIMD) against lane by
                                                    # lane, and libm's sin and cos (what the lanes cannot vectorise)
-    python benchmarks/issue26_probes.py extended   # ExtendedPolicy.predict's parts (one thread, N = 4096): its law
+    python benchmarks/kernel_timings.py extended   # ExtendedPolicy.predict's parts (one thread, N = 4096): its law
                                                    # alone, predict with one law (held_command="start") and with
                                                    # the midpoint (two laws and an RK4 half step)
-    python benchmarks/issue26_probes.py training   # the SB3 adapter's step (step_infos on/off), 128 sub-envs;
+    python benchmarks/kernel_timings.py training   # the SB3 adapter's step (step_infos on/off), 128 sub-envs;
                                                    # one periodic evaluation (10 track_random episodes)
 
 For a before/after pair run the same command on the older sources too (e.g. ``git stash`` or
@@ -57,7 +57,7 @@ def _median_seconds(prepare, reps: int) -> float:
     return statistics.median(times)
 
 
-def probe_compile(mode: str) -> None:
+def time_compile(mode: str) -> None:
     from numba.core import event
 
     records, stack = [], []
@@ -89,7 +89,7 @@ def probe_compile(mode: str) -> None:
             print(f"{'  ' * depth}{seconds:6.1f} s  {name}")
 
 
-def probe_draws() -> None:
+def time_draws() -> None:
     import timeit
 
     import numpy as np
@@ -106,7 +106,7 @@ def probe_draws() -> None:
     print(f"{idx.size} resets of 50 uniforms: compiled loop {fast * 1e6:.0f} us, Python loop {slow * 1e6:.0f} us")
 
 
-def probe_single(reps: int = 21, steps: int = 2000) -> None:
+def time_single(reps: int = 21, steps: int = 2000) -> None:
     import gymnasium as gym
 
     import softpvtol_gym  # noqa: F401  (registers the env)
@@ -122,7 +122,7 @@ def probe_single(reps: int = 21, steps: int = 2000) -> None:
           f"{ours_us:.2f} us vs {pendulum_us:.2f} us")
 
 
-def probe_policy() -> None:
+def time_policy() -> None:
     import timeit
 
     from softpvtol_gym import PassivityPolicy, SoftPVTOLVectorEnv
@@ -143,7 +143,7 @@ def probe_policy() -> None:
     print(f"PassivityController(), one state: {seconds * 1e6:.2f} us (best of 7)")
 
 
-def probe_vector(reps: int = 7) -> None:
+def time_vector(reps: int = 7) -> None:
     import gymnasium as gym
     import numpy as np
 
@@ -168,7 +168,7 @@ def probe_vector(reps: int = 7) -> None:
               f"(median of {reps})")
 
 
-def probe_passes() -> None:
+def time_passes() -> None:
     import copy
 
     import numpy as np
@@ -229,7 +229,7 @@ def probe_passes() -> None:
               "env (median of 5)")
 
 
-def probe_parts(reps: int = 31) -> None:
+def time_parts(reps: int = 31) -> None:
     """The step kernel's parts for N = 4096 envs in one thread (default env, random actions, after 50 steps):
     a compiled loop over the 64-env blocks runs the kernel's parts up to a given one, as ``_step_block`` does;
     each part's time is the difference to the loop that stops before it. Every repetition steps a copy of the
@@ -294,7 +294,7 @@ def probe_parts(reps: int = 31) -> None:
           f"{1e6 * full:.0f} us, {1e9 * full / n:.0f} ns per env")
 
 
-def probe_split(reps: int = 7) -> None:
+def time_split(reps: int = 7) -> None:
     import threading
 
     import numpy as np
@@ -354,7 +354,7 @@ def probe_split(reps: int = 7) -> None:
     print(f"ThreadPoolExecutor.submit to an idle worker: {1e6 * statistics.median(submit):.1f} us (median of 200)")
 
 
-def probe_bound(reps: int = 7) -> None:
+def time_bound(reps: int = 7) -> None:
     """Item 2's vector target at N = 4096 against the best any split over two threads can do.
 
     An env built with one thread does all of a step's work in this thread: the kernel, the resets' uniforms
@@ -427,7 +427,7 @@ def probe_bound(reps: int = 7) -> None:
           f"a perfect split; 0.25x needs <= {4 * cart_t * 1e6:.0f} us per step")
 
 
-def probe_simd(reps: int = 201) -> None:
+def time_simd(reps: int = 201) -> None:
     """What a lane block gains: the model's RK4 step of 64 states as SIMD code (``model.rk4_lanes``) against the
     same step lane by lane (``model.rk4_lanes_partial``), and libm's sin and cos, which stay scalar calls (a lane
     block computes them in a loop of their own before its SIMD loop). One thread, random states near hover."""
@@ -464,7 +464,7 @@ def probe_simd(reps: int = 201) -> None:
         print(f"{name}: {1e9 * seconds / per:.1f} ns per state (median of {reps})")
 
 
-def probe_extended(reps: int = 21) -> None:
+def time_extended(reps: int = 21) -> None:
     """The parts of ``ExtendedPolicy.predict`` in one thread at N = 4096, from step 100 of a hover loop (nominal
     tier, seed 0): the law alone (``extended_law`` on every row's state, the extension and a zero reference jet),
     predict with one law (``held_command="start"``) and with the default midpoint (the law, the RK4 half step of
@@ -511,7 +511,7 @@ def probe_extended(reps: int = 21) -> None:
         print(f"  ExtendedPolicy.predict, held_command={held!r}: {ns:.0f} ns per env")
 
 
-def probe_training() -> None:
+def time_training() -> None:
     import tempfile
     import timeit
 
@@ -549,15 +549,15 @@ def probe_training() -> None:
     print(f"one periodic evaluation (10 track_random episodes, an untrained policy): {seconds:.3f} s (best of 5)")
 
 
-#: the probes without options, by their command's name
-PROBES = {"draws": probe_draws, "single": probe_single, "policy": probe_policy, "vector": probe_vector,
-          "parts": probe_parts, "split": probe_split, "passes": probe_passes, "bound": probe_bound,
-          "simd": probe_simd, "extended": probe_extended, "training": probe_training}
+#: the timings without options, by their command's name
+TIMINGS = {"draws": time_draws, "single": time_single, "policy": time_policy, "vector": time_vector,
+          "parts": time_parts, "split": time_split, "passes": time_passes, "bound": time_bound,
+          "simd": time_simd, "extended": time_extended, "training": time_training}
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    sub = ap.add_subparsers(dest="probe", required=True)
+    sub = ap.add_subparsers(dest="timing", required=True)
     c = sub.add_parser("compile", help="a cold first step and the compile time of every kernel")
     c.add_argument("--mode", default="actuators", choices=("actuators", "virtual", "residual"))
     sub.add_parser("draws", help="reset uniforms: compiled vs Python loop")
@@ -573,10 +573,10 @@ def main(argv=None) -> int:
     sub.add_parser("extended", help="ExtendedPolicy.predict's parts: its law, one law, the midpoint")
     sub.add_parser("training", help="the SB3 adapter's step; a periodic evaluation")
     args = ap.parse_args(argv)
-    if args.probe == "compile":
-        probe_compile(args.mode)
+    if args.timing == "compile":
+        time_compile(args.mode)
     else:
-        PROBES[args.probe]()
+        TIMINGS[args.timing]()
     return 0
 
 
