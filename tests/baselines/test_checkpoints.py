@@ -29,7 +29,7 @@ from softpvtol_gym.baselines.commands.train import main as train_main
 from softpvtol_gym.baselines.errors import CheckpointError, ConfigError, LockedError
 from softpvtol_gym.baselines.util.atomic import atomic_path, atomic_write_text, clean_stale_temps
 from softpvtol_gym.baselines.util.locks import DirectoryLock
-from softpvtol_gym.envs.layout import ISTATE, STATE
+from softpvtol_gym.envs.packed_state import ISTATE, STATE
 from tests.conftest import ROOT, TINY, copy_run, rewrite_manifest
 
 

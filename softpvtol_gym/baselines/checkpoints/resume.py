@@ -26,7 +26,7 @@ from softpvtol_gym.baselines.util.atomic import (
     atomic_write_text,
 )
 from softpvtol_gym.control import kernels as CK
-from softpvtol_gym.envs.layout import ISTATE, STATE, S
+from softpvtol_gym.envs.packed_state import ISTATE, STATE, S
 from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
 from softpvtol_gym.envs.termination import REASONS
 from softpvtol_gym.params import SoftPVTOLParams

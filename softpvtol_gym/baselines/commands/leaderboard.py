@@ -23,7 +23,7 @@ bootstrap for pairs does not support resampling episodes), so for the passivity-
 is a point. The bootstrap is seeded: the JSON, and
 therefore docs/leaderboard.md, are reproducible.
 
-Leaderboard v3 adds, per row, the IQM and CI of each time window (first quarter, last half, max over the last
+Per row, the leaderboard holds the IQM and CI of each time window (first quarter, last half, max over the last
 5 s; a crashed window counts as worse than any value: "crash" where it reaches the IQM or a CI bound) and the
 median compute per step; a deterministic task and tier (an entry there has identical episodes) counts each run
 once, so its CIs come from the training seeds only. The headline compares, per (task, tier, window), the

@@ -15,7 +15,7 @@ recorded before the windowed metrics (episodes without ``rms_position_error_stea
 ...), with the committed models; it never trains (a learned job without its model fails, naming it) and leaves
 the jobs that have no result to a run without it.
 
-    softpvtol run-jobs --rescore --workers 2      # the learned cells of leaderboard v2, re-scored (v3 metrics)
+    softpvtol run-jobs --rescore --workers 2      # learned cells with stale results, re-scored (windowed metrics)
 Each worker process (each Ray task: one CPU) runs with one numba and one torch thread. The same jobs
 and seeds give the same result files with either executor; on a Ray cluster ``--root`` must be on a
 file system that every node mounts at the same path (each task checks it, see docs/baselines.md).

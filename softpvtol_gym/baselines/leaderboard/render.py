@@ -89,8 +89,8 @@ def headline_markdown(data: dict, heading: bool = True) -> list[str]:
 
 
 def policy_headline_markdown(data: dict) -> list[str]:
-    """One learned policy against the strongest analytic controller on every (tracking task, tier) (v2's
-    headline, :func:`~.stats.headline`), whole-episode RMS."""
+    """One learned policy against the strongest analytic controller on every (tracking task, tier) (the
+    whole-episode headline, :func:`~.stats.headline`), whole-episode RMS."""
     h = headline(data)
     if h is None:
         return []

@@ -2,7 +2,7 @@
 the headline, and the JSON that holds them (built and validated).
 
 Per (task, tier, entry) row: the IQM and 95 % CI of the whole-episode RMS position error, of the return and of
-the crash rate (as in v2), and of each window of :data:`~softpvtol_gym.baselines.evaluation.WINDOW_METRICS`
+the crash rate, and of each window of :data:`~softpvtol_gym.baselines.evaluation.WINDOW_METRICS`
 (``<metric>_iqm``, ``<metric>_ci``), plus ``compute_us_per_step_median`` (the median over the row's episodes
 of their median per-step time) and ``compute_us_per_step_p99`` / ``_max`` (the worst episode's). Two rules keep
 the CIs honest:
@@ -55,8 +55,8 @@ BOOTSTRAP_REPS = 2000
 POI_BOOTSTRAP_REPS = 300  # rliable's probability of improvement runs scipy per episode: slow
 BOOTSTRAP_SEED = 0
 COMMAND = "python baselines/run_jobs.py && python baselines/leaderboard.py"
-#: the per-episode metrics every result must hold (the windows and the timing came with v3: results without
-#: them are stale, re-scored by ``run-jobs --rescore``)
+#: the per-episode metrics every result must hold (results without the windows and the timing are
+#: stale, re-scored by ``run-jobs --rescore``)
 BASE_METRICS = tuple(k for k in EPISODE_METRICS if k not in WINDOW_METRICS)
 #: the windows of the headline: (name, per-episode metric, what it is)
 WINDOWS = (("whole", "rms_position_error", "RMS, whole episode"),
@@ -391,7 +391,7 @@ def window_headline(data: dict) -> list[dict]:
     (the analytic entry, passivity or MPC, with the lowest), both chosen per (task, tier, window), so each side
     gets its best. ``winner``: "learned" or "model-based" where that side's 95 % CI lies entirely below the
     other's and its crash rate is no higher; "neither" otherwise (overlapping CIs, or a lower error bought
-    with more crashes). Windows the rows do not hold (a leaderboard from before v3) are left out."""
+    with more crashes). Windows the rows do not hold (results scored before the windows existed) are left out."""
     meta, rows = data["meta"], data["aggregates"]
     out = []
     for task in meta["tasks"]:
@@ -498,7 +498,7 @@ def validate_data(data, source: str) -> dict:
             ci = r.get(key)
             if not (isinstance(ci, list) and len(ci) == 2 and all(number(v) for v in ci)):
                 bad(f"{where}.{key} must be a list of two finite numbers, got {ci!r}")
-        for metric in WINDOW_METRICS:  # v3 rows; null: crashed (an IQM) or unbounded (a CI bound)
+        for metric in WINDOW_METRICS:  # windowed rows; null: crashed (an IQM) or unbounded (a CI bound)
             if f"{metric}_iqm" not in r:
                 continue
             ci = r.get(f"{metric}_ci")
