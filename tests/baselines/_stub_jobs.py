@@ -1,5 +1,5 @@
 """Light stand-ins for leaderboard jobs (standard library only, so that a spawned worker starts in a fraction of a
-second): the executor and interrupt tests of test_hardening_scripts.py run them instead of training or evaluating."""
+second): the executor and interrupt tests of test_bad_input.py run them instead of training or evaluating."""
 
 from __future__ import annotations
 
@@ -28,7 +28,9 @@ def stub_entry(job, root, reevaluate=False, token=None, base=None):
 
 
 def sleeping_entry(job, root, reevaluate=False, token=None, base=None):
-    """Runs for a minute (interrupt tests); writes its pid first."""
-    (Path(root) / f"{job.name}.pid").write_text(str(os.getpid()))
+    """Runs for a minute (interrupt tests); writes its pid first (whole: written aside, then renamed)."""
+    pid_file = Path(root) / f"{job.name}.pid"
+    pid_file.with_suffix(".tmp").write_text(str(os.getpid()))
+    os.replace(pid_file.with_suffix(".tmp"), pid_file)
     time.sleep(60)
     return job.name, 60.0
