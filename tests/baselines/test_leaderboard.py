@@ -383,7 +383,7 @@ def test_crashed_windows_count_as_worse_than_any_value_not_as_missing():
         validate_data(data, "test")
 
 
-def _row(entry, policy, steady, ci, crash=0.0, whole=1.0):
+def _window_row(entry, policy, steady, ci, crash=0.0, whole=1.0):
     return {"task": "hover", "tier": "wind", "entry": entry, "policy": policy, "crash_rate": crash,
             "rms_position_error_iqm": whole, "rms_position_error_ci": [whole - 0.1, whole + 0.1],
             f"{STEADY}_iqm": steady, f"{STEADY}_ci": ci}
@@ -396,10 +396,10 @@ def test_the_headline_compares_the_strongest_learned_and_model_based_entry_per_w
         return {r["window"]: (r["winner"], r["model_based"]["entry"], r["learned"]["entry"])
                 for r in window_headline({"meta": meta, "aggregates": rows})}
 
-    rows = [_row("passivity-bounded", "passivity-bounded", 0.6, [0.5, 0.7]),
-            _row("passivity-integral", "passivity-integral", 0.01, [0.008, 0.012], whole=0.9),
-            _row("PPO-a", "ppo", 0.02, [0.015, 0.03], whole=0.2),
-            _row("PPO-b", "ppo", None, [0.5, None], crash=0.2, whole=0.1)]  # crashes: never the strongest there
+    rows = [_window_row("passivity-bounded", "passivity-bounded", 0.6, [0.5, 0.7]),
+            _window_row("passivity-integral", "passivity-integral", 0.01, [0.008, 0.012], whole=0.9),
+            _window_row("PPO-a", "ppo", 0.02, [0.015, 0.03], whole=0.2),
+            _window_row("PPO-b", "ppo", None, [0.5, None], crash=0.2, whole=0.1)]  # crashes: never the strongest there
     v = verdicts(rows)
     assert v["steady"] == ("model-based", "passivity-integral", "PPO-a")
     assert v["whole"][0] == "neither"  # PPO-b is lower but crashes more; its CI is below: no clear winner

@@ -140,10 +140,11 @@ def _default_outputs(args) -> None:
 def _main(argv, layout: Layout, prog: str) -> int:
     args = build_parser(layout, prog).parse_args(argv)
     _default_outputs(args)
-    refuse_overwrite(build_parser(layout, prog), args, CONTENT_OPTIONS, [
-        (args.tracking_out, args._tracking / TRACKING_PNG_NAME, "--tracking-out"),
-        (args.curves_out, args._tracking / CURVES_PNG_NAME, "--curves-out"), (args.gif_out, args._gif, "--gif-out")])
     only = tuple(dict.fromkeys(args.only or FIGURES))
+    written = {"tracking": (args.tracking_out, args._tracking / TRACKING_PNG_NAME, "--tracking-out"),
+               "curves": (args.curves_out, args._tracking / CURVES_PNG_NAME, "--curves-out"),
+               "gif": (args.gif_out, args._gif, "--gif-out")}
+    refuse_overwrite(build_parser(layout, prog), args, CONTENT_OPTIONS, [written[name] for name in only])
     outputs = {"tracking": (args.tracking_out, "--tracking-out", ".png"),
                "curves": (args.curves_out, "--curves-out", ".png"), "gif": (args.gif_out, "--gif-out", ".gif")}
     for name in only:
