@@ -26,9 +26,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = "softpvtol_gym"
-#: top-level folders and files of the repository: a word starting with one of them is a repository path
+#: top-level folders of the repository: a word starting with one of them is a repository path
 TOP = ("baselines", "benchmarks", "docs", "results", "tests", PACKAGE, ".ci")
-ROOT_FILES = ("README.md", "CHANGELOG.md", "CITATION.cff", "LICENSE", "pyproject.toml", "mkdocs.yml", "train.py")
 #: extensions of the files a text may cite
 EXTENSIONS = ("py", "md", "json", "yml", "yaml", "toml", "png", "gif", "cff", "txt", "csv", "npz", "zip", "sh",
               "safetensors")
@@ -86,8 +85,9 @@ def cited_paths(text: str) -> list[str]:
 
 def missing_paths(text: str, base: Path, root: Path = ROOT) -> list[str]:
     """The cited paths of ``text`` (a file in the folder ``base``) that exist neither relative to ``base`` nor to
-    the repository root (nor, for a path within the package such as ``envs/config.py`` or within ``results/``
-    such as ``tracking/track_paper.png``, there)."""
+    the repository root (nor, for a path within the package such as ``envs/config.py``, within the commands'
+    data folder such as ``hyperparams/ppo.yml`` or within ``results/`` such as ``tracking/track_paper.png``,
+    there)."""
     missing = []
     for path in cited_paths(text):
         clean = path.rstrip("/")
