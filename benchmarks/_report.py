@@ -1,4 +1,4 @@
-"""What a run writes besides results.json: RESULTS.md and the Performance table of docs/performance.md."""
+"""What a run writes besides results.json: RESULTS.md and the table of the measurements in benchmarks/README.md."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from benchmarks._training import TIME_TO_BEAT_GOAL, TRAIN_TOTAL_GOAL
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 
 # ------------------------------------------------------------------------------- README table
-README = ROOT / "docs" / "performance.md"  # the page with the generated Performance table
+README = ROOT / "benchmarks" / "README.md"  # the page with the generated table of the measurements
 README_START = "<!-- benchmarks/run.py: table start (generated from benchmarks/results.json, do not edit) -->"
 README_END = "<!-- benchmarks/run.py: table end -->"
 
@@ -46,7 +46,7 @@ def readme_table(payload: dict) -> str:
          f"{100 * ppo['env_share']:.1f} % ({ppo['env_steps_per_second'] / 1e3:.1f} k env-steps/s)", "<= 10 %"],
         [f"4. the fast recipe (`train.py --recipe {ppo['fast']['recipe']}`) on the tracking cell (residual, "
          "track_random, nominal): training env-steps/s, rollouts + updates (its quality and wall time against the "
-         "default: `benchmarks/ppo_speed.py --compare`, docs/performance.md)",
+         "default: `benchmarks/ppo_speed.py --compare`, below)",
          f"{ppo['fast']['env_steps_per_second'] / 1e3:.1f} k env-steps/s", ">= 50 k/s"],
         ["5. `import softpvtol_gym` + first reset and step, fresh process",
          f"{tg['cold_start']['import_plus_first_step']:.2f} s", "< 2 s"],
@@ -57,7 +57,7 @@ def readme_table(payload: dict) -> str:
          f"{max(cold['cold_actuators']['longest_silence'], cold['cold_residual']['longest_silence']):.1f} s; "
          f"{cold['cold_train']['longest_silence']:.1f} s", "<= 10 s"],
         ["6. `python train.py`: from its start to the first periodic held-out evaluation above the passivity "
-         "controller; the whole run ([learning curve](benchmarks/time_to_beat.png))",
+         "controller; the whole run ([learning curve](time_to_beat.png))",
          f"{tg['time_to_beat']['seconds_to_beat']:.1f} s ({beat['step']:,} steps); "
          f"{tg['time_to_beat']['train_total_seconds']:.0f} s (load average {ttb['loadavg_start'][0]:.2f})"
          if beat is not None else f"never; {tg['time_to_beat']['train_total_seconds']:.0f} s",

@@ -59,7 +59,8 @@ def bench_ppo(quick: bool) -> dict:
          verdict(share <= 0.10)],
         [f"one batched env step ({n_envs} envs, residual mode)", fmt_time(per_step), "-", "n/a"],
     ]
-    text = (f"PPO, residual mode, hover, nominal tier: baselines/hyperparams/ppo.yml (n_envs={n_envs}, "
+    text = ("PPO, residual mode, hover, nominal tier: softpvtol_gym/baselines/data/hyperparams/ppo.yml "
+            f"(n_envs={n_envs}, "
             f"n_steps={hp['n_steps']}, batch_size={hp['batch_size']}, n_epochs={hp['n_epochs']}, VecNormalize), "
             f"torch.set_num_threads(1), {steps} env-steps, no callbacks.\n\n")
     text += table(["measure", "value", "target", "verdict"], rows)

@@ -197,7 +197,7 @@ def compare(results: list[dict], baseline: str, candidate: str) -> dict:
 
 
 def compare_table(results: list[dict], baseline: str, candidate: str) -> str:
-    """The Markdown table of :func:`compare` (docs/performance.md, goal 4), its checks below it."""
+    """The Markdown table of :func:`compare` (benchmarks/README.md, the fast recipe), its checks below it."""
     cmp = compare(results, baseline, candidate)
     mean = statistics.fmean
 

@@ -1,7 +1,7 @@
 """Benchmark suite: the speed of the Soft-PVTOL env measured against gymnasium's own envs.
 
     python benchmarks/run.py            # full run (~5 min), writes benchmarks/RESULTS.md, results.json and
-                                        # time_to_beat.png, and the Performance table of docs/performance.md
+                                        # time_to_beat.png, and the table of benchmarks/README.md
     python benchmarks/run.py --quick    # smoke run (~1 min), same tables, few repetitions, a short train.py
 
 Every figure is a ratio measured in one process against reference envs timed in the same run,
@@ -25,7 +25,7 @@ RESULTS.md is generated: do not edit it by hand, rerun the command.
 
 This file is the driver; each item lives in a module of this folder: _env_speed.py (1-3), _training.py
 (4, 6), _cold_start.py (5), _common.py (medians, tables, machine facts), _report.py (RESULTS.md,
-the table of docs/performance.md).
+the table of benchmarks/README.md).
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ files under ``docs/``; this hook
   ``results/`` and ``benchmarks/``, a JSON or YAML file) to the site at its repository path, so
   that nothing is copied into ``docs/`` and no large binary is duplicated in git;
 * rewrites such links to point at that copy, and links to the repository's Markdown files that the site
-  shows as pages (README.md, CHANGELOG.md, benchmarks/RESULTS.md) to those pages;
+  shows as pages (README.md, CHANGELOG.md, results/README.md, the benchmarks' reports) to those pages;
 * fills the pages that show a repository file (``<!-- repo-file: PATH -->`` as their whole text) with that
   file, its links rewritten the same way.
 
@@ -25,8 +25,9 @@ from mkdocs.structure.files import File
 
 ROOT = Path(__file__).resolve().parents[2]
 #: repository Markdown files that the site shows as pages: repository path -> page (under docs/)
-PAGES = {"README.md": "index.md", "CHANGELOG.md": "changelog.md", "benchmarks/RESULTS.md": "benchmark-results.md",
-         "benchmarks/TRACKING_PROBES.md": "tracking-probes.md"}
+PAGES = {"README.md": "index.md", "CHANGELOG.md": "changelog.md", "results/README.md": "results.md",
+         "benchmarks/README.md": "dev/benchmarks.md", "benchmarks/RESULTS.md": "dev/benchmark-results.md",
+         "benchmarks/TRACKING_EVALUATION.md": "dev/tracking-evaluation.md"}
 INCLUDE = re.compile(r"^\s*<!-- repo-file: (\S+) -->\s*$")
 # inline links and images: [text](target) / ![alt](target "title"); targets without spaces
 LINK = re.compile(r"(!?\[[^\]]*\]\()([^)\s]+)((?:\s+\"[^\"]*\")?\))")

@@ -1,6 +1,6 @@
 """Gymnasium ids: ``SoftPVTOL-v0`` (every argument free, action mode ``actuators`` by default) and one id
 per action mode, ``SoftPVTOL<Mode>-v0``, whose action mode is fixed (rl-baselines3-zoo keys its
-hyperparameter files by env id: ``baselines/hyperparams/ppo.yml``).
+hyperparameter files by env id: ``softpvtol_gym/baselines/data/hyperparams/ppo.yml``).
 
 ``gym.make("SoftPVTOLResidual-v0", task="setpoint")`` is ``gym.make("SoftPVTOL-v0", action_mode="residual",
 task="setpoint")``; giving such an id another ``action_mode`` is an error (not an override).

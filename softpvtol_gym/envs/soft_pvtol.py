@@ -207,43 +207,9 @@ class SoftPVTOLEnv(gym.Env):
     given id, arguments and seed produce (dynamics, observation, reward, termination, starting states,
     defaults) bumps the id (``SoftPVTOL-v0`` -> ``SoftPVTOL-v1``) and is listed here; additions that
     leave every existing configuration bit-identical (a new argument with an unchanged default, a new
-    task or tier) keep it. ``SoftPVTOL-v0`` has not been released yet, so the behaviour changes made
-    during its development kept v0; they are listed below (CHANGELOG.md has the details).
+    task or tier) keep it.
 
-    * v0, residual fix (2026-11-23, behaviour change): with ``residual_space="virtual"`` the residual was
-      added to the controller's tau *and* its first four entries to the actuators; it is now applied
-      once, through tau, as documented.
-    * v0, physics fix (issue 12, 2026-12-01, behaviour change; committed figures regenerated): the
-      zero-order hold holds the *actuators* (T_l, T_r, tau_l, tau_r) over the control step, so the
-      generalized force B(q) a is re-evaluated at every RK4 stage (it was B(q_k) a held as a generalized
-      force, an error of up to 1.4e-3 relative per 0.01 s step). ``allocation="ideal"`` holds tau itself.
-      The built-in references are evaluated in compiled code (same formulas; last-bit differences).
-      Tasks come from a registry (:mod:`softpvtol_gym.tasks`): ``task=`` takes any registered name.
-    * v0, input checks (issue 13, behaviour change for bad input only): ``step()`` before ``reset()``
-      raises gymnasium's ``ResetNeeded`` (as under ``gym.make``) also for the class used directly;
-      stepping after ``terminated`` or ``truncated`` warns once per episode (as CartPole) and stays
-      allowed; str/bool/complex actions, reset states q0 outside the position limits,
-      ``tier_options["mismatch_scale"] >= 1`` and ``max_episode_seconds`` below one control step are
-      refused; numpy integer seeds are accepted.
-    * v0, consistent model (issue 14, an addition: the default is unchanged, bit for bit): the ``model``
-      argument (None default: "paper" unless the tier says otherwise; "consistent": the rotor masses at
-      the tips rotated by theta) and the "model_gap" tier (consistent plant, controllers on the paper's
-      model). Under the consistent plant ``info["total_energy"]`` is that model's energy.
-    * v0, analytic control (issue 14, 2026-12-01, behaviour change of the residual mode; committed
-      figures regenerated): the base controller solves the algebraic loop to 1e-10 rad every step (it
-      used the previous step's arm references), the paper allocation uses the quadrant-correct atan2,
-      and the default base loop is "bounded" (was "exact"); ``controller_loop=`` selects it.
-    * v0, closed validation (issue 22, behaviour change for values that gave NaN or never returned only):
-      parameters, ``frame_skip``, ``max_episode_seconds``, ``residual_scale``, ``actuator_limits`` and the
-      tier options have upper bounds (see Arguments and :data:`softpvtol_gym.params.PARAM_BOUNDS`), ``g = 0``
-      needs explicit ``actuator_limits`` and a non-zero g must be >= 1e-6 m/s^2, a mismatch tier's scaled plant must stay within the parameter
-      bounds, and a reward term whose measure is NaN (the residual base controller failing outside the model,
-      the episode ending as "non_finite") counts as its cap instead of making the reward NaN.
-    * v0, training aids (issue 25, 2026-12-02, an addition: the defaults are unchanged, bit for bit): opt-in
-      ``observe_error_integral`` (+ ``error_integral_limit``; observation entries 18-20),
-      ``precision_reward_weight`` (+ ``precision_reward_scale``) and ``action_rate_penalty`` (reward terms
-      "precision", "action_rate"), ``residual_gate`` (residual mode), ``start_error_scale`` (also a reset
-      option) and ``start_distribution="wide"``.
+    * v0: initial version (not released yet).
     """
 
     # per instance: render_fps = 1 / control period

@@ -70,15 +70,15 @@ def test_benchmark_replays_each_controller_along_its_own_closed_loop(n, loop):
 
 
 def test_readme_performance_table_is_the_generated_one():
-    """The Performance table (docs/performance.md, where benchmarks/run.py writes it) = benchmarks/run.py's table
-    from the committed results.json."""
+    """The table of the measurements (benchmarks/README.md, where benchmarks/run.py writes it) = benchmarks/run.py's
+    table from the committed results.json."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("softpvtol_benchmarks_run", ROOT / "benchmarks" / "run.py")
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     payload = json.loads((ROOT / "benchmarks" / "results.json").read_text())
-    assert bench.README == ROOT / "docs" / "performance.md"
+    assert bench.README == ROOT / "benchmarks" / "README.md"
     text = bench.README.read_text()
     block = text[text.index(bench.README_START) + len(bench.README_START):text.index(bench.README_END)]
     assert block.strip() == bench.readme_table(payload).strip()
@@ -144,8 +144,8 @@ def _ppo_speed_module():
 
 
 def test_fast_recipe_comparison_is_the_committed_runs_and_the_docs_table():
-    """Benchmarks/ppo_speed_fast.json holds the default entry and the residual-fast recipe as
-    shipped, five seeds each on the tracking cell; docs/performance.md's table is --compare's output for it."""
+    """benchmarks/ppo_speed_fast.json holds the default entry and the residual-fast recipe as
+    shipped, five seeds each on the tracking cell; benchmarks/README.md's table is --compare's output for it."""
     from softpvtol_gym.baselines.config.recipes import load_recipe
 
     speed = _ppo_speed_module()
@@ -158,7 +158,7 @@ def test_fast_recipe_comparison_is_the_committed_runs_and_the_docs_table():
         assert r["final"] == r["curve"][-1] and r["timesteps"] >= 1_000_000
     cmp = speed.compare(results, "default", "fast")
     assert cmp["seeds"] == [0, 1, 2, 3, 4] and set(cmp["checks"]) and cmp["passed"] is all(cmp["checks"].values())
-    text = (ROOT / "docs" / "performance.md").read_text()
+    text = (ROOT / "benchmarks" / "README.md").read_text()
     start = ("<!-- benchmarks/ppo_speed.py --compare: start (generated from benchmarks/ppo_speed_fast.json, do not "
              "edit) -->")
     block = text[text.index(start) + len(start):text.index("<!-- benchmarks/ppo_speed.py --compare: end -->")]

@@ -56,7 +56,7 @@ QP_SOLVERS: dict[str, dict] = {
 
 @dataclasses.dataclass(frozen=True)
 class MPCOptions:
-    """Options of :class:`~softpvtol_gym.control.mpc.MPCPolicy` (``MPCPolicy.from_env(env, **options)``).
+    """Options of :class:`~softpvtol_gym.policies.MPCPolicy` (``MPCPolicy.from_env(env, **options)``).
 
     ========================= ======== ===================================================================
     option                    default  meaning
