@@ -2,7 +2,7 @@
 layer or a lower one (imports inside functions included), no module imports another subpackage's private
 module (``_name``), and the import graph has no cycle.
 
-The layers, lowest first (``LAYERS``; docs/getting-started.md shows the same list):
+The layers, lowest first (``LAYERS``; docs/getting-started.md's "Layers" table shows the same, checked below):
 
 ====  =====================================================================================================
 0     ``params`` and the shared private helpers ``softpvtol_gym._*`` (layouts, series, cache, validation, ...)
@@ -187,3 +187,16 @@ def test_allowed_imports_are_not_flagged():
     }
     upward, private, _ = check({**SOURCES, **ok})
     assert upward == [] and private == []
+
+
+def test_the_documented_layers_are_the_checked_ones():
+    """docs/getting-started.md's table of layers lists exactly LAYERS (layer numbers and module names)."""
+    text = (ROOT / "docs" / "getting-started.md").read_text(encoding="utf-8")
+    start = text.index("<!-- layers: start")
+    rows = [line for line in text[start:text.index("<!-- layers: end -->")].splitlines() if line.startswith("| ")]
+    documented = []
+    for row in rows[1:]:  # after the header row
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        names = tuple(n.strip("`") for n in cells[1].split(", ") if n.startswith("`"))
+        documented.append((int(cells[0]), names + (("",) if "the package's `__init__`" in cells[1] else ())))
+    assert documented == [(layer, tuple(prefixes)) for layer, prefixes in LAYERS]
