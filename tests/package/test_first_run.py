@@ -41,8 +41,10 @@ def test_first_run_message_once_then_silent(tmp_path):
 
 
 def test_no_message_with_a_warm_cache():
-    # this session's cache holds the env's kernels (the other tests compiled them)
-    softpvtol_gym.SoftPVTOLEnv().reset(seed=0)
+    # the cache holds the kernels of a reset and a step (compiled here if no other test did)
+    env = softpvtol_gym.SoftPVTOLEnv()
+    env.reset(seed=0)
+    env.step(np.zeros(4, dtype=np.float32))
     out = _run(_LIGHT + "; e = softpvtol_gym.SoftPVTOLEnv(); e.reset(seed=0); e.step(np.zeros(4))",
                softpvtol_gym.NUMBA_CACHE_DIR.parent)
     assert out.returncode == 0, out.stderr
