@@ -305,3 +305,47 @@ def test_the_ablation_command_refuses_bad_input_in_one_line(tmp_path, capsys):
             run_command("ablation", argv, layout=layout, prog="ablation.py")
         err = capsys.readouterr().err
         assert exc.value.code == 2 and words in err and err.count("\n") <= 2, err
+
+
+def _ablation_layout(tmp_path):
+    """A layout whose docs page holds the ablation block, and a copy of the committed ablation JSON."""
+    from softpvtol_gym.baselines.commands.ablation import BLOCK
+    from softpvtol_gym.baselines.util.blocks import markers
+    from softpvtol_gym.baselines.util.paths import Layout
+    from tests.conftest import LAYOUT
+
+    (tmp_path / "docs").mkdir()
+    start, end = markers(*BLOCK)
+    page = tmp_path / "docs" / "baselines.md"
+    page.write_text(f"# Baselines\n\n{start}\nold table\n{end}\n")
+    src = tmp_path / "ablation.json"
+    src.write_text((LAYOUT.results / "ablation.json").read_text())
+    return Layout(results=tmp_path / "results", root=tmp_path, docs=tmp_path / "docs"), page, src
+
+
+@pytest.mark.parametrize("literal", ["NaN", "Infinity", "1e400"])
+def test_ablation_from_json_refuses_a_non_finite_value_and_writes_nothing(literal, tmp_path, capsys):
+    from softpvtol_gym.baselines.cli import run_command
+
+    layout, page, src = _ablation_layout(tmp_path)
+    data = json.loads(src.read_text())
+    data["recipes"][1]["rows"][0]["rms_position_error_steady_iqm"] = "PLACEHOLDER"
+    src.write_text(json.dumps(data).replace('"PLACEHOLDER"', literal))
+    before = page.read_text()
+    with pytest.raises(SystemExit) as exc:
+        run_command("ablation", ["--from-json", "--json", str(src)], layout=layout, prog="ablation.py")
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1, err
+    assert "recipes[1].rows[0].rms_position_error_steady_iqm is not a finite number" in err and str(src) in err, err
+    assert page.read_text() == before
+
+
+def test_ablation_from_json_says_it_wrote_the_table_only(tmp_path, capsys):
+    from softpvtol_gym.baselines.cli import run_command
+
+    layout, page, src = _ablation_layout(tmp_path)
+    before = src.read_bytes()
+    assert run_command("ablation", ["--from-json", "--json", str(src)], layout=layout, prog="ablation.py") == 0
+    out = capsys.readouterr().out
+    assert out.strip() == f"wrote the table in {page}", out
+    assert src.read_bytes() == before and "old table" not in page.read_text()
