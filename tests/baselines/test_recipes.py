@@ -349,3 +349,32 @@ def test_ablation_from_json_says_it_wrote_the_table_only(tmp_path, capsys):
     out = capsys.readouterr().out
     assert out.strip() == f"wrote the table in {page}", out
     assert src.read_bytes() == before and "old table" not in page.read_text()
+
+
+def test_the_ablation_json_records_its_spec_relative_to_the_layout_root(tmp_path, monkeypatch, capsys):
+    from softpvtol_gym.baselines.cli import run_command
+    from softpvtol_gym.baselines.commands import ablation
+    from tests.conftest import LAYOUT
+
+    layout, _, _ = _ablation_layout(tmp_path)
+    spec = tmp_path / "baselines" / "ablation.yml"
+    spec.parent.mkdir()
+    spec.write_text("the spec\n")
+    for folder in ("runs", "leaderboard_runs"):
+        (tmp_path / folder).mkdir()
+    # the real build records the spec path it was given; the runs it would score are not needed here
+    committed = json.loads((LAYOUT.results / "ablation.json").read_text())
+    monkeypatch.setattr(ablation, "build", lambda spec_path, *a: {**committed, "spec": str(spec_path)})
+    out = tmp_path / "results" / "ablation.json"
+    assert run_command("ablation", ["--spec", str(spec.resolve()), "--root", str(tmp_path / "runs"),
+                                    "--leaderboard-root", str(tmp_path / "leaderboard_runs"), "--json", str(out)],
+                       layout=layout, prog="ablation.py") == 0
+    assert json.loads(out.read_text())["spec"] == "baselines/ablation.yml"
+    assert f"wrote {out} and the table in" in capsys.readouterr().out
+
+
+def test_the_committed_ablation_json_holds_no_absolute_path():
+    from tests.conftest import LAYOUT
+
+    data = json.loads((LAYOUT.results / "ablation.json").read_text())
+    assert data["spec"] == "baselines/ablation.yml"

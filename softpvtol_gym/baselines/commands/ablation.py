@@ -21,7 +21,7 @@ from softpvtol_gym.baselines.leaderboard.stats import first_non_finite
 from softpvtol_gym.baselines.util.args import Parser, command_main
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.blocks import write_block
-from softpvtol_gym.baselines.util.paths import Layout
+from softpvtol_gym.baselines.util.paths import Layout, relative_to_root
 from softpvtol_gym.baselines.util.safe_load import loads_json
 
 SOURCE = "results/ablation.json"
@@ -56,6 +56,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
             if not path.is_dir():
                 ap.error(f"{what} {path} is not a directory")
         data = build(args.spec, args.root, SPEC_FILE, args.leaderboard_root)
+        data["spec"] = relative_to_root(args.spec, layout.root)  # as eval.json's checkpoints: no machine's path
         atomic_write_text(args.json, json.dumps(data, indent=1, allow_nan=False))
     table = render_markdown(data)
     page = layout.doc("baselines.md")
