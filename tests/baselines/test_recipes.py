@@ -95,6 +95,20 @@ def test_saved_configs_without_the_new_fields_load_without_aids(tmp_path):
     assert old.train_env_options == {} and old.start_error_curriculum is None
 
 
+def test_a_run_saved_without_a_recorded_recipe_resumes_without_recipe(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    legacy = RunConfig(n_envs=2, hyperparams={"n_envs": 2}).to_dict()
+    del legacy["recipe"]
+    (out / "config.yaml").write_text(yaml.safe_dump(legacy))
+    assert RunConfig.load(out / "config.yaml").recipe is None
+    ap = build_parser()
+    config, _ = make_config(ap.parse_args(["--out", str(out), "--resume"]), ap)
+    assert config.recipe is None
+    with pytest.raises(ConfigError, match="records no recipe .*resume without --recipe"):
+        make_config(ap.parse_args(["--out", str(out), "--resume", "--recipe", "residual-precise"]), ap)
+
+
 # ------------------------------------------------------------------------------------------ recipes
 def test_every_shipped_recipe_builds_a_valid_run():
     recipes = load_recipes()
@@ -196,6 +210,7 @@ def test_a_recipe_run_trains_with_its_aids_and_curriculum_and_evaluates_without_
     assert train_main(["--recipe", "residual-precise-wide", "--task", "track_random", "--timesteps", "256", *TINY,
                        "--start-error-curriculum", "0.25,1000", "--out", str(out)]) == 0
     saved = yaml.safe_load((out / "config.yaml").read_text())
+    assert saved["recipe"] == "residual-precise-wide"
     assert saved["train_env_options"]["start_distribution"] == "wide"
     assert saved["start_error_curriculum"] == [0.25, 1000]
     result = json.loads((out / "result.json").read_text())

@@ -220,7 +220,7 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
             recipe = load_recipe(job.recipe)
             hp = apply_overrides(recipe_hyperparams(recipe), list(job.hp))
             fields, recipe_hp = recipe_config_fields(recipe), list(recipe["hp"])
-        config = RunConfig(**fields, task=job.task, tier=job.train_tier,
+        config = RunConfig(**fields, recipe=job.recipe, task=job.task, tier=job.train_tier,
                            timesteps=job.timesteps, seed=job.seed, n_envs=int(hp.get("n_envs", 16)), hyperparams=hp,
                            overrides=recipe_hp + list(job.hp),
                            checkpoint_freq=max(job.timesteps // 4, 1), eval_episodes=5,
