@@ -290,6 +290,24 @@ def test_out_of_range_rng_integer_in_the_newest_resume_state_falls_back_to_the_p
     assert "invalid RNG state" in err and "previous checkpoint" in err and "step_0000000256" in err, err
 
 
+def test_saving_the_same_model_twice_gives_byte_identical_files(tmp_path, tiny_run):
+    """safetensors writes its metadata in a hash map's order, which varies between saves (one in two differed):
+    the saved file sorts it, so that identical runs have identical file hashes."""
+    from softpvtol_gym.baselines.checkpoints.load import load_folder
+    from softpvtol_gym.baselines.checkpoints.model_state import save_model
+
+    model = load_folder(tiny_run)[0]
+    saved = set()
+    for i in range(16):
+        (tmp_path / str(i)).mkdir()
+        save_model(model, tmp_path / str(i))
+        saved.add((tmp_path / str(i) / "model.safetensors").read_bytes())
+    assert len(saved) == 1
+    data = saved.pop()
+    header = data[8:8 + int.from_bytes(data[:8], "little")]
+    assert header.startswith(b'{"__metadata__":{"format":"softpvtol-gym checkpoint","version":"1"}')
+
+
 def test_latest_pointer_is_validated(tmp_path, tiny_run):
     run = copy_run(tiny_run, tmp_path / "run")
     (tmp_path / "elsewhere").mkdir()
