@@ -637,6 +637,67 @@ def test_an_oserror_during_the_work_is_one_line_naming_the_path_exit_74(code, wo
     assert words in line, line
 
 
+def _dev_full_for_temporary_files(monkeypatch):
+    """``open`` of the atomic writers gives /dev/full for their temporary files: the write fails with ENOSPC and
+    an OSError without a file name, as on a full disk."""
+    from softpvtol_gym.baselines.util import atomic
+
+    if not Path("/dev/full").exists():
+        pytest.skip("no /dev/full here")
+    real_open = open
+
+    def full_open(path, mode="r", *a, **k):
+        return real_open("/dev/full" if "w" in mode and str(path).endswith(".tmp") else path, mode, *a, **k)
+
+    monkeypatch.setattr(atomic, "open", full_open, raising=False)
+
+
+def test_a_disk_full_met_while_writing_names_the_file_exit_74(tmp_path, monkeypatch, capsys):
+    from softpvtol_gym.baselines.util.atomic import atomic_write_text
+
+    _dev_full_for_temporary_files(monkeypatch)
+    out = tmp_path / "result.json"
+
+    def body(argv, layout, prog):
+        atomic_write_text(out, "{}")
+        return 0
+
+    with pytest.raises(SystemExit) as exc:
+        command_main("train.py", body, "test")([], prog="softpvtol train")
+    assert exc.value.code == EXIT_IO_ERROR
+    line = _one_error_line(capsys.readouterr().err)
+    assert line.startswith(f"softpvtol train: error: cannot write {out}: no space left") and "disk full" in line, line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_render_gif_on_a_full_disk_ends_before_rendering_naming_the_gif(tmp_path, monkeypatch, capsys):
+    """The output check writes a little: a full disk is found before the episode renders (exit 74, one line)."""
+    from softpvtol_gym.baselines.cli import run_command
+    from softpvtol_gym.baselines.commands import render_gif
+
+    if not Path("/dev/full").exists():
+        pytest.skip("no /dev/full here")
+    probe = tmp_path / "probe"
+
+    def full_probe(directory):
+        probe.write_bytes(b"")
+        return os.open("/dev/full", os.O_WRONLY), str(probe)
+
+    def reached(*a, **k):
+        raise AssertionError("rendering started before the disk was found full")
+
+    monkeypatch.setattr(args_mod, "_probe_file", full_probe)
+    monkeypatch.setattr(render_gif, "make_policy_env", reached)
+    monkeypatch.setattr(render_gif, "render_frames", reached)
+    out = tmp_path / "x.gif"
+    with pytest.raises(SystemExit) as exc:
+        run_command("render-gif", ["--policy", "passivity", "--out", str(out)])
+    assert exc.value.code == EXIT_IO_ERROR
+    line = _one_error_line(capsys.readouterr().err)
+    assert f"cannot write {out}: no space left on the device (disk full)" in line, line
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_disk_full_while_writing_the_leaderboard_changes_no_output(tmp_path, monkeypatch, capsys):
     """The leaderboard's outputs are written together: a full disk half-way (the chart) leaves the page and the
     JSON as they were, and the command ends with one line naming the file, exit 74."""
