@@ -698,6 +698,21 @@ def test_render_gif_on_a_full_disk_ends_before_rendering_naming_the_gif(tmp_path
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_job_that_meets_a_full_disk_is_reported_naming_the_file(tmp_path, capsys):
+    from concurrent.futures import ThreadPoolExecutor
+
+    target = tmp_path / "runs" / "full" / "eval.json"
+
+    def full_entry(job, root, reevaluate=False, token=None, base=None):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(target))
+
+    (tmp_path / "runs").mkdir()
+    with ThreadPoolExecutor(1) as ex, pytest.raises(ConfigError, match="1 of 1 jobs failed"):
+        run_jobs([StubJob("full")], ex, tmp_path / "runs", progress=False, rerun="softpvtol run-jobs", entry=full_entry)
+    (failed,) = [line for line in capsys.readouterr().err.splitlines() if line.startswith("[failed]")]
+    assert failed.startswith(f"[failed] full: cannot write {target}: no space left on the device (disk full)"), failed
+
+
 def test_disk_full_while_writing_the_leaderboard_changes_no_output(tmp_path, monkeypatch, capsys):
     """The leaderboard's outputs are written together: a full disk half-way (the chart) leaves the page and the
     JSON as they were, and the command ends with one line naming the file, exit 74."""

@@ -64,7 +64,7 @@ from softpvtol_gym.baselines.evaluation import EPISODE_METRICS, TIMING_METRICS, 
 from softpvtol_gym.baselines.leaderboard.spec import ANALYTIC_KINDS, SPEC_FILE, analytic_entries, load_spec
 from softpvtol_gym.baselines.training.loop import EVALUATIONS_FILE, train
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
-from softpvtol_gym.baselines.util.args import interrupted
+from softpvtol_gym.baselines.util.args import interrupted, io_error_message
 from softpvtol_gym.baselines.util.atomic import atomic_copy, atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout, check_slug, relative_to_root, under
 from softpvtol_gym.baselines.util.safe_load import loads_json
@@ -379,6 +379,8 @@ def _failure_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split())
     if isinstance(exc, ConfigError):
         return text
+    if isinstance(exc, OSError) and exc.errno is not None:  # disk full, read-only, permission: the path in words
+        return io_error_message(exc)
     if type(exc).__name__ in WORKER_CRASHES:
         return f"worker crashed ({type(exc).__name__}: {text[:300]})"
     return f"{type(exc).__name__}: {text[:300]}"
