@@ -28,9 +28,9 @@ def _fixed_mode(mode: str, vector: bool):
             from .vector import SoftPVTOLVectorEnv
 
             return SoftPVTOLVectorEnv(**kwargs)
-        from .soft_pvtol import SoftPVTOLEnv
+        from .soft_pvtol import checked_env
 
-        return SoftPVTOLEnv(**kwargs)
+        return checked_env(**kwargs)
 
     make.__doc__ = f"The {'vector ' if vector else ''}env of {env_id} (action_mode={mode!r})."
     return make
@@ -50,10 +50,12 @@ def register_envs() -> None:
     max_episode_steps here."""
     from gymnasium.envs.registration import register, registry
 
+    # the entry points wrap the env in softpvtol_gym.envs.soft_pvtol.PassiveEnvChecker (gymnasium's checker, whose
+    # first-call checks wait for a successful reset): gym.make's own checker is off, so that it is not applied twice
     if ENV_ID not in registry:
-        register(id=ENV_ID, entry_point="softpvtol_gym.envs.soft_pvtol:SoftPVTOLEnv",
-                 vector_entry_point="softpvtol_gym.envs.vector:SoftPVTOLVectorEnv")
+        register(id=ENV_ID, entry_point="softpvtol_gym.envs.soft_pvtol:checked_env",
+                 vector_entry_point="softpvtol_gym.envs.vector:SoftPVTOLVectorEnv", disable_env_checker=True)
     for mode, env_id in MODE_ENV_IDS.items():
         if env_id not in registry:
             register(id=env_id, entry_point=f"{__name__}:{mode}_env",
-                     vector_entry_point=f"{__name__}:{mode}_vector_env")
+                     vector_entry_point=f"{__name__}:{mode}_vector_env", disable_env_checker=True)

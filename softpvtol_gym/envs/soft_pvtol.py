@@ -265,10 +265,13 @@ class SoftPVTOLEnv(gym.Env):
         self._episode_over = self._warned_over = False
 
     # ------------------------------------------------------------------------------------ api
+    def check_reset_arguments(self, seed=None, options=None) -> tuple[int | None, dict]:
+        """(seed, options) of ``reset`` checked, changing nothing: ValueError for a bad seed or option."""
+        return seed_value(seed), check_reset_options(self.config, options)
+
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         # checked before anything changes: a bad seed or option leaves the env as it was
-        seed = seed_value(seed)
-        options = check_reset_options(self.config, options)
+        seed, options = self.check_reset_arguments(seed, options)
         super().reset(seed=seed)
         u = self.np_random.random(N_UNIFORMS)[None, :]
         self._sim.reset_entries(np.array([0]), u, options)
@@ -343,3 +346,35 @@ class SoftPVTOLEnv(gym.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+
+class PassiveEnvChecker(gym.wrappers.PassiveEnvChecker):
+    """gymnasium's PassiveEnvChecker, whose first-call checks wait for the first reset that succeeds. gymnasium's
+    marks its first reset as checked before running it: after a refused first reset (a bad seed or option) it
+    held no reset data, and the next step failed in it with a TypeError. ``gym.make``'s SoftPVTOL ids wrap the env
+    in this one (their registration turns gymnasium's off; the wrapper chain reads as before:
+    OrderEnforcing, PassiveEnvChecker, the env). A step before a successful reset raises ``ResetNeeded``."""
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if not self.checked_reset:  # refused here, before the first-call flag is set
+            self.env.unwrapped.check_reset_arguments(seed, options)
+        return super().reset(seed=seed, options=options)
+
+    def step(self, action):
+        if not self.checked_reset:  # no successful reset yet: the env raises ResetNeeded
+            return self.env.step(action)
+        return super().step(action)
+
+    @property
+    def spec(self):
+        """The env's spec as registered (the checker is part of the entry point, not gym.make's)."""
+        return self.env.spec
+
+
+def checked_env(**kwargs) -> PassiveEnvChecker:
+    """The entry point of ``gym.make("SoftPVTOL-v0")``: the env in :class:`PassiveEnvChecker`."""
+    return PassiveEnvChecker(SoftPVTOLEnv(**kwargs))
+
+
+checked_env.metadata = SoftPVTOLEnv.metadata  # gym.make reads the render modes here (rgb_array_list, human)

@@ -273,6 +273,10 @@ CASES = [
     (T, ["--algo", "sac", *SHORT, "--hp", "learning_starts=-1"], "learning_starts must be an integer >= 0", nothing),
     (T, ["--algo", "sac", *SHORT, "--hp", "action_noise=normal"], "action_noise must be null", nothing),
     (T, ["--algo", "sac", *SHORT, "--hp", "target_entropy=low"], "target_entropy must be 'auto'", nothing),
+    (T, [*SHORT, "--train-env", "precision_reward_weight=1", "--train-env", "precision_reward_weight=2"],
+     "--train-env precision_reward_weight is given twice", nothing),
+    (T, [*SHORT, "--env", "residual_scale=0.4", "--env", "residual_scale=0.4"], "--env residual_scale is given twice",
+     nothing),
     (T, ["--resume", *SHORT], "does not exist", nothing),
     (T, ["--timesteps", "64", "--out", "{tmp}/notes.txt"], "is a file", a_file),
     (T, [*SHORT[:-2], "--out", "{tmp}/run"], "already holds a run", a_run),
@@ -280,6 +284,10 @@ CASES = [
     (T, ["--out", "{tmp}/run", "--resume", "--hp", "n_epochs=3"], "--resume: hyperparams of", a_run),
     (T, ["--out", "{tmp}/run", "--resume", "--n-envs", "8"], "--resume: n_envs of", a_run),
     (T, ["--out", "{tmp}/run", "--resume", "--algo", "sac"], "--resume: algo of", a_run),
+    (T, ["--out", "{tmp}/run", "--resume", "--recipe", "residual-precise"], "records no recipe", a_run),
+    (T, ["--out", "{tmp}/run", "--resume", "--recipe", "residual-precise"],
+     "is 'residual-integral', the command asks for 'residual-precise'; resume with the run's own recipe",
+     tamper("config.yaml", config_edit(recipe="residual-integral"))),
     (T, [*SHORT[:-2], "--out", "{tmp}/out"], "is in use by pid", locked("out")),
     (T, ["--bogus"], "unrecognized arguments", nothing),
     (T, SHORT, "SOFTPVTOL_TORCH_THREADS must be an integer", lambda tmp: {"env": {"SOFTPVTOL_TORCH_THREADS": "many"}}),
@@ -293,6 +301,12 @@ CASES = [
     (E, ["--policy", "passivity", "--controller-loop", "ideal"], "invalid choice", nothing),
     (E, ["--policy", "passivity", "--controller-loop", "paper", "--allocation", "exact"], "uses the paper allocation",
      nothing),
+    (E, ["--policy", "passivity", "--action-mode", "virtual", "--controller-loop", "extended"],
+     "--controller-loop extended is a policy acting on the actuators only, got --action-mode virtual", nothing),
+    (E, ["--policy", "passivity", "--action-mode", "residual", "--controller-loop", "extended"],
+     "pass --action-mode actuators", nothing),
+    (E, ["--policy", "{tmp}/run", "--controller-loop", "extended"],
+     "cannot be the base controller of a residual checkpoint", a_run),
     (E, ["--policy", "passivity", "--episodes", "0"], "--episodes must be >= 1", nothing),
     (E, ["--policy", "passivity", "--episodes", "-3"], "--episodes must be >= 1", nothing),
     (E, ["--policy", "passivity", "--episodes", "1e9"], "expected an integer", nothing),
@@ -621,6 +635,82 @@ def test_an_oserror_during_the_work_is_one_line_naming_the_path_exit_74(code, wo
     line = _one_error_line(capsys.readouterr().err)
     assert line.startswith("softpvtol train: error: cannot write /data/run/checkpoint.safetensors")
     assert words in line, line
+
+
+def _dev_full_for_temporary_files(monkeypatch):
+    """``open`` of the atomic writers gives /dev/full for their temporary files: the write fails with ENOSPC and
+    an OSError without a file name, as on a full disk."""
+    from softpvtol_gym.baselines.util import atomic
+
+    if not Path("/dev/full").exists():
+        pytest.skip("no /dev/full here")
+    real_open = open
+
+    def full_open(path, mode="r", *a, **k):
+        return real_open("/dev/full" if "w" in mode and str(path).endswith(".tmp") else path, mode, *a, **k)
+
+    monkeypatch.setattr(atomic, "open", full_open, raising=False)
+
+
+def test_a_disk_full_met_while_writing_names_the_file_exit_74(tmp_path, monkeypatch, capsys):
+    from softpvtol_gym.baselines.util.atomic import atomic_write_text
+
+    _dev_full_for_temporary_files(monkeypatch)
+    out = tmp_path / "result.json"
+
+    def body(argv, layout, prog):
+        atomic_write_text(out, "{}")
+        return 0
+
+    with pytest.raises(SystemExit) as exc:
+        command_main("train.py", body, "test")([], prog="softpvtol train")
+    assert exc.value.code == EXIT_IO_ERROR
+    line = _one_error_line(capsys.readouterr().err)
+    assert line.startswith(f"softpvtol train: error: cannot write {out}: no space left") and "disk full" in line, line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_render_gif_on_a_full_disk_ends_before_rendering_naming_the_gif(tmp_path, monkeypatch, capsys):
+    """The output check writes a little: a full disk is found before the episode renders (exit 74, one line)."""
+    from softpvtol_gym.baselines.cli import run_command
+    from softpvtol_gym.baselines.commands import render_gif
+
+    if not Path("/dev/full").exists():
+        pytest.skip("no /dev/full here")
+    probe = tmp_path / "probe"
+
+    def full_probe(directory):
+        probe.write_bytes(b"")
+        return os.open("/dev/full", os.O_WRONLY), str(probe)
+
+    def reached(*a, **k):
+        raise AssertionError("rendering started before the disk was found full")
+
+    monkeypatch.setattr(args_mod, "_probe_file", full_probe)
+    monkeypatch.setattr(render_gif, "make_policy_env", reached)
+    monkeypatch.setattr(render_gif, "render_frames", reached)
+    out = tmp_path / "x.gif"
+    with pytest.raises(SystemExit) as exc:
+        run_command("render-gif", ["--policy", "passivity", "--out", str(out)])
+    assert exc.value.code == EXIT_IO_ERROR
+    line = _one_error_line(capsys.readouterr().err)
+    assert f"cannot write {out}: no space left on the device (disk full)" in line, line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_job_that_meets_a_full_disk_is_reported_naming_the_file(tmp_path, capsys):
+    from concurrent.futures import ThreadPoolExecutor
+
+    target = tmp_path / "runs" / "full" / "eval.json"
+
+    def full_entry(job, root, reevaluate=False, token=None, base=None):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(target))
+
+    (tmp_path / "runs").mkdir()
+    with ThreadPoolExecutor(1) as ex, pytest.raises(ConfigError, match="1 of 1 jobs failed"):
+        run_jobs([StubJob("full")], ex, tmp_path / "runs", progress=False, rerun="softpvtol run-jobs", entry=full_entry)
+    (failed,) = [line for line in capsys.readouterr().err.splitlines() if line.startswith("[failed]")]
+    assert failed.startswith(f"[failed] full: cannot write {target}: no space left on the device (disk full)"), failed
 
 
 def test_disk_full_while_writing_the_leaderboard_changes_no_output(tmp_path, monkeypatch, capsys):

@@ -277,6 +277,37 @@ def test_corrupt_newest_checkpoint_falls_back_to_the_previous_one(tmp_path, tiny
     assert "corrupt" in err and "previous checkpoint" in err and "step_0000000256" in err
 
 
+def test_out_of_range_rng_integer_in_the_newest_resume_state_falls_back_to_the_previous_checkpoint(tmp_path, tiny_run,
+                                                                                                    capsys):
+    run = copy_run(tiny_run, tmp_path / "run")
+    newest = run / "checkpoints" / (run / "checkpoints" / "latest").read_text()
+    state = json.loads((newest / "resume_state.json").read_text())
+    state["numpy_rng"]["pos"] = 2**70
+    (newest / "resume_state.json").write_text(json.dumps(state))
+    rewrite_manifest(newest)
+    assert train_main(["--timesteps", "768", *TINY, "--out", str(run), "--resume"]) == 0
+    err = capsys.readouterr().err
+    assert "invalid RNG state" in err and "previous checkpoint" in err and "step_0000000256" in err, err
+
+
+def test_saving_the_same_model_twice_gives_byte_identical_files(tmp_path, tiny_run):
+    """safetensors writes its metadata in a hash map's order, which varies between saves (one in two differed):
+    the saved file sorts it, so that identical runs have identical file hashes."""
+    from softpvtol_gym.baselines.checkpoints.load import load_folder
+    from softpvtol_gym.baselines.checkpoints.model_state import save_model
+
+    model = load_folder(tiny_run)[0]
+    saved = set()
+    for i in range(16):
+        (tmp_path / str(i)).mkdir()
+        save_model(model, tmp_path / str(i))
+        saved.add((tmp_path / str(i) / "model.safetensors").read_bytes())
+    assert len(saved) == 1
+    data = saved.pop()
+    header = data[8:8 + int.from_bytes(data[:8], "little")]
+    assert header.startswith(b'{"__metadata__":{"format":"softpvtol-gym checkpoint","version":"1"}')
+
+
 def test_latest_pointer_is_validated(tmp_path, tiny_run):
     run = copy_run(tiny_run, tmp_path / "run")
     (tmp_path / "elsewhere").mkdir()
@@ -588,6 +619,10 @@ POISONS = {
         lambda a, m: m["venv"]["generators"].__setitem__("_rngs", m["venv"]["generators"]["_rngs"][:1]), "_rngs"),
     "generator_garbage": (lambda a, m: m["venv"]["generators"]["_rngs"].__setitem__(0, {"bit_generator": "PCG64",
                                                                                        "state": 5}), "_rngs[0]"),
+    "generator_state_negative": (lambda a, m: m["venv"]["generators"]["_rngs"][0]["state"].__setitem__("state", -1),
+                                 "_rngs[0]"),
+    "generator_state_too_large": (
+        lambda a, m: m["venv"]["generators"]["_rngs"][1]["state"].__setitem__("state", 2**200), "_rngs[1]"),
     "unknown_attribute": (lambda a, m: m["sim"]["scalars"].__setitem__("evil", 1), "sim.evil"),
     "listed_not_saved": (lambda a, m: a.pop("sim.obs"), "sim.obs"),
     "lists_not_a_list": (lambda a, m: m["sim"].__setitem__("arrays", 5), "sim.arrays"),
@@ -666,6 +701,10 @@ RESUME_POISONS = {
                                      "vecnormalize_old_obs"),
     "numpy_rng_key_truncated": (lambda s, a: a.__setitem__("numpy_rng_key", a["numpy_rng_key"][:5].copy()),
                                 "numpy_rng_key"),
+    "numpy_rng_pos_too_large": (lambda s, a: s["numpy_rng"].__setitem__("pos", 2**70), "invalid RNG state"),
+    "python_rng_word_too_large": (lambda s, a: s["python_rng"][1].__setitem__(0, 2**200), "invalid RNG state"),
+    "env_generator_state_negative": (
+        lambda s, a: s["env"]["venv"]["generators"]["_rngs"][0]["state"].__setitem__("state", -1), "_rngs[0]"),
 }
 
 

@@ -95,6 +95,20 @@ def test_saved_configs_without_the_new_fields_load_without_aids(tmp_path):
     assert old.train_env_options == {} and old.start_error_curriculum is None
 
 
+def test_a_run_saved_without_a_recorded_recipe_resumes_without_recipe(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    legacy = RunConfig(n_envs=2, hyperparams={"n_envs": 2}).to_dict()
+    del legacy["recipe"]
+    (out / "config.yaml").write_text(yaml.safe_dump(legacy))
+    assert RunConfig.load(out / "config.yaml").recipe is None
+    ap = build_parser()
+    config, _ = make_config(ap.parse_args(["--out", str(out), "--resume"]), ap)
+    assert config.recipe is None
+    with pytest.raises(ConfigError, match="records no recipe .*resume without --recipe"):
+        make_config(ap.parse_args(["--out", str(out), "--resume", "--recipe", "residual-precise"]), ap)
+
+
 # ------------------------------------------------------------------------------------------ recipes
 def test_every_shipped_recipe_builds_a_valid_run():
     recipes = load_recipes()
@@ -196,6 +210,7 @@ def test_a_recipe_run_trains_with_its_aids_and_curriculum_and_evaluates_without_
     assert train_main(["--recipe", "residual-precise-wide", "--task", "track_random", "--timesteps", "256", *TINY,
                        "--start-error-curriculum", "0.25,1000", "--out", str(out)]) == 0
     saved = yaml.safe_load((out / "config.yaml").read_text())
+    assert saved["recipe"] == "residual-precise-wide"
     assert saved["train_env_options"]["start_distribution"] == "wide"
     assert saved["start_error_curriculum"] == [0.25, 1000]
     result = json.loads((out / "result.json").read_text())
@@ -305,3 +320,76 @@ def test_the_ablation_command_refuses_bad_input_in_one_line(tmp_path, capsys):
             run_command("ablation", argv, layout=layout, prog="ablation.py")
         err = capsys.readouterr().err
         assert exc.value.code == 2 and words in err and err.count("\n") <= 2, err
+
+
+def _ablation_layout(tmp_path):
+    """A layout whose docs page holds the ablation block, and a copy of the committed ablation JSON."""
+    from softpvtol_gym.baselines.commands.ablation import BLOCK
+    from softpvtol_gym.baselines.util.blocks import markers
+    from softpvtol_gym.baselines.util.paths import Layout
+    from tests.conftest import LAYOUT
+
+    (tmp_path / "docs").mkdir()
+    start, end = markers(*BLOCK)
+    page = tmp_path / "docs" / "baselines.md"
+    page.write_text(f"# Baselines\n\n{start}\nold table\n{end}\n")
+    src = tmp_path / "ablation.json"
+    src.write_text((LAYOUT.results / "ablation.json").read_text())
+    return Layout(results=tmp_path / "results", root=tmp_path, docs=tmp_path / "docs"), page, src
+
+
+@pytest.mark.parametrize("literal", ["NaN", "Infinity", "1e400"])
+def test_ablation_from_json_refuses_a_non_finite_value_and_writes_nothing(literal, tmp_path, capsys):
+    from softpvtol_gym.baselines.cli import run_command
+
+    layout, page, src = _ablation_layout(tmp_path)
+    data = json.loads(src.read_text())
+    data["recipes"][1]["rows"][0]["rms_position_error_steady_iqm"] = "PLACEHOLDER"
+    src.write_text(json.dumps(data).replace('"PLACEHOLDER"', literal))
+    before = page.read_text()
+    with pytest.raises(SystemExit) as exc:
+        run_command("ablation", ["--from-json", "--json", str(src)], layout=layout, prog="ablation.py")
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1, err
+    assert "recipes[1].rows[0].rms_position_error_steady_iqm is not a finite number" in err and str(src) in err, err
+    assert page.read_text() == before
+
+
+def test_ablation_from_json_says_it_wrote_the_table_only(tmp_path, capsys):
+    from softpvtol_gym.baselines.cli import run_command
+
+    layout, page, src = _ablation_layout(tmp_path)
+    before = src.read_bytes()
+    assert run_command("ablation", ["--from-json", "--json", str(src)], layout=layout, prog="ablation.py") == 0
+    out = capsys.readouterr().out
+    assert out.strip() == f"wrote the table in {page}", out
+    assert src.read_bytes() == before and "old table" not in page.read_text()
+
+
+def test_the_ablation_json_records_its_spec_relative_to_the_layout_root(tmp_path, monkeypatch, capsys):
+    from softpvtol_gym.baselines.cli import run_command
+    from softpvtol_gym.baselines.commands import ablation
+    from tests.conftest import LAYOUT
+
+    layout, _, _ = _ablation_layout(tmp_path)
+    spec = tmp_path / "baselines" / "ablation.yml"
+    spec.parent.mkdir()
+    spec.write_text("the spec\n")
+    for folder in ("runs", "leaderboard_runs"):
+        (tmp_path / folder).mkdir()
+    # the real build records the spec path it was given; the runs it would score are not needed here
+    committed = json.loads((LAYOUT.results / "ablation.json").read_text())
+    monkeypatch.setattr(ablation, "build", lambda spec_path, *a: {**committed, "spec": str(spec_path)})
+    out = tmp_path / "results" / "ablation.json"
+    assert run_command("ablation", ["--spec", str(spec.resolve()), "--root", str(tmp_path / "runs"),
+                                    "--leaderboard-root", str(tmp_path / "leaderboard_runs"), "--json", str(out)],
+                       layout=layout, prog="ablation.py") == 0
+    assert json.loads(out.read_text())["spec"] == "baselines/ablation.yml"
+    assert f"wrote {out} and the table in" in capsys.readouterr().out
+
+
+def test_the_committed_ablation_json_holds_no_absolute_path():
+    from tests.conftest import LAYOUT
+
+    data = json.loads((LAYOUT.results / "ablation.json").read_text())
+    assert data["spec"] == "baselines/ablation.yml"

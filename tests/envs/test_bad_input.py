@@ -461,6 +461,27 @@ def test_bad_reset_changes_nothing():
     assert e.np_random.bit_generator.state == before[1]
 
 
+@pytest.mark.parametrize("env_id", ["SoftPVTOL-v0", "SoftPVTOLResidual-v0"])
+@pytest.mark.parametrize("bad", [dict(options={"bogus": 1}), dict(options={"q0": [0, 2, 0, 4.0, 0]}), dict(seed=-1)],
+                         ids=["unknown_option", "q0_outside", "negative_seed"])
+def test_a_refused_first_reset_under_gym_make_leaves_the_env_usable(env_id, bad):
+    """gymnasium's PassiveEnvChecker marks its first reset as checked before it runs: a refused first reset must
+    leave it waiting for a successful one (the next step failed with a TypeError in the checker)."""
+    env = gym.make(env_id)
+    assert isinstance(env, gym.wrappers.OrderEnforcing) and isinstance(env.env, gym.wrappers.PassiveEnvChecker)
+    with pytest.raises(ValueError):
+        env.reset(**bad)
+    with pytest.raises(ResetNeeded):
+        env.step(env.action_space.sample())
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    obs, reward, *_ = env.step(env.action_space.sample())
+    assert env.observation_space.contains(obs) and np.isfinite(reward)
+    with pytest.raises(ValueError):  # refused in an episode: the episode goes on
+        env.reset(options={"bogus": 1})
+    env.step(env.action_space.sample())
+
+
 def test_stepping_after_termination_warns_once_per_episode():
     e = SoftPVTOLEnv(max_episode_seconds=0.02)
     for _ in range(2):

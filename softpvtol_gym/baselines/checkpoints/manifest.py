@@ -174,6 +174,6 @@ def generator_from_state(state: dict, what: str):
     gen = np.random.Generator(getattr(np.random, state["bit_generator"])())
     try:
         gen.bit_generator.state = from_json(state)
-    except (TypeError, ValueError, KeyError) as exc:
+    except (TypeError, ValueError, KeyError, OverflowError) as exc:  # Overflow: an integer outside 0 .. 2**128-1
         raise CheckpointError(f"{what}: invalid random generator state ({exc})") from None
     return gen

@@ -86,13 +86,28 @@ def model_payload(model) -> tuple[dict, dict]:
     return tensors, meta
 
 
+def sorted_metadata(data: bytes) -> bytes:
+    """``data`` (a safetensors file) with the header's ``__metadata__`` keys in sorted order: safetensors writes
+    them in the order of a Rust hash map, which varies from process to process, so that two saves of the same
+    model would differ. The header keeps its length (the same keys and values) and the tensors their bytes."""
+    n = int.from_bytes(data[:8], "little")
+    header = json.loads(data[8:8 + n])
+    metadata = header.pop("__metadata__", None)
+    if metadata is not None:
+        header = {"__metadata__": dict(sorted(metadata.items())), **header}
+    text = json.dumps(header, separators=(",", ":"), ensure_ascii=False).encode("utf-8")
+    if len(text) > n:  # pragma: no cover (a reordering cannot make the header longer)
+        raise AssertionError(f"safetensors header grew from {n} to {len(text)} bytes")
+    return data[:8] + text + b" " * (n - len(text)) + data[8 + n:]
+
+
 def save_model(model, folder: Path) -> list[str]:
     """Write ``model.safetensors`` and ``model.json`` of ``model`` into ``folder``; returns their names."""
     from safetensors.torch import save as st_save
 
     tensors, meta = model_payload(model)
-    atomic_write_bytes(Path(folder) / MODEL_FILE, st_save(tensors, metadata={"format": FORMAT,
-                                                                            "version": str(FORMAT_VERSION)}))
+    data = st_save(tensors, metadata={"format": FORMAT, "version": str(FORMAT_VERSION)})
+    atomic_write_bytes(Path(folder) / MODEL_FILE, sorted_metadata(data))
     atomic_write_text(Path(folder) / MODEL_STATE_FILE, json.dumps(meta, indent=1))
     return [MODEL_FILE, MODEL_STATE_FILE]
 

@@ -355,7 +355,7 @@ def global_rng_state(state: dict, arrays: dict, source: str):
         np.random.RandomState().set_state(np_state)
         torch.Generator().set_state(torch_state)
         random.Random().setstate(py_state)
-    except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as exc:
+    except (KeyError, TypeError, ValueError, IndexError, RuntimeError, OverflowError) as exc:  # Overflow: pos=2**70
         raise CheckpointError(f"{source}: invalid RNG state ({type(exc).__name__}: {exc})") from None
 
     def restore() -> None:

@@ -17,10 +17,11 @@ from pathlib import Path
 
 from softpvtol_gym.baselines.leaderboard.ablation import build, render_markdown
 from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE
+from softpvtol_gym.baselines.leaderboard.stats import first_non_finite
 from softpvtol_gym.baselines.util.args import Parser, command_main
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.blocks import write_block
-from softpvtol_gym.baselines.util.paths import Layout
+from softpvtol_gym.baselines.util.paths import Layout, relative_to_root
 from softpvtol_gym.baselines.util.safe_load import loads_json
 
 SOURCE = "results/ablation.json"
@@ -46,18 +47,25 @@ def _main(argv, layout: Layout, prog: str) -> int:
         except (ValueError, KeyError, TypeError) as exc:
             ap.error(f"--json {args.json} is not an ablation JSON ({type(exc).__name__}: {exc}); make it again "
                      f"without --from-json")
+        non_finite = first_non_finite(data)
+        if non_finite is not None:  # the writer never writes one (allow_nan=False): the file was edited or damaged
+            ap.error(f"--json {args.json}: {non_finite} is not a finite number (NaN or infinity), expected a finite "
+                     f"one; make the JSON again without --from-json (nothing was written)")
     else:
         for path, what in ((args.root, "--root"), (args.leaderboard_root, "--leaderboard-root")):
             if not path.is_dir():
                 ap.error(f"{what} {path} is not a directory")
         data = build(args.spec, args.root, SPEC_FILE, args.leaderboard_root)
+        data["spec"] = relative_to_root(args.spec, layout.root)  # as eval.json's checkpoints: no machine's path
         atomic_write_text(args.json, json.dumps(data, indent=1, allow_nan=False))
     table = render_markdown(data)
     page = layout.doc("baselines.md")
-    if page is not None and write_block(*BLOCK, table, page):
-        print(f"wrote {args.json} and the table in {page}")
-    else:
+    wrote_table = page is not None and write_block(*BLOCK, table, page)
+    written = ([] if args.from_json else [str(args.json)]) + ([f"the table in {page}"] if wrote_table else [])
+    if not wrote_table:
         print(table)
+    if written:
+        print(f"wrote {' and '.join(written)}")
     return 0
 
 

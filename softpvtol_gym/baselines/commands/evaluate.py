@@ -50,6 +50,10 @@ from softpvtol_gym.policies import MPCPolicy
 from softpvtol_gym.tasks import registered_tasks
 
 MAX_EPISODES = 10_000
+#: loops that are a policy of their own (actuators mode only), never a residual base controller
+POLICY_ONLY_LOOPS = ("extended",)
+#: the loops --controller-loop may name in any action mode
+RESIDUAL_BASE_LOOPS = tuple(k for k in LOOPS if k not in POLICY_ONLY_LOOPS and k != "ideal")
 MAX_SEED = 2**63 - 1
 
 
@@ -100,6 +104,10 @@ def _main(argv, layout: Layout, prog: str) -> int:
                   if v is not None}
     if args.policy == "passivity":
         mode, task, tier = args.action_mode or "actuators", args.task or "hover", args.tier or "nominal"
+        if args.controller_loop in POLICY_ONLY_LOOPS and mode != "actuators":
+            ap.error(f"--controller-loop {args.controller_loop} is a policy acting on the actuators only, got "
+                     f"--action-mode {mode}; pass --action-mode actuators, or another --controller-loop "
+                     f"({', '.join(RESIDUAL_BASE_LOOPS)})")
         policy = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode=mode, task=task, **env_kwargs))
         source = "passivity"
     elif args.policy == "mpc":
@@ -124,6 +132,11 @@ def _main(argv, layout: Layout, prog: str) -> int:
             ap.error(f"--action-mode {args.action_mode} does not match the checkpoint's action mode "
                      f"{config.action_mode!r}; leave it out or pass {config.action_mode}")
         mode, task, tier = config.action_mode, args.task or config.task, args.tier or config.tier
+        if args.controller_loop in POLICY_ONLY_LOOPS and mode == "residual":
+            ap.error(f"--controller-loop {args.controller_loop} cannot be the base controller of a residual "
+                     f"checkpoint (it is a policy of its own, acting on the actuators), got {path}; leave "
+                     f"--controller-loop out (the checkpoint's own base loop, {config.controller_loop}) or pass one "
+                     f"of {', '.join(RESIDUAL_BASE_LOOPS)}")
         source = str(path)
         if args.controller_loop is None and args.allocation is None:
             env_kwargs = config.eval_env_kwargs()  # the base loop the checkpoint was trained on

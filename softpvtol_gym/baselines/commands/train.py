@@ -20,11 +20,12 @@ are written atomically every ``--checkpoint-freq`` steps. The run ends by evalua
 passivity controller on the same held-out seeded episodes (seeds from 1,000,000 on; training uses seeds
 below) and prints both.
 
-``--resume`` continues the run in ``--out`` (options left out take the run's saved values; ``--timesteps``
-may extend it); a run killed before its first checkpoint starts over with the same command; on a finished
-run it says so and exits 0. Exit codes: 0 done, 2 bad input or a run directory in use (one line, nothing
-written or overwritten), 74 an I/O error (disk full, read-only: one line naming the path; the last checkpoint
-stays whole), 130 / 143 interrupted by Ctrl-C / SIGTERM (the last checkpoint is kept; ``--resume`` continues).
+``--resume`` continues the run in ``--out`` (options left out take the run's saved values; ``--timesteps`` may
+extend it; ``--recipe``, if given, must be the one config.yaml records); a run killed before its first
+checkpoint starts over with the same command; on a finished run it says so and exits 0. Exit codes: 0 done, 2
+bad input or a run directory in use (one line, nothing written or overwritten), 74 an I/O error (disk full,
+read-only: one line naming the path; the last checkpoint stays whole), 130 / 143 interrupted by Ctrl-C /
+SIGTERM (the last checkpoint is kept; ``--resume`` continues).
 """
 
 from __future__ import annotations
@@ -182,6 +183,14 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
         train_env_options = {**saved.train_env_options, **train_env_options}
         curriculum = saved.start_error_curriculum if curriculum is None else curriculum
         controller_loop = args.controller_loop or saved.controller_loop
+        if args.recipe is not None and args.recipe != saved.recipe:
+            if saved.recipe is None:
+                raise ConfigError(f"--resume: the run in {out} records no recipe (made without one, or before runs "
+                                  f"recorded theirs), the command asks for --recipe {args.recipe}; resume without "
+                                  f"--recipe (the run's saved settings are used, a recipe's included)")
+            raise ConfigError(f"--resume: recipe of the run in {out} is {saved.recipe!r}, the command asks for "
+                              f"{args.recipe!r}; resume with the run's own recipe (or leave --recipe out)")
+        recipe_name = saved.recipe
     else:
         hp = apply_overrides(load_hyperparams(pick["algo"], pick["action_mode"], args.hyperparams),
                              recipe_hp + args.hp)
@@ -190,6 +199,7 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
         train_env_options = {**fields["train_env_options"], **train_env_options}
         curriculum = fields["start_error_curriculum"] if curriculum is None else curriculum
         controller_loop = args.controller_loop or fields["controller_loop"]
+        recipe_name = args.recipe
         if args.n_envs is not None:
             overrides.append(f"n_envs={args.n_envs}")
             hp["n_envs"] = args.n_envs
@@ -202,7 +212,7 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
                        checkpoint_freq=pick["checkpoint_freq"], eval_freq=pick["eval_freq"],
                        eval_episodes=pick["eval_episodes"], env_options=env_options,
                        train_env_options=train_env_options, start_error_curriculum=curriculum,
-                       controller_loop=controller_loop)
+                       controller_loop=controller_loop, recipe=recipe_name)
     if saved is not None and config.controller_loop != saved.controller_loop:
         raise ConfigError(f"--resume: controller_loop of the run in {out} is {saved.controller_loop!r}, the command "
                           f"asks for {config.controller_loop!r}; resume with the run's own settings")

@@ -136,6 +136,9 @@ def parse_env_options(items: list[str], valid: tuple = ENV_OPTION_KEYS, flag: st
             if flag in other and key in other[flag][1]:
                 hint = f" ({key} belongs to {other[flag][0]})"
             raise ConfigError(f"unknown env option {key!r}; a run may set {list(valid)} ({flag}){hint}")
+        if key in out:
+            raise ConfigError(f"{flag} {key} is given twice ({flag} {key}={out[key]!r} and {item!r}); give each key "
+                              f"once")
         out[key] = _parse_value(raw, f"env option {key}")
     return out
 

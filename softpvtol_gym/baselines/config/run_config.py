@@ -67,6 +67,9 @@ class RunConfig:
     #: reference (``start_error_scale``) from s0 at step 0 linearly to the run's scale (train_env_options'
     #: ``start_error_scale``, default 1) at ``ramp_steps``, set at every rollout's start; None: no curriculum
     start_error_curriculum: list | None = None
+    #: the training recipe the run was made from (train.py ``--recipe``; its settings are in the fields above),
+    #: for the record and for ``--resume``; None: no recipe (or a run saved before the field existed)
+    recipe: str | None = None
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -103,6 +106,8 @@ class RunConfig:
         except (ValueError, TypeError) as exc:
             raise ConfigError(f"env_options with train_env_options: {exc}") from None
         self._check_curriculum()
+        if self.recipe is not None and (not isinstance(self.recipe, str) or not self.recipe):
+            raise ConfigError(f"recipe must be a recipe's name or None, got {self.recipe!r}")
 
     def _check_env_options(self, env_config_class, field: str, valid: tuple) -> None:
         """``field``: a mapping of ``valid`` keys that the env accepts (each value checked by EnvConfig; a
@@ -166,6 +171,8 @@ class RunConfig:
             data = {**data, "env_options": dict(LEGACY_ENV_OPTIONS)}
         if strict:  # saved before the fields existed (2026-12-02): no training aids
             data = {"train_env_options": {}, "start_error_curriculum": None, **data}
+        if strict:  # saved before the recipe was recorded: none recorded
+            data = {"recipe": None, **data}
         if strict:
             lost = [n for n in names if n not in data]
             if lost:

@@ -64,7 +64,7 @@ from softpvtol_gym.baselines.evaluation import EPISODE_METRICS, TIMING_METRICS, 
 from softpvtol_gym.baselines.leaderboard.spec import ANALYTIC_KINDS, SPEC_FILE, analytic_entries, load_spec
 from softpvtol_gym.baselines.training.loop import EVALUATIONS_FILE, train
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
-from softpvtol_gym.baselines.util.args import interrupted
+from softpvtol_gym.baselines.util.args import interrupted, io_error_message
 from softpvtol_gym.baselines.util.atomic import atomic_copy, atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout, check_slug, relative_to_root, under
 from softpvtol_gym.baselines.util.safe_load import loads_json
@@ -220,7 +220,7 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
             recipe = load_recipe(job.recipe)
             hp = apply_overrides(recipe_hyperparams(recipe), list(job.hp))
             fields, recipe_hp = recipe_config_fields(recipe), list(recipe["hp"])
-        config = RunConfig(**fields, task=job.task, tier=job.train_tier,
+        config = RunConfig(**fields, recipe=job.recipe, task=job.task, tier=job.train_tier,
                            timesteps=job.timesteps, seed=job.seed, n_envs=int(hp.get("n_envs", 16)), hyperparams=hp,
                            overrides=recipe_hp + list(job.hp),
                            checkpoint_freq=max(job.timesteps // 4, 1), eval_episodes=5,
@@ -379,6 +379,8 @@ def _failure_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split())
     if isinstance(exc, ConfigError):
         return text
+    if isinstance(exc, OSError) and exc.errno is not None:  # disk full, read-only, permission: the path in words
+        return io_error_message(exc)
     if type(exc).__name__ in WORKER_CRASHES:
         return f"worker crashed ({type(exc).__name__}: {text[:300]})"
     return f"{type(exc).__name__}: {text[:300]}"

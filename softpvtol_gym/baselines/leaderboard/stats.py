@@ -474,7 +474,7 @@ def validate_data(data, source: str) -> dict:
             bad(f"meta.{key} must be a {typ.__name__}, got {meta.get(key)!r}")
     if not isinstance(data["aggregates"], list) or not isinstance(data["cells"], list):
         bad("aggregates and cells must be lists")
-    non_finite = _first_non_finite(data)
+    non_finite = first_non_finite(data)
     if non_finite is not None:
         bad(f"{non_finite} is not a finite number")
     def number_or_none(v) -> bool:
@@ -514,7 +514,7 @@ def validate_data(data, source: str) -> dict:
     return data
 
 
-def _first_non_finite(value, where: str = "") -> str | None:
+def first_non_finite(value, where: str = "") -> str | None:
     """The path (``cells[3].summary.mean_return``) of the first NaN or infinity in ``value``, or None."""
     if isinstance(value, float) and not math.isfinite(value):
         return where or "the value"
@@ -525,7 +525,7 @@ def _first_non_finite(value, where: str = "") -> str | None:
     else:
         return None
     for w, v in items:
-        found = _first_non_finite(v, w)
+        found = first_non_finite(v, w)
         if found is not None:
             return found
     return None

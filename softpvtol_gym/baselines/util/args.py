@@ -191,7 +191,8 @@ def float_arg(lo: float | None = None, hi: float | None = None, lo_open: bool = 
 
 
 def check_output_file(path: Path, force: bool, option: str = "--json") -> None:
-    """ConfigError unless ``path`` can be written as a file (checked before any work is done)."""
+    """ConfigError unless ``path`` can be written as a file (checked before any work is done); an OSError naming
+    ``path`` (exit 74) if the disk or the quota is full."""
     if path.is_dir():
         raise ConfigError(f"{option} {path} is a directory; expected a file name")
     if path.exists() and not force:
@@ -201,13 +202,13 @@ def check_output_file(path: Path, force: bool, option: str = "--json") -> None:
         parent = parent.parent
     if not parent.is_dir():
         raise ConfigError(f"{option} {path}: {parent} is a file, not a directory")
-    _check_writable(parent, f"{option} {path}")
+    _check_writable(parent, f"{option} {path}", path)
 
 
 def check_output_dir(path: Path, option: str) -> None:
     """ConfigError unless ``path`` is, or can be created as, a writable directory: checked before any work, so
     that an output under /proc, under a file, or in a read-only place is refused at once (``os.access`` and
-    the mount's read-only flag, which hold for root too)."""
+    the mount's read-only flag, which hold for root too); an OSError naming ``path`` (exit 74) on a full disk."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ConfigError(f"{option} {path} is a file; expected a directory")
@@ -218,10 +219,17 @@ def check_output_dir(path: Path, option: str) -> None:
         probe = probe.parent
     if not probe.is_dir():
         raise ConfigError(f"{option} {path}: {probe} is a file, not a directory")
-    _check_writable(probe, f"{option} {path}")
+    _check_writable(probe, f"{option} {path}", path)
 
 
-def _check_writable(directory: Path, what: str) -> None:
+#: bytes written to the probe file: a full disk (or an exhausted quota) refuses them before any work
+PROBE_BYTES = 4096
+_FULL = (errno.ENOSPC, errno.EDQUOT)
+
+
+def _check_writable(directory: Path, what: str, target: Path) -> None:
+    """ConfigError unless files can be created in ``directory``; OSError naming ``target`` (exit 74) if the disk or
+    the quota is full."""
     if not os.access(directory, os.W_OK | os.X_OK):
         raise ConfigError(f"{what}: directory {directory} is not writable")
     try:
@@ -230,12 +238,21 @@ def _check_writable(directory: Path, what: str) -> None:
         read_only = False
     if read_only:
         raise ConfigError(f"{what}: directory {directory} is on a read-only file system")
-    try:  # /proc, /sys and the like pass both checks above: try to create a file
+    try:  # /proc, /sys and the like pass both checks above: try to create a file, and to write to it
         fd, tmp = _probe_file(directory)
     except OSError as exc:
+        if exc.errno in _FULL:
+            raise OSError(exc.errno, exc.strerror, str(target)) from None
         raise ConfigError(f"{what}: cannot create files in {directory} ({exc.strerror or exc})") from None
-    os.close(fd)
-    os.unlink(tmp)
+    try:
+        os.write(fd, b"\0" * PROBE_BYTES)
+    except OSError as exc:
+        if exc.errno in _FULL:
+            raise OSError(exc.errno, exc.strerror, str(target)) from None
+        raise ConfigError(f"{what}: cannot write files in {directory} ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+        os.unlink(tmp)
 
 
 def _probe_file(directory: Path):

@@ -78,11 +78,19 @@ def atomic_path(path: Path, mkdir: bool = True) -> Iterator[Path]:
         yield tmp
         _fsync_file(tmp)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+        _name_the_target(exc, path)
         raise
     fsync_dir(path.parent)
+
+
+def _name_the_target(exc: BaseException, path: Path) -> None:
+    """Give an OSError without a file name (a full disk met by ``write``, ``flush`` or ``fsync``) the target's
+    path, so that the command's one-line message names the file it could not write."""
+    if isinstance(exc, OSError) and exc.filename is None:
+        exc.filename = str(path)
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -114,10 +122,12 @@ def atomic_write_all(files: dict) -> None:
                 fh.write(data)
                 fh.flush()
                 os.fsync(fh.fileno())
-    except BaseException:
+    except BaseException as exc:
         for tmp, _ in temps:
             with contextlib.suppress(FileNotFoundError):
                 tmp.unlink()
+        if temps:
+            _name_the_target(exc, temps[-1][1])
         raise
     for tmp, path in temps:
         os.replace(tmp, path)
