@@ -34,3 +34,8 @@ def sleeping_entry(job, root, reevaluate=False, token=None, base=None):
     os.replace(pid_file.with_suffix(".tmp"), pid_file)
     time.sleep(60)
     return job.name, 60.0
+
+
+def environment_variable(name: str) -> str | None:
+    """The worker's value of an environment variable."""
+    return os.environ.get(name)

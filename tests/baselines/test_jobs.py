@@ -109,3 +109,30 @@ def test_bad_cell_hyperparameter_overrides_are_refused(tmp_path, hp, message):
 def test_cell_hyperparameter_overrides_reach_the_job(tmp_path):
     (job,) = load_jobs(write_spec(tmp_path / "spec.yml", ', hp: ["learning_rate=1e-3", "gamma=0.995"]'))
     assert job.hp == ("learning_rate=1e-3", "gamma=0.995")
+
+
+def test_worker_environment_is_the_workers_only_and_numba_keeps_its_cache_directory():
+    """``ProcessPerJobExecutor(worker_env=...)`` sets the variables in each worker, not in the driver: a lasting
+    NUMBA_* change in the driver made numba reload its configuration at the next compile, dropping the cache
+    directory the package had set (everything compiled again, into the source tree)."""
+    import os
+
+    import numba
+    from numba.core import config
+
+    import softpvtol_gym
+    from softpvtol_gym.baselines.leaderboard.process_executor import ProcessPerJobExecutor
+    from tests.baselines._stub_jobs import environment_variable
+
+    name = "NUMBA_NUM_THREADS"
+    before = os.environ.get(name)
+    with ProcessPerJobExecutor(max_workers=1, worker_env={name: "1"}) as ex:
+        assert ex.submit(environment_variable, name).result(timeout=120) == "1"
+    assert os.environ.get(name) == before
+
+    @numba.njit(cache=False)
+    def _compiled_after_the_jobs(x):
+        return x + 1
+
+    assert _compiled_after_the_jobs(1) == 2  # a compile reloads numba's configuration if the environment changed
+    assert config.CACHE_DIR == str(softpvtol_gym.NUMBA_CACHE_DIR)

@@ -134,11 +134,13 @@ def _run(args, jobs, layout: Layout, rerun: str, progress: bool) -> None:
                          progress=progress, base=layout.root, rerun=rerun, rescore=args.rescore)
         else:
             # numba's threading layer per worker would oversubscribe the cores: one thread per worker process
-            os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+            # (unless the user set it), in the workers' environment only
+            worker_env = {} if "NUMBA_NUM_THREADS" in os.environ else {"NUMBA_NUM_THREADS": "1"}
             workers = args.workers or os.cpu_count() or 1
             # a process per job: a killed worker fails its own job only; leaving the block (Ctrl-C, SIGTERM)
             # terminates the running ones
-            with ProcessPerJobExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
+            with ProcessPerJobExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                       worker_env=worker_env) as ex:
                 run_jobs(jobs, ex, args.root, reevaluate=args.reevaluate, progress=progress,
                          base=layout.root, rerun=rerun, rescore=args.rescore)
 

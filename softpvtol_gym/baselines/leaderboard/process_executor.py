@@ -13,7 +13,9 @@ nothing next to a training job).
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
+import os
 import signal
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -48,12 +50,31 @@ def _child(conn, fn, args, kwargs) -> None:
         conn.close()
 
 
+@contextlib.contextmanager
+def _environment(variables: dict[str, str]):
+    """``os.environ`` with ``variables`` set, restored on leaving (the parent's environment is the workers' at
+    their start; a lasting change would also make numba reload its whole configuration, the cache directory
+    included, at the parent's next compile)."""
+    saved = {name: os.environ.get(name) for name in variables}
+    os.environ.update(variables)
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
 class ProcessPerJobExecutor:
     """``submit(fn, *args)`` runs ``fn(*args)`` in a new process (``mp_context``, default ``spawn``), at most
-    ``max_workers`` at once; the future holds its result, the exception it raised, or :class:`WorkerCrashed`."""
+    ``max_workers`` at once; the future holds its result, the exception it raised, or :class:`WorkerCrashed`.
+    ``worker_env``: environment variables set for the workers only (e.g. ``{"NUMBA_NUM_THREADS": "1"}``)."""
 
-    def __init__(self, max_workers: int, mp_context=None):
+    def __init__(self, max_workers: int, mp_context=None, worker_env: dict[str, str] | None = None):
         self._ctx = mp_context or mp.get_context("spawn")
+        self._worker_env = dict(worker_env or {})
         self._threads = ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="job")
         self._procs: set = set()
         self._lock = threading.Lock()
@@ -66,7 +87,8 @@ class ProcessPerJobExecutor:
                 raise WorkerCrashed("not started: the executor was shut down")
             # not a daemon: a job may start processes of its own; shutdown() stops it explicitly
             proc = self._ctx.Process(target=_child, args=(child, fn, args, kwargs), daemon=False)
-            proc.start()
+            with _environment(self._worker_env):
+                proc.start()
             self._procs.add(proc)
         child.close()
         try:
