@@ -42,6 +42,8 @@ a crashed episode never makes an entry look better, and never drops out of its s
 
 from __future__ import annotations
 
+import contextlib
+import sys
 import time
 
 import numpy as np
@@ -143,6 +145,52 @@ def run_episodes(policy, action_mode: str, task: str, tier: str, episodes: int, 
             ep["compute_us_per_step_max"] = float(own.max())
         out.append(ep)
     return out
+
+
+@contextlib.contextmanager
+def one_torch_thread():
+    """torch on one thread inside the block (restored after), if torch is loaded: a learned policy's forward pass
+    then runs in the calling thread, as the compiled kernels of one observation do."""
+    torch = sys.modules.get("torch")  # not imported for a policy without it (it takes seconds)
+    before = None if torch is None else torch.get_num_threads()
+    if torch is not None:
+        torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        if torch is not None:
+            torch.set_num_threads(before)
+
+
+def compute_us_single(policy, observations, repeats: int = 3) -> float:
+    """The median wall time [us] of ``policy.predict`` on one observation at a time: the latency of the controller
+    of one robot, measured in a pass of its own (not during an evaluation of many episodes at once).
+
+    ``observations`` (n, obs_dim): e.g. the observations of a real episode, in order. One untimed call first
+    (observation 0, ``episode_start`` true: a learned policy's frame stack, a controller's memory for one robot,
+    and any one-off compilation), then ``repeats`` passes over the observations, each ``predict(observations[i],
+    deterministic=True)`` on the observation (obs_dim,) alone, timed with ``time.perf_counter`` around the call.
+    The median over the ``repeats * n`` calls leaves out the occasional call that the OS interrupted. Runs in
+    the calling thread: torch on one thread (restored after); the package's compiled kernels split only batches
+    of 512 rows and more over threads, so one observation never is. Wall time: it depends on the machine and
+    its load (say which, beside the figure)."""
+    obs = np.asarray(observations)
+    if obs.ndim != 2 or obs.shape[0] < 1:
+        raise ValueError(f"observations must be an array (n, obs_dim) of n >= 1 observations, got shape {obs.shape}")
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
+        raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
+    rows = list(obs)
+    seconds = np.empty(repeats * len(rows))
+    with one_torch_thread():
+        policy.predict(rows[0], episode_start=np.ones(1, dtype=bool), deterministic=True)
+        i = 0
+        for _ in range(repeats):
+            for row in rows:
+                tic = time.perf_counter()
+                policy.predict(row, deterministic=True)
+                seconds[i] = time.perf_counter() - tic
+                i += 1
+    return float(np.median(seconds) * 1e6)
 
 
 def without_timing(episode: dict) -> dict:

@@ -69,9 +69,10 @@ def test_stacked_predict_feeds_the_model_what_vec_frame_stack_feeds_it(k):
 
 
 def test_stacked_predict_gives_the_actions_of_the_model_on_the_wrapper_observations():
-    """predict on raw observations = the model's predict on VecFrameStack's observations, step by step."""
+    """predict on raw observations = the model's predict on VecFrameStack's observations, step by step (the torch
+    path: the same calls, so the same actions; the lean path is held to 1e-5 in test_lean.py)."""
     model, vecnorm, stacked, env = _stacked_setup(3, n_envs=2, seconds=0.1)
-    policy = LearnedPolicy(model, vecnorm)
+    policy = LearnedPolicy(model, vecnorm, inference="torch")
     wrapped_obs = stacked.reset()
     starts = np.ones(2, bool)
     for _ in range(30):
@@ -95,8 +96,27 @@ def test_episode_start_empties_only_that_sub_envs_stack():
         policy.stacked(np.zeros((3, dim), np.float32), [False, False, False])  # another number of sub-envs
     with pytest.raises(ValueError, match="3 stacked observations"):
         policy.stacked(np.zeros((2, dim + 1), np.float32), [True, True])
+    with pytest.raises(ValueError, match=r"episode_start must hold one bool per sub-env \(2\), got shape \(3,\)"):
+        policy.stacked(c, [False, True, True])
     with pytest.raises(ValueError, match="frame_stack must be an integer >= 1"):
         LearnedPolicy(model, vecnorm, frame_stack=0)
+
+
+def test_without_episode_start_the_first_call_starts_the_stacks_and_later_calls_continue_them():
+    model, vecnorm, _, _ = _stacked_setup(3, n_envs=2, seconds=1.0)
+    dim = model.observation_space.shape[0] // 3
+    a, b = (np.full((2, dim), v, np.float32) for v in (1.0, 2.0))
+    for inference in ("torch", "lean"):
+        policy = LearnedPolicy(model, vecnorm, inference=inference)
+        policy.stacked(a, None)
+        np.testing.assert_array_equal(policy.stacked(b, None)[0], np.concatenate([np.zeros(dim), a[0], b[0]]))
+        # predict without episode_start: the second call sees both observations (the first is not forgotten)
+        fresh = LearnedPolicy(model, vecnorm, inference=inference)
+        fresh.predict(a)
+        continued = fresh.predict(b)[0]
+        fresh.reset_stack()
+        np.testing.assert_array_equal(fresh.predict(b)[0], fresh.predict(b, episode_start=[True, True])[0])
+        assert not np.array_equal(continued, fresh.predict(b, episode_start=[True, True])[0])
 
 
 @pytest.mark.parametrize("bad", [0, -1, 1.5, "a", True, 65])
@@ -237,9 +257,9 @@ def test_a_run_trained_with_residual_scale_0_4_evaluates_with_0_4(tmp_path):
 
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
 def test_learned_policy_acts_as_the_models_own_predict(algo):
-    """LearnedPolicy.predict skips SB3's per-call set_training_mode but otherwise makes SB3's calls: the same
-    actions as model.predict (batched and single observations; SAC squashes, PPO clips), also right after a
-    training update left the policy in training mode."""
+    """LearnedPolicy.predict (inference="torch") skips SB3's per-call set_training_mode but otherwise makes SB3's
+    calls: the same actions as model.predict (batched and single observations; SAC squashes, PPO clips), also
+    right after a training update left the policy in training mode."""
     import torch
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import VecNormalize
@@ -250,7 +270,7 @@ def test_learned_policy_acts_as_the_models_own_predict(algo):
     model = (PPO("MlpPolicy", env, n_steps=16, batch_size=32, seed=0, device="cpu") if algo == "ppo"
              else SAC("MlpPolicy", env, learning_starts=0, batch_size=32, seed=0, device="cpu"))
     model.learn(64)
-    policy = LearnedPolicy(model, env)
+    policy = LearnedPolicy(model, env, inference="torch")
     raw = np.random.default_rng(0).normal(scale=3.0, size=(6, env.observation_space.shape[0])).astype(np.float32)
     normed = env.normalize_obs(raw)
     for deterministic in (True, False):

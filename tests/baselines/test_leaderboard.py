@@ -151,7 +151,8 @@ def _replay(checkpoint: str, train_tier: str, task: str) -> tuple[list[dict], di
 
     path = ROOT / checkpoint
     assert path.is_file() and path.stat().st_size < 1_000_000
-    policy, config = LearnedPolicy.load(path)
+    # the committed episodes were scored with SB3's torch forward, before the lean path was the default
+    policy, config = LearnedPolicy.load(path, inference="torch")
     cell = next(c for c in DATA["cells"] if c["checkpoint"] == checkpoint and c["tier"] == train_tier
                 and c["task"] == task)
     assert (config.task, config.tier) == (cell.get("train_task", task), train_tier)

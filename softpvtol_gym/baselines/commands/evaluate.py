@@ -36,7 +36,7 @@ from pathlib import Path
 
 from softpvtol_gym import PassivityPolicy
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, evaluate
-from softpvtol_gym.baselines.training.policy import LearnedPolicy
+from softpvtol_gym.baselines.training.policy import INFERENCE, LearnedPolicy
 from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main, int_arg
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout
@@ -78,6 +78,9 @@ def build_parser(prog: str = "evaluate.py") -> Parser:
     ap.add_argument("--seed", type=int_arg(), default=EVAL_SEED_OFFSET)
     ap.add_argument("--json", type=Path, default=None, help="write the results here (refuses to overwrite)")
     ap.add_argument("--force", action="store_true", help="overwrite --json if it exists")
+    ap.add_argument("--inference", choices=INFERENCE, default="lean",
+                    help="a checkpoint's forward pass: lean (default: a compiled float64 pass per observation, the "
+                         "same actions whatever --episodes) or torch (SB3's predict)")
     ap.add_argument("--trust-pickle", action="store_true",
                     help="also load pickle-based checkpoints (SB3 model.zip, *.pkl): they can run code; only for "
                          "files you created or trust")
@@ -127,7 +130,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
         # episodes are reproduced with the same summation order
         torch.set_num_threads(1)
         path = Path(args.policy)
-        policy, config = LearnedPolicy.load(path, trust_pickle=args.trust_pickle)
+        policy, config = LearnedPolicy.load(path, trust_pickle=args.trust_pickle, inference=args.inference)
         if args.action_mode is not None and args.action_mode != config.action_mode:
             ap.error(f"--action-mode {args.action_mode} does not match the checkpoint's action mode "
                      f"{config.action_mode!r}; leave it out or pass {config.action_mode}")

@@ -1,0 +1,353 @@
+"""LeanMLPPolicy: the deterministic action of a stable-baselines3 MLP policy, computed by a compiled float64
+forward pass one observation row at a time, so that a row's action does not depend on the batch around it.
+
+Why. torch's float32 matrix products sum in an order that depends on the batch size (its kernels block the
+sums differently for 1, 10 or 100 rows), so the same observation gets actions that differ in the last bits
+with the number of episodes evaluated beside it, and a closed loop carries such differences along: a learned
+entry's last-half error changed by several per cent between an episode run alone and the same episode in a
+batch. Here every row is computed by
+the same loops in the same order (no fastmath: no reassociation, no fused multiply-add), alone: its action is
+bit for bit the same whatever the batch, and an episode of an evaluation is the same whether it runs alone
+or beside others. It is also what a robot runs: one observation through a few small layers, without torch's
+per-call overhead.
+
+What it computes: SB3's ``model.predict(obs, deterministic=True)`` on the observations of its env, step by
+step (``tests/baselines/test_lean.py`` compares the two on committed checkpoints):
+
+1. the observation as float32; VecNormalize's normalisation, ``clip((obs - mean) / sqrt(var + epsilon),
+   -clip_obs, clip_obs)`` in float64, rounded to float32 (``VecNormalize.normalize_obs``);
+2. the frame stack (K > 1): each sub-env's last K normalised observations, oldest first, zeros at an episode
+   start (SB3's VecFrameStack; :class:`~.stacking.ObservationStack`);
+3. the actor's layers in float64 (torch's float32 weights, exactly): PPO and A2C ``mlp_extractor.policy_net``
+   then ``action_net`` (the Gaussian's mean, its mode; then tanh with gSDE's ``squash_output``); SAC
+   ``actor.latent_pi``, ``actor.mu`` (with gSDE its Hardtanh to +-``clip_mean``), then tanh (the squashed
+   Gaussian's mode); TD3 and DDPG ``actor.mu`` (ending with its tanh);
+4. SB3's handling of a Box action: a squashed output (SAC, TD3) mapped from [-1, 1] onto [low, high]
+   (``unscale_action``), any other clipped to [low, high]; the action in the action space's dtype.
+
+The float64 pass differs from torch's float32 one by float32 rounding (about 1e-7 on the committed
+checkpoints' actions). Only the deterministic action is computed (``deterministic=False`` is an error);
+Linear, Tanh, ReLU and Hardtanh modules on a flat Box observation are supported (every MlpPolicy this
+package trains), anything else (another activation or feature extractor, a Dict observation, a discrete
+action) is refused with a message naming it: use ``LearnedPolicy(..., inference="torch")`` for those. The
+weights are copied when the policy is built: build it again after training further.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.training.stacking import ObservationStack
+
+__all__ = ["LeanMLPPolicy", "OPS"]
+
+_jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
+
+#: the operations of the lean forward pass (kernel codes): ``("linear", weight (out, in), bias (out,) or None)``,
+#: ``("tanh",)``, ``("relu",)``, ``("hardtanh", min, max)`` (each activation on the whole current vector)
+OPS = {"linear": 0, "tanh": 1, "relu": 2, "hardtanh": 3}
+_LINEAR, _TANH, _RELU, _HARDTANH = OPS["linear"], OPS["tanh"], OPS["relu"], OPS["hardtanh"]
+#: the end of the message for a model the lean path does not compute (a ConfigError)
+_USE_TORCH = "; use LearnedPolicy(..., inference='torch') (softpvtol evaluate --inference torch)"
+
+
+@_jit
+def _normalized(x, mean, scale, clip):
+    """VecNormalize's normalisation of one float32 entry: float64 arithmetic, clipped, rounded to float32."""
+    v = (np.float64(x) - mean) / scale
+    if v < -clip:
+        v = -clip
+    elif v > clip:
+        v = clip
+    return np.float64(np.float32(v))
+
+
+@_jit
+def normalize_rows(obs, mean, scale, clip, out):
+    """out = the normalised observations ``obs`` (n, d), each entry by :func:`_normalized`."""
+    for r in range(obs.shape[0]):
+        for k in range(obs.shape[1]):
+            out[r, k] = _normalized(obs[r, k], mean[k], scale[k], clip)
+
+
+@_jit
+def act_rows(obs, mean, scale, clip, codes, sizes, params, weights, biases, squash, low, high, out):
+    """The actions ``out`` (n, sizes[-1]) of observations ``obs`` (n, sizes[0]), one row after the other.
+
+    Per row: the entries normalised (:func:`_normalized`), then the operations ``codes`` in turn (:data:`OPS`;
+    operation i maps a vector of ``sizes[i]`` entries to one of ``sizes[i + 1]``): a linear layer sums over its
+    inputs in order k = 0, 1, ... (one accumulator per output; its weights stored input-major: entry (k, j)
+    multiplies input k into output j), then adds the bias; hardtanh clips to ``params[i]``. Last SB3's Box
+    handling: ``squash``: low + (y + 1) / 2 (high - low), else y clipped to [low, high]."""
+    width = 0
+    for d in sizes:
+        width = max(width, d)
+    h = np.empty(width)  # the current vector
+    g = np.empty(width)  # a linear layer's sums
+    n_ops = codes.shape[0]
+    for r in range(obs.shape[0]):
+        for k in range(sizes[0]):
+            h[k] = _normalized(obs[r, k], mean[k], scale[k], clip)
+        w0 = 0
+        b0 = 0
+        for i in range(n_ops):
+            code = codes[i]
+            din = sizes[i]
+            dout = sizes[i + 1]
+            if code == _LINEAR:
+                for j in range(dout):
+                    g[j] = 0.0
+                for k in range(din):
+                    hk = h[k]
+                    row = w0 + k * dout
+                    for j in range(dout):
+                        g[j] += weights[row + j] * hk
+                for j in range(dout):
+                    h[j] = g[j] + biases[b0 + j]
+                w0 += din * dout
+                b0 += dout
+            elif code == _TANH:
+                for j in range(dout):
+                    h[j] = np.tanh(h[j])
+            elif code == _RELU:
+                for j in range(dout):
+                    if h[j] < 0.0:  # (NaN stays NaN, as torch's relu)
+                        h[j] = 0.0
+            else:  # _HARDTANH
+                lo, hi = params[i, 0], params[i, 1]
+                for j in range(dout):
+                    if h[j] < lo:
+                        h[j] = lo
+                    elif h[j] > hi:
+                        h[j] = hi
+        for j in range(sizes[n_ops]):
+            v = h[j]
+            if squash:
+                v = low[j] + 0.5 * (v + 1.0) * (high[j] - low[j])
+            elif v < low[j]:
+                v = low[j]
+            elif v > high[j]:
+                v = high[j]
+            out[r, j] = v
+
+
+def _vector(value, name: str, size: int | None = None) -> np.ndarray:
+    """``value`` as a 1-D finite float64 array (of ``size`` entries, if given); ValueError naming it otherwise."""
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim != 1 or (size is not None and arr.shape[0] != size):
+        want = "a vector" if size is None else f"a vector of {size} entries"
+        raise ValueError(f"{name} must be {want}, got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be finite, got {arr}")
+    return arr
+
+
+class LeanMLPPolicy:
+    """The deterministic action of an MLP actor, by a compiled float64 forward pass per observation row
+    (module docstring), with the ``predict`` interface of every policy of the package.
+
+    Built from plain arrays (no torch needed to act) or from an SB3 model with :meth:`from_sb3`.
+
+    ``ops``: the actor's operations in order (:data:`OPS`), the first a linear layer (weights in torch's
+    layout, (out, in)); ``action_low``, ``action_high``: the action space's bounds; ``squash``: SB3's
+    ``squash_output``: the last operation's output, in [-1, 1], is mapped onto the bounds (SAC, TD3), else it is
+    clipped to them (PPO, A2C). ``obs_mean``, ``obs_var``, ``epsilon``, ``clip_obs``: VecNormalize's
+    observation statistics and settings for one observation (None: no normalisation); ``frame_stack``: K, the
+    number of stacked observations the first layer takes (its input size is K times the observation's);
+    ``action_dtype``: the dtype of the actions returned (the action space's).
+    """
+
+    def __init__(self, ops, action_low, action_high, squash: bool, obs_mean=None, obs_var=None,
+                 epsilon: float = 1e-8, clip_obs: float = 10.0, frame_stack: int = 1, action_dtype=np.float32):
+        ops = list(ops)
+        for i, op in enumerate(ops):
+            if not isinstance(op, (tuple, list)) or not op:
+                raise ValueError(f"operation {i} must be a tuple ('name', arguments...), got {op!r}")
+        if not ops or ops[0][0] != "linear" or len(ops[0]) != 3:
+            raise ValueError(f"ops must be a list of operations starting with ('linear', weight, bias), got "
+                             f"{[op[0] for op in ops]}")
+        first = np.asarray(ops[0][1])
+        codes, sizes, params, weights, biases = [], [first.shape[1] if first.ndim == 2 else -1], [], [], []
+        for i, op in enumerate(ops):
+            name, args = op[0], op[1:]
+            if name not in OPS or len(args) != {"linear": 2, "hardtanh": 2}.get(name, 0):
+                raise ValueError(f"operation {i}: expected ('linear', weight, bias), ('tanh',), ('relu',) or "
+                                 f"('hardtanh', min, max), got {name!r} with {len(args)} arguments")
+            codes.append(OPS[name])
+            bounds = (0.0, 0.0)
+            if name == "linear":
+                w = np.asarray(args[0], dtype=np.float64)
+                if w.ndim != 2 or w.shape[1] != sizes[-1]:
+                    raise ValueError(f"operation {i}: the weight must be a matrix (out, {sizes[-1]}), got shape "
+                                     f"{w.shape}")
+                if not np.isfinite(w).all():
+                    raise ValueError(f"operation {i}: the weight holds non-finite values")
+                weights.append(w.T.ravel())  # input-major, as act_rows reads it
+                b = np.zeros(w.shape[0]) if args[1] is None else args[1]
+                biases.append(_vector(b, f"operation {i}'s bias", w.shape[0]))
+                sizes.append(w.shape[0])
+                params.append(bounds)
+                continue
+            if name == "hardtanh":
+                bounds = (float(args[0]), float(args[1]))
+                if not bounds[0] <= bounds[1]:
+                    raise ValueError(f"operation {i}: hardtanh needs min <= max, got {bounds}")
+            sizes.append(sizes[-1])
+            params.append(bounds)
+        if isinstance(frame_stack, bool) or not isinstance(frame_stack, int) or frame_stack < 1:
+            raise ValueError(f"frame_stack must be an integer >= 1, got {frame_stack!r}")
+        if sizes[0] % frame_stack:
+            raise ValueError(f"the first layer takes {sizes[0]} inputs, not a multiple of frame_stack={frame_stack}")
+        self.ops = tuple(op[0] for op in ops)
+        self.frame_stack = frame_stack
+        self.obs_dim = sizes[0] // frame_stack  # one observation
+        self.action_dim = sizes[-1]
+        self.squash = bool(squash)
+        self.low = _vector(action_low, "action_low", self.action_dim)
+        self.high = _vector(action_high, "action_high", self.action_dim)
+        if not (self.low <= self.high).all():
+            raise ValueError(f"action_low must be <= action_high, got {self.low} and {self.high}")
+        self.action_dtype = np.dtype(action_dtype)
+        self._net = (np.asarray(codes, dtype=np.int64), np.asarray(sizes, dtype=np.int64),
+                     np.asarray(params, dtype=np.float64).reshape(-1, 2), np.concatenate(weights),
+                     np.concatenate(biases))
+        if (obs_mean is None) != (obs_var is None):
+            raise ValueError("obs_mean and obs_var go together: pass both (normalised observations) or neither")
+        self.normalized = obs_mean is not None
+        if self.normalized:
+            var = _vector(obs_var, "obs_var", self.obs_dim)
+            if (var < 0).any() or not epsilon >= 0 or not clip_obs > 0:
+                raise ValueError(f"obs_var must be >= 0, epsilon >= 0 and clip_obs > 0, got min(obs_var) "
+                                 f"{var.min()}, epsilon {epsilon}, clip_obs {clip_obs}")
+            # VecNormalize's very expression for the scale: the same float64 values
+            self._norm = (_vector(obs_mean, "obs_mean", self.obs_dim), np.sqrt(var + float(epsilon)), float(clip_obs))
+        else:  # the identity: (x - 0) / 1, unclipped, is x
+            self._norm = (np.zeros(self.obs_dim), np.ones(self.obs_dim), np.inf)
+        self._stack = ObservationStack(frame_stack, sizes[0]) if frame_stack > 1 else None
+        # a stacked input is normalised already: act_rows gets the identity for it
+        self._identity = (np.zeros(sizes[0]), np.ones(sizes[0]), np.inf)
+
+    @classmethod
+    def from_sb3(cls, model, vecnorm=None, frame_stack: int | None = None) -> LeanMLPPolicy:
+        """The lean policy of an SB3 model (PPO, A2C, SAC, TD3, DDPG with an MLP policy; an algorithm or its
+        ``.policy``) and its VecNormalize (None: no normalisation). ``frame_stack``: K (None: that of the
+        VecFrameStack the model's env is wrapped in, 1 without one). ConfigError naming what is not supported."""
+        from softpvtol_gym.baselines.training.models import frame_stack_wrapper
+
+        policy = getattr(model, "policy", model)
+        ops = sb3_actor(policy)
+        if frame_stack is None:
+            wrapper = frame_stack_wrapper(model.get_env()) if hasattr(model, "get_env") else None
+            frame_stack = 1 if wrapper is None else int(wrapper.stacked_obs.n_stack)
+        stats = {}
+        if vecnorm is not None and vecnorm.norm_obs:
+            rms = vecnorm.obs_rms
+            if isinstance(rms, dict):
+                raise ConfigError(f"the lean path takes one flat observation, the VecNormalize normalises a Dict "
+                                  f"observation ({sorted(rms)}){_USE_TORCH}")
+            stats = {"obs_mean": rms.mean, "obs_var": rms.var, "epsilon": float(vecnorm.epsilon),
+                     "clip_obs": float(vecnorm.clip_obs)}
+        space = policy.action_space
+        return cls(ops, space.low, space.high, bool(policy.squash_output), frame_stack=frame_stack,
+                   action_dtype=space.dtype, **stats)
+
+    def reset_stack(self) -> None:
+        """Forget the stacked observations (the next call starts every sub-env's stack afresh)."""
+        if self._stack is not None:
+            self._stack.reset()
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        """(action, state) for observations (obs_dim,) or (n, obs_dim): the deterministic action of each row.
+        ``episode_start`` (n bools) empties those sub-envs' frame stacks (a frame-stacked policy: pass it true on
+        the first call and after every reset, as ``run_episodes`` does; None continues the stacks after the first
+        call); without a frame stack it is not needed."""
+        if not deterministic:
+            raise ValueError("LeanMLPPolicy computes the deterministic action only, got deterministic=False; sample "
+                             "with LearnedPolicy(model, vecnorm, inference='torch')")
+        obs = np.asarray(observation, dtype=np.float32)
+        single = obs.ndim == 1
+        if single:
+            obs = obs.reshape(1, -1)
+        if obs.ndim != 2 or obs.shape[1] != self.obs_dim:
+            raise ValueError(f"observations must have shape ({self.obs_dim},) or (n, {self.obs_dim}), got "
+                             f"{np.shape(observation)}")
+        if not obs.flags.c_contiguous:
+            obs = np.ascontiguousarray(obs)
+        out = np.empty((obs.shape[0], self.action_dim), dtype=self.action_dtype)
+        if self._stack is None:
+            act_rows(obs, *self._norm, *self._net, self.squash, self.low, self.high, out)
+        else:
+            normed = np.empty(obs.shape, dtype=np.float32)
+            normalize_rows(obs, *self._norm, normed)
+            act_rows(self._stack.push(normed, episode_start), *self._identity, *self._net, self.squash, self.low,
+                     self.high, out)
+        return (out[0] if single else out), state
+
+
+def _torch_ops(modules, where: str) -> list[tuple]:
+    """The operations (:data:`OPS`) of a sequence of torch modules (Linear, Tanh, ReLU, Hardtanh, Sequential);
+    ConfigError naming any other module."""
+    import torch
+    from torch import nn
+
+    ops = []
+    for m in modules:
+        if type(m) is nn.Sequential:
+            ops += _torch_ops(list(m), where)
+        elif type(m) is nn.Linear:
+            bias = None if m.bias is None else m.bias.detach().to("cpu", torch.float64).numpy()
+            ops.append(("linear", m.weight.detach().to("cpu", torch.float64).numpy(), bias))
+        elif type(m) in (nn.Tanh, nn.ReLU):
+            ops.append(("tanh" if type(m) is nn.Tanh else "relu",))
+        elif type(m) is nn.Hardtanh:
+            ops.append(("hardtanh", float(m.min_val), float(m.max_val)))
+        else:
+            raise ConfigError(f"{where}: the lean path computes Linear, Tanh, ReLU and Hardtanh modules, got the "
+                              f"module {type(m).__name__}{_USE_TORCH}")
+    return ops
+
+
+def sb3_actor(policy) -> list[tuple]:
+    """The operations (:data:`OPS`) of the deterministic actor of an SB3 policy, up to SB3's Box handling (module
+    docstring, step 3). ConfigError naming what the lean path does not compute."""
+    from stable_baselines3.common.distributions import (
+        DiagGaussianDistribution,
+        SquashedDiagGaussianDistribution,
+        StateDependentNoiseDistribution,
+    )
+    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.common.torch_layers import FlattenExtractor
+    from stable_baselines3.sac.policies import SACPolicy
+    from stable_baselines3.td3.policies import TD3Policy
+
+    kind = type(policy).__name__
+    if isinstance(policy, ActorCriticPolicy):  # PPO, A2C: the Gaussian's mean (its tanh with gSDE's squashing)
+        dist = policy.action_dist
+        if type(dist) not in (DiagGaussianDistribution, StateDependentNoiseDistribution):
+            raise ConfigError(f"the lean path computes the mode of a Gaussian policy, this {kind} has a "
+                              f"{type(dist).__name__} (a non-Box action){_USE_TORCH}")
+        extractor = policy.pi_features_extractor
+        ops = _torch_ops([*policy.mlp_extractor.policy_net, policy.action_net], f"{kind} actor")
+        squashed = getattr(dist, "bijector", None) is not None
+    elif isinstance(policy, SACPolicy):  # tanh of the Gaussian's mean (mu clipped first with gSDE's clip_mean)
+        actor = policy.actor
+        dist = actor.action_dist
+        if type(dist) not in (SquashedDiagGaussianDistribution, StateDependentNoiseDistribution):
+            raise ConfigError(f"the lean path computes the mode of SAC's squashed Gaussian, this actor has a "
+                              f"{type(dist).__name__}{_USE_TORCH}")
+        extractor = actor.features_extractor
+        ops = _torch_ops([*actor.latent_pi, actor.mu], f"{kind} actor")
+        squashed = type(dist) is SquashedDiagGaussianDistribution or dist.bijector is not None
+    elif isinstance(policy, TD3Policy):  # TD3, DDPG: mu ends with its tanh
+        extractor, squashed = policy.actor.features_extractor, False
+        ops = _torch_ops(list(policy.actor.mu), f"{kind} actor")
+    else:
+        raise ConfigError(f"the lean path computes the actors of PPO, A2C, SAC, TD3 and DDPG MLP policies, got a "
+                          f"{kind}{_USE_TORCH}")
+    if type(extractor) is not FlattenExtractor or len(policy.observation_space.shape) != 1:
+        raise ConfigError(f"the lean path takes a flat Box observation through SB3's FlattenExtractor, this {kind} "
+                          f"has a {type(extractor).__name__} on observations of shape "
+                          f"{policy.observation_space.shape}{_USE_TORCH}")
+    return ops + [("tanh",)] if squashed else ops
