@@ -65,7 +65,7 @@ def test_lean_acts_as_torch_on_committed_checkpoints(committed, name):
     assert lean.normalized and lean.ops == ("linear", "tanh", "linear", "tanh", "linear")
     theirs = policy.model.predict(policy.vecnorm.normalize_obs(obs.astype(np.float32)), deterministic=True)[0]
     mine = lean.predict(obs)[0]
-    assert mine.shape == theirs.shape == (len(obs), 5) and mine.dtype == theirs.dtype == np.float32
+    assert mine.shape == theirs.shape == (len(obs), lean.action_dim) and mine.dtype == theirs.dtype == np.float32
     assert len(obs) >= 400 and theirs.std(axis=0).min() > 1e-3  # several hundred distinct actions
     assert np.abs(mine - theirs).max() <= TOLERANCE
     # one observation (obs_dim,) gives one action (action_dim,)
@@ -166,7 +166,7 @@ def test_lean_computes_the_documented_function():
         lean = LeanMLPPolicy(ops, low, high, squash, obs_mean=mean, obs_var=var, clip_obs=2.5,
                              action_dtype=np.float64)
         np.testing.assert_allclose(lean.predict(obs)[0], want, rtol=1e-12, atol=1e-12)
-    plain = LeanMLPPolicy(ops[:2], -np.ones(6), np.ones(6), False)  # no normalisation: the float32 observation
+    plain = LeanMLPPolicy(ops[:2], -np.ones(6), np.ones(6), False, action_dtype=np.float64)  # the float32 obs
     np.testing.assert_allclose(plain.predict(obs[:, :4])[0], np.tanh(obs.astype(np.float64) @ w1.T + b1),
                                rtol=1e-12, atol=1e-12)
 
@@ -257,7 +257,7 @@ def test_unsupported_models_are_refused_naming_what_and_the_way_out():
     model = PPO("MlpPolicy", env, device="cpu", policy_kwargs={"activation_fn": torch.nn.ELU})
     with pytest.raises(ConfigError, match=r"got the module ELU; use LearnedPolicy\(\.\.\., inference='torch'\)"):
         LearnedPolicy(model)
-    assert LearnedPolicy(model, inference="torch").predict(np.zeros(18, np.float32))[0].shape == (5,)
+    assert LearnedPolicy(model, inference="torch").predict(np.zeros(18, np.float32))[0].shape == (4,)
 
 
 @pytest.mark.parametrize("ops, message", [
