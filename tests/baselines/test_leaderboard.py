@@ -289,7 +289,8 @@ def test_headline_picks_one_policy_for_every_pair_and_the_strongest_analytic_per
 @pytest.mark.slow  # one evaluate.py subprocess, 20 hover episodes
 def test_evaluate_script_reproduces_a_committed_cell(tmp_path):
     """``baselines/evaluate.py`` on a committed checkpoint gives the leaderboard's episodes (one torch thread,
-    the base loop from the checkpoint's config)."""
+    the base loop from the checkpoint's config; ``--inference torch``: the committed episodes were scored with
+    SB3's torch forward, before the lean path was the default)."""
     import os
     import subprocess
     import sys
@@ -299,7 +300,7 @@ def test_evaluate_script_reproduces_a_committed_cell(tmp_path):
     script = ROOT / "baselines" / "evaluate.py"
     r = subprocess.run([sys.executable, str(script), "--policy", str(ROOT / cell["checkpoint"]), "--task", "hover",
                         "--tier", "nominal", "--episodes", str(len(cell["episodes"])), "--seed", str(cell["eval_seed"]),
-                        "--json", str(out)],
+                        "--inference", "torch", "--json", str(out)],
                        capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=300)
     assert r.returncode == 0, r.stderr
     check_replay(json.loads(out.read_text())["episodes"], cell["episodes"], "nominal")
