@@ -1,0 +1,156 @@
+"""Per-robot compute: the latency of each kind of policy on one observation, like for like.
+
+    python benchmarks/per_robot_compute.py --out benchmarks/per_robot_compute.json --readme benchmarks/README.md
+
+Each policy acts on the observations of its own closed loop (one episode, ``--steps`` control steps of
+``track_random``, nominal tier, seed 1,000,000), and
+:func:`softpvtol_gym.baselines.evaluation.compute_us_single` times ``predict`` on one observation (obs_dim,) at
+a time over them, in one thread (torch on one thread). The policies: the passivity controller (the env's
+default loop, ``bounded``), its integral loop, the dynamically extended loop (actuators mode), and a learned
+2 x 64 MLP (the committed checkpoint ``ppo_residual_track_random_nominal/seed_0``, residual mode, normalised
+observations) three ways: ``LearnedPolicy(..., inference="lean")`` (the compiled float64 pass), ``inference=
+"torch"`` (SB3's ``predict`` calls), and SB3's own ``model.predict`` after ``VecNormalize.normalize_obs``.
+The cases are interleaved (one pass of each, ``--rounds`` times) so that a change of the machine's load
+reaches all of them; the figure is the median over rounds of each round's median, with the rounds' range, and
+the lean path's ratio to the integral loop is the median over rounds of the ratio measured in one round.
+``--readme`` replaces the generated table (block ``per_robot_compute.py``) in the files given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from benchmarks._common import machine_facts  # noqa: E402
+from softpvtol_gym import PassivityPolicy, SoftPVTOLVectorEnv  # noqa: E402
+from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, compute_us_single  # noqa: E402
+from softpvtol_gym.baselines.training.policy import LearnedPolicy  # noqa: E402
+from softpvtol_gym.baselines.util.atomic import atomic_write_text  # noqa: E402
+from softpvtol_gym.baselines.util.blocks import write_block  # noqa: E402
+
+SOURCE = "benchmarks/per_robot_compute.json"
+BLOCK = "per_robot_compute.py"
+CHECKPOINT = "results/leaderboard_runs/ppo_residual_track_random_nominal/seed_0"
+TASK, TIER = "track_random", "nominal"
+#: (name, what it is) in the order of the table
+CASES = (
+    ("passivity", "`PassivityPolicy`, the env's default loop (bounded)"),
+    ("integral", "`PassivityPolicy`, the integral loop"),
+    ("extended", "`ExtendedPolicy`, the dynamically extended loop"),
+    ("learned-lean", "learned 2 x 64 MLP: `LearnedPolicy` (default, `inference=\"lean\"`)"),
+    ("learned-torch", "learned 2 x 64 MLP: `LearnedPolicy(..., inference=\"torch\")` (SB3's `predict` calls)"),
+    ("learned-sb3", "learned 2 x 64 MLP: SB3's `model.predict` after `VecNormalize.normalize_obs`"),
+)
+
+
+class SB3Predict:
+    """SB3's own path, as a user of SB3 runs a checkpoint: ``model.predict(vecnorm.normalize_obs(obs))``."""
+
+    def __init__(self, model, vecnorm):
+        self.model, self.vecnorm = model, vecnorm
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        return self.model.predict(self.vecnorm.normalize_obs(observation), deterministic=deterministic)
+
+
+def closed_loop_observations(policy, action_mode: str, steps: int, env_kwargs: dict) -> np.ndarray:
+    """The observations (steps, obs_dim) of one episode of ``policy``'s own closed loop."""
+    env = SoftPVTOLVectorEnv(num_envs=1, action_mode=action_mode, task=TASK, tier=TIER, **env_kwargs)
+    obs, _ = env.reset(seed=EVAL_SEED_OFFSET)
+    out = []
+    for _ in range(steps):
+        out.append(obs[0].copy())
+        obs, _, term, trunc, _ = env.step(policy.predict(obs, deterministic=True)[0])
+        if term[0] or trunc[0]:
+            break
+    return np.array(out)
+
+
+def build_cases(steps: int) -> dict:
+    """name -> (policy, its observations)."""
+    cases = {}
+    for name, loop in (("passivity", "bounded"), ("integral", "integral"), ("extended", "extended")):
+        kw = {"allocation": "exact", "controller_loop": loop}
+        probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=TASK, **kw)
+        policy = PassivityPolicy.from_env(probe)
+        cases[name] = (policy, closed_loop_observations(policy, "actuators", steps, kw))
+    lean, config = LearnedPolicy.load(ROOT / CHECKPOINT)
+    obs = closed_loop_observations(lean, config.action_mode, steps, config.eval_env_kwargs())
+    torch_path = LearnedPolicy(lean.model, lean.vecnorm, inference="torch")
+    cases["learned-lean"] = (lean, obs)
+    cases["learned-torch"] = (torch_path, obs)
+    cases["learned-sb3"] = (SB3Predict(lean.model, lean.vecnorm), obs)
+    return cases
+
+
+def measure(steps: int, rounds: int) -> dict:
+    cases = build_cases(steps)
+    per_round = {name: [] for name in cases}
+    for _ in range(rounds):
+        for name, (policy, obs) in cases.items():
+            per_round[name].append(compute_us_single(policy, obs, repeats=1))
+    ratios = [a / b for a, b in zip(per_round["learned-lean"], per_round["integral"])]
+    return {
+        "us": {name: {"median": float(np.median(v)), "min_round": float(min(v)), "max_round": float(max(v)),
+                      "rounds": [round(x, 3) for x in v], "observations": int(len(cases[name][1]))}
+               for name, v in per_round.items()},
+        "lean_over_integral": float(np.median(ratios)),
+        "torch_over_lean": float(np.median([a / b for a, b in zip(per_round["learned-torch"],
+                                                                   per_round["learned-lean"])])),
+    }
+
+
+def markdown_table(report: dict) -> str:
+    facts = report["machine"]
+    lines = [f"From `{report['command']}` at commit `{facts['commit'][:7]}`, {facts['cores']} cores ({facts['cpu']}), "
+             f"load average {facts['loadavg_start'][0]:.2f} at the start and {report['loadavg_end'][0]:.2f} at the "
+             f"end; {report['rounds']} rounds of {report['steps']} observations per policy.",
+             "",
+             "| policy | us per observation: median (rounds' range) |",
+             "|---|---|"]
+    for name, what in CASES:
+        m = report["us"][name]
+        lines.append(f"| {what} | {m['median']:.1f} ({m['min_round']:.1f}-{m['max_round']:.1f}) |")
+    lines += ["", f"The lean path / the integral loop, per round: {report['lean_over_integral']:.2f}x; SB3's "
+                  f"`predict` calls (`inference=\"torch\"`) / the lean path: {report['torch_over_lean']:.0f}x."]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--steps", type=int, default=500, help="observations per policy (default 500)")
+    ap.add_argument("--rounds", type=int, default=7, help="interleaved rounds (default 7)")
+    ap.add_argument("--out", type=Path, default=None, help="write the JSON here")
+    ap.add_argument("--readme", type=Path, nargs="*", default=[], help="replace the generated table in these files")
+    args = ap.parse_args(argv)
+    if args.steps < 1 or args.rounds < 1:
+        ap.error(f"--steps and --rounds must be >= 1, got {args.steps} and {args.rounds}")
+    facts = machine_facts()
+    t0 = time.perf_counter()
+    report = {"command": "python benchmarks/per_robot_compute.py" + "".join(
+                  f" --{k} {v}" for k, v in (("steps", args.steps), ("rounds", args.rounds)) if v != ap.get_default(k)),
+              "machine": facts, "steps": args.steps, "rounds": args.rounds, "task": TASK, "tier": TIER,
+              "checkpoint": CHECKPOINT, **measure(args.steps, args.rounds), "loadavg_end": list(os.getloadavg())}
+    report["seconds"] = round(time.perf_counter() - t0, 1)
+    table = markdown_table(report)
+    print(table)
+    if args.out is not None:
+        atomic_write_text(args.out, json.dumps(report, indent=1) + "\n")
+    for path in args.readme:
+        if not write_block(BLOCK, SOURCE, table, path):
+            print(f"{path}: no block {BLOCK!r}; nothing written there", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
