@@ -137,8 +137,8 @@ def main(argv=None) -> int:
         ap.error(f"--steps and --rounds must be >= 1, got {args.steps} and {args.rounds}")
     facts = machine_facts()
     t0 = time.perf_counter()
-    report = {"command": "python benchmarks/per_robot_compute.py" + "".join(
-                  f" --{k} {v}" for k, v in (("steps", args.steps), ("rounds", args.rounds)) if v != ap.get_default(k)),
+    argv = sys.argv[1:] if argv is None else list(argv)
+    report = {"command": " ".join(["python benchmarks/per_robot_compute.py", *argv]),
               "machine": facts, "steps": args.steps, "rounds": args.rounds, "task": TASK, "tier": TIER,
               "checkpoint": CHECKPOINT, **measure(args.steps, args.rounds), "loadavg_end": list(os.getloadavg())}
     report["seconds"] = round(time.perf_counter() - t0, 1)
