@@ -1,0 +1,41 @@
+"""benchmarks/per_robot_compute.py: its README table is the one generated from the committed JSON, the committed
+figures say what the README claims (every kind measured, the lean path within 2x of the integral loop), and a
+short run works end to end."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from softpvtol_gym.baselines.util.blocks import read_block
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+from benchmarks import per_robot_compute as bench  # noqa: E402
+
+COMMITTED = json.loads((ROOT / bench.SOURCE).read_text())
+
+
+def test_readme_table_is_the_generated_one():
+    assert read_block(bench.BLOCK, bench.SOURCE, ROOT / "benchmarks" / "README.md") == \
+        bench.markdown_table(COMMITTED).strip()
+
+
+def test_committed_figures_cover_every_kind_and_the_lean_path_is_within_2x_of_the_integral_loop():
+    assert set(COMMITTED["us"]) == {name for name, _ in bench.CASES}
+    assert all(m["observations"] == COMMITTED["steps"] and m["median"] > 0 for m in COMMITTED["us"].values())
+    assert COMMITTED["lean_over_integral"] <= 2.0
+    assert COMMITTED["us"]["learned-torch"]["median"] > COMMITTED["us"]["learned-lean"]["median"]
+
+
+def test_a_short_run_writes_the_report_and_the_table(tmp_path):
+    readme = tmp_path / "README.md"
+    start, end = (f"<!-- {bench.BLOCK}: table start (generated from {bench.SOURCE}, do not edit) -->",
+                  f"<!-- {bench.BLOCK}: table end -->")
+    readme.write_text(f"# x\n\n{start}\nold\n{end}\n")
+    out = tmp_path / "report.json"
+    assert bench.main(["--steps", "5", "--rounds", "1", "--out", str(out), "--readme", str(readme)]) == 0
+    report = json.loads(out.read_text())
+    assert report["rounds"] == 1 and all(m["observations"] == 5 for m in report["us"].values())
+    assert read_block(bench.BLOCK, bench.SOURCE, readme) == bench.markdown_table(report).strip()
