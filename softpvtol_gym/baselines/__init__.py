@@ -3,7 +3,8 @@ leaderboard, figures, and the ``softpvtol`` console command (:mod:`softpvtol_gym
 
 Subpackages, imports pointing down only: ``util`` (atomic writes, locks, paths, generated Markdown blocks,
 argument parsing, optional extras) and ``errors``; ``config`` (hyperparameter YAML, validation, the run
-config); ``evaluation``; ``training`` (models, the train loop, :class:`~.training.policy.LearnedPolicy`);
+config); ``evaluation``; ``training`` (models, the train loop, :class:`~.training.policy.LearnedPolicy`,
+:class:`~.training.lean.LeanMLPPolicy`);
 ``checkpoints`` (the safe format; ``sb3_compat`` is the only place that unpickles); ``leaderboard`` (jobs,
 Ray executor, statistics, rendering); ``figures``; ``commands`` (one module per subcommand); ``cli``.
 Importing this package imports none of them.

@@ -18,6 +18,10 @@ in the safe checkpoint format: ``model.safetensors``, ``model.json``, ``vecnorma
 ``eval.json`` holds every (task, tier) it is evaluated on is done and skipped, so an interrupted list
 can simply be re-run, and a task added to ``also_evaluated_on`` only evaluates what is missing.
 
+A learned policy is evaluated through :class:`~softpvtol_gym.baselines.training.policy.LearnedPolicy`'s default,
+the lean forward pass (:class:`~softpvtol_gym.baselines.training.lean.LeanMLPPolicy`): an episode's actions do not
+depend on how many episodes are evaluated beside it.
+
 Analytic entries (the spec's ``analytic`` list, or the older ``passivity`` list whose entries are all of kind
 ``passivity``) have a ``kind``: ``passivity`` (:class:`softpvtol_gym.PassivityPolicy` with the entry's
 ``allocation`` and ``loop``) or ``mpc`` (``softpvtol_gym.MPCPolicy.from_env(env, **options)``, imported only
