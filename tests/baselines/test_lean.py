@@ -288,6 +288,12 @@ def test_bad_settings_are_refused():
         LeanMLPPolicy(ops, np.ones(2), -np.ones(2), False)
     with pytest.raises(ValueError, match=r"action_high must be a vector of 2 entries, got shape \(3,\)"):
         LeanMLPPolicy(ops, -np.ones(2), np.ones(3), False)
+    with pytest.raises(ValueError, match="action_high must be finite"):
+        LeanMLPPolicy(ops, -np.ones(2), np.array([1.0, np.inf]), True)  # squashed: mapped onto the bounds
+    with pytest.raises(ValueError, match="action_low must be free of NaN"):
+        LeanMLPPolicy(ops, np.array([np.nan, 0.0]), np.ones(2), False)
+    unbounded = LeanMLPPolicy(ops, np.full(2, -np.inf), np.full(2, np.inf), False, action_dtype=np.float64)
+    np.testing.assert_array_equal(unbounded.predict(np.full(4, 3.0))[0], [12.0, 12.0])
 
 
 # ------------------------------------------------------------------------------------ compute_us_single

@@ -133,14 +133,15 @@ def act_rows(obs, mean, scale, clip, codes, sizes, params, weights, biases, squa
             out[r, j] = v
 
 
-def _vector(value, name: str, size: int | None = None) -> np.ndarray:
-    """``value`` as a 1-D finite float64 array (of ``size`` entries, if given); ValueError naming it otherwise."""
+def _vector(value, name: str, size: int | None = None, infinite: bool = False) -> np.ndarray:
+    """``value`` as a 1-D float64 array (of ``size`` entries, if given), finite (``infinite``: +-inf allowed, NaN
+    not); ValueError naming it otherwise."""
     arr = np.asarray(value, dtype=np.float64)
     if arr.ndim != 1 or (size is not None and arr.shape[0] != size):
         want = "a vector" if size is None else f"a vector of {size} entries"
         raise ValueError(f"{name} must be {want}, got shape {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} must be finite, got {arr}")
+    if np.isnan(arr).any() or not (infinite or np.isfinite(arr).all()):
+        raise ValueError(f"{name} must be {'free of NaN' if infinite else 'finite'}, got {arr}")
     return arr
 
 
@@ -205,8 +206,9 @@ class LeanMLPPolicy:
         self.obs_dim = sizes[0] // frame_stack  # one observation
         self.action_dim = sizes[-1]
         self.squash = bool(squash)
-        self.low = _vector(action_low, "action_low", self.action_dim)
-        self.high = _vector(action_high, "action_high", self.action_dim)
+        # (an unbounded action is clipped to nothing; a squashed one is mapped onto finite bounds)
+        self.low = _vector(action_low, "action_low", self.action_dim, infinite=not self.squash)
+        self.high = _vector(action_high, "action_high", self.action_dim, infinite=not self.squash)
         if not (self.low <= self.high).all():
             raise ValueError(f"action_low must be <= action_high, got {self.low} and {self.high}")
         self.action_dtype = np.dtype(action_dtype)
