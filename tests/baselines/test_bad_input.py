@@ -1003,6 +1003,7 @@ def _signal_command(argv: list[str], cwd: Path, ready: str, sig: int, delay: flo
 
 
 @pytest.mark.slow  # a local Ray instance, twice: ~40 s
+@pytest.mark.xdist_group("ray")
 @pytest.mark.parametrize("when", ["starting", "running"])
 def test_run_jobs_on_ray_terminated_leaves_no_ray_process_or_temp_folder(when, tmp_path):
     pytest.importorskip("ray")
@@ -1023,6 +1024,7 @@ def test_run_jobs_on_ray_terminated_leaves_no_ray_process_or_temp_folder(when, t
 
 
 @pytest.mark.slow  # a local Ray Tune search, interrupted: ~30 s
+@pytest.mark.xdist_group("ray")
 def test_tune_interrupted_writes_no_best_configuration(tmp_path):
     pytest.importorskip("ray")
     if _ray_leftovers():

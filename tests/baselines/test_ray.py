@@ -17,6 +17,9 @@ from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import without_timing
 from softpvtol_gym.baselines.leaderboard.jobs import EVAL_FILE, ROOT_TOKEN_FILE, check_shared_root, load_jobs, run_jobs
 
+# one worker runs every test that starts Ray (pyproject: --dist loadgroup), so no two local Rays meet
+pytestmark = pytest.mark.xdist_group("ray")
+
 # one analytic job and one learned job (a single PPO rollout), two evaluation tiers of 2 episodes
 SPEC = ("evaluation: {episodes: 2, seed: 1000000, tiers: [nominal, wind]}\n"
         "passivity: [{name: passivity-exact, allocation: exact}]\n"
