@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -27,10 +28,20 @@ TINY = ["--n-envs", "4", "--hp", "n_steps=64", "--hp", "batch_size=64", "--hp", 
 def tiny_run(tmp_path_factory) -> Path:
     """A finished 512-step PPO run (residual / hover / nominal) with checkpoints at 256 and 512. Read-only:
     copy it (:func:`copy_run`) before changing anything."""
+    from filelock import FileLock
+
     from softpvtol_gym.baselines.commands.train import main
 
-    out = tmp_path_factory.mktemp("tiny") / "run"
-    assert main(["--timesteps", "512", *TINY, "--out", str(out)]) == 0
+    # under pytest-xdist every worker has its own base temp folder inside one shared parent: the first worker to
+    # get here trains the run there, the others wait for it and read it
+    shared = tmp_path_factory.getbasetemp().parent if "PYTEST_XDIST_WORKER" in os.environ else \
+        tmp_path_factory.getbasetemp()
+    out = shared / "tiny_run" / "run"
+    with FileLock(str(shared / "tiny_run.lock")):
+        if not (out / "checkpoint.json").is_file():
+            shutil.rmtree(out.parent, ignore_errors=True)  # a run left half-written by an interrupted session
+            out.parent.mkdir()
+            assert main(["--timesteps", "512", *TINY, "--out", str(out)]) == 0
     return out
 
 
