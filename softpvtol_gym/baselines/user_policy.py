@@ -2,7 +2,7 @@
 returns turned into a policy with a checked ``predict`` (:func:`as_policy`).
 
 ``MODULE`` is a dotted module name importable from the current directory (``my_pkg.controllers``) or a path to a
-``.py`` file (``path/to/controller.py``; anything that ends with ``.py`` or holds a path separator is a path);
+``.py`` file (anything that ends with ``.py`` or holds a path separator is a path);
 ``FACTORY`` is the name of a callable in it. ``FACTORY(env)`` gets a one-env
 :class:`~softpvtol_gym.envs.vector.SoftPVTOLVectorEnv` of the task, tier and action mode to be scored (its
 ``single_observation_space`` and ``single_action_space`` say the shapes) and returns one of:
