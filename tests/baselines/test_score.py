@@ -1,4 +1,4 @@
-"""Bring your own policy: ``softpvtol score --policy MODULE:FACTORY`` and ``softpvtol_gym.baselines.score``.
+"""Bring your own policy: ``softpvtol score --policy MODULE:FACTORY`` and its library form (``score``).
 
 A factory from a module outside the package (a dotted module importable from the current directory, or a path to
 a .py file) is scored on the leaderboard's own test episodes with its statistics, and ranked among the committed
@@ -84,7 +84,7 @@ def test_a_bad_policy_is_refused_naming_what_it_returned():
 def test_score_uses_the_leaderboards_episodes_and_statistics_and_ranks_the_policy(user_module):
     """The passivity controller brought as a plain callable gets the committed passivity-bounded row's statistics
     on hover / nominal (the same seeded episodes, the same IQM), a per-robot compute, and a rank."""
-    from softpvtol_gym.baselines import score
+    from softpvtol_gym.baselines.leaderboard.score import score
 
     result = score(load_factory("my_controllers:plain"), tasks=["hover"], tiers=["nominal"],
                    leaderboard=LEADERBOARD_JSON)
