@@ -7,5 +7,6 @@ config); ``evaluation``; ``training`` (models, the train loop, :class:`~.trainin
 :class:`~.training.lean.LeanMLPPolicy`);
 ``checkpoints`` (the safe format; ``sb3_compat`` is the only place that unpickles); ``leaderboard`` (jobs,
 Ray executor, statistics, rendering); ``figures``; ``commands`` (one module per subcommand); ``cli``.
-Importing this package imports none of them.
+Importing this package imports none of them; a policy of your own is scored on the leaderboard's episodes and
+ranked among its entries by :func:`softpvtol_gym.baselines.leaderboard.score.score`.
 """

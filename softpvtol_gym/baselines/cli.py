@@ -36,6 +36,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "export": ("export", "export.py", "convert checkpoints between the safe format and SB3's files"),
     "run-jobs": ("run_jobs", "run_jobs.py", "run the leaderboard's job list (local processes or Ray)"),
     "leaderboard": ("leaderboard", "leaderboard.py", "build the leaderboard (statistics, JSON, Markdown, chart)"),
+    "score": ("score", "score.py", "score your own policy (MODULE:FACTORY) and rank it among the leaderboard's"),
     "ablation": ("ablation", "ablation.py", "the learned controller's ablation table (recipes x windows)"),
     "tune": ("tune", "tune.py", "search hyperparameters with Ray Tune (the 'distributed' extra)"),
     "figures": ("figures", "tracking_figures.py", "tracking plots, learning curves and a GIF of a learned policy"),

@@ -57,6 +57,9 @@ EPISODE_METRICS = ("return", "rms_position_error", *WINDOW_METRICS, "rms_attitud
                    "crashed", "length")
 #: measured only with ``run_episodes(..., timing=True)``: wall time, not reproducible
 TIMING_METRICS = ("compute_us_per_step", "compute_us_per_step_p99", "compute_us_per_step_max")
+#: the per-robot compute of a leaderboard episode [us]: its run's figure on its task and tier
+#: (:func:`per_robot_compute_us`, a pass of its own); wall time, not reproducible
+COMPUTE_SINGLE = "compute_us_single"
 #: the length of the final window [s]
 FINAL_WINDOW_SECONDS = 5.0
 _EFFORT_WEIGHT = 0.1  # the env's effort reward term is -0.1 * min(mean(a_n^2), 1)
@@ -193,9 +196,43 @@ def compute_us_single(policy, observations, repeats: int = 3) -> float:
     return float(np.median(seconds) * 1e6)
 
 
+#: the per-robot compute pass times at most this many observations of the first episode (evenly spaced)
+COMPUTE_OBSERVATIONS = 250
+
+
+def episode_observations(policy, action_mode: str, task: str, tier: str, seed: int,
+                         env_kwargs: dict | None = None) -> np.ndarray:
+    """The observations (steps, obs_dim) that ``policy`` acts on in evaluation episode 0 of ``seed`` (the episode
+    :func:`run_episodes` runs as sub-env 0), in order, run alone in an env of its own until it ends."""
+    env = SoftPVTOLVectorEnv(num_envs=1, action_mode=action_mode, task=task, tier=tier, **(env_kwargs or {}))
+    obs, _ = env.reset(seed=seed)
+    seen, start, done = [], np.ones(1, bool), False
+    while not done:
+        seen.append(obs[0].copy())
+        action, _ = policy.predict(obs, episode_start=start, deterministic=True)
+        start[:] = False
+        obs, _, term, trunc, _ = env.step(action)
+        done = bool(term[0] or trunc[0])
+    env.close()
+    return np.asarray(seen)
+
+
+def per_robot_compute_us(policy, action_mode: str, task: str, tier: str, seed: int, env_kwargs: dict | None = None,
+                         observations: int = COMPUTE_OBSERVATIONS, repeats: int = 3) -> float:
+    """The per-robot compute of ``policy`` on a task and tier [us], measured in a pass of its own:
+    :func:`compute_us_single` on at most ``observations`` evenly spaced observations of evaluation episode 0 of
+    ``seed`` (:func:`episode_observations`). Wall time: machine- and load-dependent."""
+    if isinstance(observations, bool) or not isinstance(observations, int) or observations < 1:
+        raise ValueError(f"observations must be an integer >= 1, got {observations!r}")
+    seen = episode_observations(policy, action_mode, task, tier, seed, env_kwargs)
+    stride = -(-len(seen) // observations)  # ceil: at most `observations` rows
+    return compute_us_single(policy, seen[::stride], repeats=repeats)
+
+
 def without_timing(episode: dict) -> dict:
-    """``episode`` without its wall-time metrics (:data:`TIMING_METRICS`): what a re-run reproduces exactly."""
-    return {k: v for k, v in episode.items() if k not in TIMING_METRICS}
+    """``episode`` without its wall-time metrics (:data:`TIMING_METRICS`, :data:`COMPUTE_SINGLE`): what a re-run
+    reproduces exactly."""
+    return {k: v for k, v in episode.items() if k not in TIMING_METRICS and k != COMPUTE_SINGLE}
 
 
 def window_scores(episodes: list[dict], key: str) -> np.ndarray:

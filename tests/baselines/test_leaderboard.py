@@ -423,26 +423,28 @@ def _spec(tmp_path, analytic: str):
     return path
 
 
-def test_analytic_entries_of_each_kind_become_jobs_with_their_own_episode_counts(tmp_path):
+def test_analytic_entries_of_each_kind_become_jobs_on_the_same_episodes(tmp_path):
     jobs = load_jobs(_spec(tmp_path, "[{name: passivity-bounded, kind: passivity, allocation: exact, loop: bounded}, "
-                                     "{name: mpc, kind: mpc, episodes: 5, options: {horizon: 20, weights: [1, 2]}}]"))
+                                     "{name: mpc, kind: mpc, options: {horizon: 20, weights: [1, 2]}}]"))
     bounded, mpc = jobs
     assert (bounded.kind, bounded.loop, bounded.eval_episodes) == ("passivity", "bounded", 20)
-    assert (mpc.kind, mpc.eval_episodes, mpc.name) == ("mpc", 5, "mpc_hover")
+    assert (mpc.kind, mpc.eval_episodes, mpc.name) == ("mpc", 20, "mpc_hover")
     assert mpc.options == (("horizon", 20), ("weights", (1, 2))) and mpc.eval_tiers == ("nominal", "model_gap")
-    # the shipped spec (leaderboard v3) is valid and lists every analytic kind
+    # the shipped spec is valid, lists every analytic kind, and scores every entry on the same test and selection
+    # episodes (the MPC included)
     shipped = load_jobs()
     assert {j.kind for j in shipped if not j.learned} == {"passivity", "mpc"}
     assert "model_gap" in shipped[0].eval_tiers
-    assert next(j for j in shipped if j.kind == "mpc").eval_episodes < shipped[0].eval_episodes
+    assert {(j.eval_episodes, j.eval_seed, j.selection_episodes, j.selection_seed) for j in shipped} == {
+        (20, 1_000_000, 10, 2_000_000)}
+    assert {j.inference for j in shipped if j.learned} == {"lean"}
 
 
 @pytest.mark.parametrize("analytic, message", [
-    ("[{name: m, kind: mpc, episodes: 0}]", r"analytic\[0\]\.episodes must be an integer in \[1, 10,000\]"),
-    ("[{name: m, kind: mpc, episodes: 10001}]", r"analytic\[0\]\.episodes must be an integer"),
-    ("[{name: m, kind: mpc, episodes: '5'}]", r"analytic\[0\]\.episodes must be an integer"),
-    ("[{name: m, kind: mpc, episodes: true}]", r"analytic\[0\]\.episodes must be an integer"),
-    ("[{name: m, kind: mpc, episodes: 2.5}]", r"analytic\[0\]\.episodes must be an integer"),
+    ("[{name: m, kind: mpc, episodes: 5}]", r"analytic\[0\]\.episodes: every entry is evaluated on the same "
+                                            r"evaluation\.episodes .*got 5"),
+    ("[{name: m, kind: mpc, episodes: 20}]", r"analytic\[0\]\.episodes: every entry"),
+    ("[{name: p, kind: passivity, allocation: exact, episodes: 20}]", r"analytic\[0\]\.episodes: every entry"),
     ("[{name: m, kind: lqr}]", r"analytic\[0\]\.kind must be one of \['passivity', 'mpc'\], got 'lqr'"),
     ("[{name: m}]", r"analytic\[0\] lacks the keys \['kind'\]"),
     ("[{name: m, kind: mpc, loop: bounded}]", r"\(kind mpc\) has keys \['loop'\] that only other kinds take"),
@@ -463,13 +465,16 @@ def test_bad_analytic_entries_are_refused_naming_the_key(tmp_path, analytic, mes
 
 def test_the_older_passivity_list_still_works_and_shares_the_names(tmp_path):
     path = tmp_path / "spec.yml"
-    path.write_text(HEAD + "passivity: [{name: p, allocation: exact, episodes: 3}]\n"
+    path.write_text(HEAD + "passivity: [{name: p, allocation: exact}]\n"
                            "analytic: [{name: p, kind: mpc}]\n")
     with pytest.raises(ConfigError, match=r"analytic\[0\]\.name 'p' is taken"):
         load_jobs(path)
-    path.write_text(HEAD + "passivity: [{name: p, allocation: exact, episodes: 3}]\n")
+    path.write_text(HEAD + "passivity: [{name: p, allocation: exact}]\n")
     (job,) = load_jobs(path)
-    assert (job.kind, job.loop, job.eval_episodes) == ("passivity", "exact", 3)
+    assert (job.kind, job.loop, job.eval_episodes) == ("passivity", "exact", 20)
+    path.write_text(HEAD + "passivity: [{name: p, allocation: exact, episodes: 3}]\n")
+    with pytest.raises(ConfigError, match=r"passivity\[0\]\.episodes: every entry"):
+        load_jobs(path)
     path.write_text(HEAD + "passivity: [{name: p, allocation: exact, kind: mpc}]\n")
     with pytest.raises(ConfigError, match=r"passivity\[0\] has unknown keys \['kind'\]"):
         load_jobs(path)
@@ -497,10 +502,10 @@ def _learned_job(**kw) -> Job:
 
 def test_results_without_the_windowed_metrics_a_tier_or_the_episode_count_are_stale(tmp_path):
     job = _learned_job()
-    fresh = [ep(0.1), ep(0.2)]
+    fresh = [ep(0.1) | {"compute_us_single": 15.0}, ep(0.2) | {"compute_us_single": 15.0}]
     v2 = [{k: v for k, v in e.items() if k in ("return", "rms_position_error", "rms_attitude_error",
                                                 "control_effort", "crashed", "length")} for e in fresh]
-    record = {"job": dataclasses.asdict(job), "eval": {"nominal": fresh, "model_gap": fresh}}
+    record = {"job": dataclasses.asdict(job), "inference": "lean", "eval": {"nominal": fresh, "model_gap": fresh}}
     assert stale_evaluations(job, record) == []
     assert stale_evaluations(job, record | {"eval": {"nominal": fresh}}) == [("hover", "model_gap")]
     assert stale_evaluations(job, record | {"eval": {"nominal": v2, "model_gap": fresh}}) == [("hover", "nominal")]
@@ -520,3 +525,109 @@ def test_rescoring_never_trains(tmp_path):
     with pytest.raises(ConfigError, match="re-scoring never trains"):
         run_job(_learned_job(), tmp_path, train_missing=False)
     assert not any(tmp_path.rglob("*.run"))  # no training folder was made
+
+
+def test_stale_parts_name_exactly_what_a_result_lacks():
+    from softpvtol_gym.baselines.leaderboard.jobs import stale_parts
+
+    job = _learned_job(selection_episodes=2, selection_seed=2_000_000)
+    scored = [ep(0.1) | {"compute_us_single": 15.0}] * 2
+    unmeasured = [ep(0.1)] * 2
+    record = {"job": dataclasses.asdict(job), "inference": "lean", "eval": {"nominal": scored, "model_gap": scored},
+              "selection": {"hover": {"nominal": [ep(0.3)] * 2, "model_gap": [ep(0.3)] * 2}}}
+    assert stale_parts(job, record) == {}
+    assert stale_parts(job, record | {"selection": {"hover": {"nominal": [ep(0.3)] * 2}}}) == {
+        ("hover", "model_gap"): ("selection",)}
+    assert stale_parts(job, record | {"eval": {"nominal": scored, "model_gap": unmeasured}}) == {
+        ("hover", "model_gap"): ("compute",)}
+    # scored with another forward pass (or before the lean path, which recorded none): every part again
+    every = {("hover", t): ("test", "selection", "compute") for t in ("nominal", "model_gap")}
+    assert stale_parts(job, {k: v for k, v in record.items() if k != "inference"}) == every
+    assert stale_parts(job, record | {"inference": "torch"}) == every
+    assert stale_parts(dataclasses.replace(job, inference="torch"), record | {"inference": "torch"}) == {}
+    # an analytic job has no forward pass to check; a job without selection episodes ignores them
+    analytic = dataclasses.replace(job, policy="passivity-bounded", train_tier=None, selection_episodes=0)
+    assert stale_parts(analytic, {"job": {"task": "hover"}, "eval": {"nominal": scored, "model_gap": scored}}) == {}
+
+
+def test_rescoring_runs_only_the_missing_parts_and_measures_the_per_robot_compute(tmp_path):
+    """A passivity job on 2 test and 2 selection hover episodes: then, with its selection episodes removed, only
+    those are run again (the test episodes are kept as they are), and the per-robot compute is in every test
+    episode."""
+    job = Job(policy="passivity-bounded", action_mode="actuators", task="hover", train_tier=None, seed=0,
+              eval_tiers=("nominal",), eval_episodes=2, eval_seed=1_000_000, allocation="exact", loop="bounded",
+              selection_episodes=2, selection_seed=2_000_000)
+    record = run_job(job, tmp_path)
+    test, chosen = record["eval"]["nominal"], record["selection"]["hover"]["nominal"]
+    assert len(test) == len(chosen) == 2 and record["inference"] is None
+    assert {e["compute_us_single"] for e in test} == {test[0]["compute_us_single"]} and test[0]["compute_us_single"] > 0
+    assert [e["return"] for e in chosen] != [e["return"] for e in test]  # other seeds, other episodes
+    path = job.folder(tmp_path) / "eval.json"
+    stored = json.loads(path.read_text())
+    stored["eval"]["nominal"][0]["return"] = 12345.0  # a marker: kept unless the test episodes run again
+    del stored["selection"]
+    path.write_text(json.dumps(stored))
+    again = run_job(job, tmp_path)
+    assert again["eval"]["nominal"][0]["return"] == 12345.0
+    from softpvtol_gym.baselines.evaluation import without_timing
+
+    assert [without_timing(e) for e in again["selection"]["hover"]["nominal"]] == [without_timing(e) for e in chosen]
+
+
+def test_the_headline_chooses_on_selection_episodes_and_reports_the_test_episodes():
+    meta = {"tasks": ["hover"], "tiers": ["wind"]}
+    rows = [_window_row("passivity-bounded", "passivity-bounded", 0.6, [0.5, 0.7]),
+            _window_row("passivity-integral", "passivity-integral", 0.5, [0.45, 0.55]),
+            _window_row("PPO-a", "ppo", 0.02, [0.015, 0.03], whole=0.2)]
+    for r, chosen in zip(rows, (0.1, 0.9, 0.02)):  # on the selection episodes the bounded loop looked best
+        r["selection"] = {"episodes": 10, "rms_position_error_iqm": r["rms_position_error_iqm"],
+                          f"{STEADY}_iqm": chosen}
+    (steady,) = [r for r in window_headline({"meta": meta, "aggregates": rows}) if r["window"] == "steady"]
+    assert steady["model_based"]["entry"] == "passivity-bounded" and steady["selected_on"] == "selection"
+    assert steady["model_based"][f"{STEADY}_iqm"] == 0.6  # reported on the test episodes
+    del rows[1]["selection"]  # a row without selection episodes: every side is chosen on the test episodes
+    (steady,) = [r for r in window_headline({"meta": meta, "aggregates": rows}) if r["window"] == "steady"]
+    assert steady["model_based"]["entry"] == "passivity-integral" and steady["selected_on"] == "test"
+
+
+def test_aggregate_rows_hold_the_per_robot_compute_the_selection_iqms_and_the_ci_size():
+    cells = [cell("PPO", s, [ep(0.1 * (s + 1)) | {"compute_us_single": 10.0 + s}, ep(0.2)]) for s in range(3)]
+    for c in cells:
+        c["selection"] = [ep(0.5), ep(0.7)]
+    (row,) = aggregate(cells)
+    assert row["compute_us_single"] == 11.0  # the median over runs
+    assert row["ci_values"] == 6 and row["selection"]["episodes"] == 2
+    assert row["selection"][f"{STEADY}_iqm"] == pytest.approx(stats.trim_mean([0.5, 0.7] * 3, 0.25))
+
+
+def test_a_ci_from_fewer_than_ten_values_is_marked_with_a_dagger():
+    from softpvtol_gym.baselines.leaderboard.render import FEW_VALUES, FEW_VALUES_NOTE, fmt_window
+
+    (few,) = aggregate([cell("PPO", 0, [ep(0.1), ep(0.2), ep(0.3)])])
+    (enough,) = aggregate([cell("PPO", s, [ep(0.1), ep(0.2), ep(0.3)]) for s in range(4)])
+    assert (few["ci_values"], enough["ci_values"]) == (3, 12)
+    assert FEW_VALUES in fmt_window(few, STEADY) and FEW_VALUES not in fmt_window(enough, STEADY)
+    page = render_markdown({"meta": {"command": "x", "commit": "x", "date": "x", "tasks": ["track_paper"],
+                                     "tiers": ["nominal"], "episodes": 3, "eval_seed": 1_000_000, "seeds": 1,
+                                     "bootstrap_reps": 2000, "poi_bootstrap_reps": 300},
+                            "aggregates": [few | {"entry": "PPO-a"}, enough | {"entry": "PPO-b"}], "cells": []})
+    line_few = next(line for line in page.splitlines() if "| PPO-a |" in line)
+    line_enough = next(line for line in page.splitlines() if "| PPO-b |" in line)
+    assert FEW_VALUES in line_few and FEW_VALUES not in line_enough and FEW_VALUES_NOTE in page
+
+
+@pytest.mark.parametrize("evaluation, message", [
+    ("{episodes: 20, seed: 1000000, tiers: [nominal], selection_episodes: 10, selection_seed: 1000010}",
+     r"the selection episodes \(seeds 1,000,010 to 1,000,019\) overlap the test episodes"),
+    ("{episodes: 20, seed: 1000000, tiers: [nominal], selection_episodes: -1}",
+     r"evaluation\.selection_episodes must be an integer in \[0, 10,000\], got -1"),
+    ("{episodes: 20, seed: 1000000, tiers: [nominal], selection_seed: 10}",
+     r"evaluation\.selection_seed must be an integer >= 1,000,000"),
+    ("{episodes: 20, seed: 1000000, tiers: [nominal], inference: onnx}",
+     r"evaluation\.inference must be one of \['lean', 'torch'\], got 'onnx'"),
+])
+def test_bad_selection_and_inference_settings_are_refused(tmp_path, evaluation, message):
+    path = tmp_path / "spec.yml"
+    path.write_text(f"evaluation: {evaluation}\ntasks: [hover]\ntrained: []\nseeds: [0]\n")
+    with pytest.raises(ConfigError, match=message):
+        load_jobs(path)

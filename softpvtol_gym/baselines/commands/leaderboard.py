@@ -47,6 +47,7 @@ from pathlib import Path
 
 from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE
 from softpvtol_gym.baselines.leaderboard.render import SUMMARY_BLOCK, chart_png, render_markdown, summary_markdown
+from softpvtol_gym.baselines.leaderboard.spec import INFERENCE
 from softpvtol_gym.baselines.leaderboard.stats import build, read_data, validate_data
 from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main, refuse_overwrite
 from softpvtol_gym.baselines.util.atomic import atomic_write_all
@@ -79,6 +80,9 @@ def _main(argv, layout: Layout, prog: str) -> int:
     ap.add_argument("--root", type=Path, default=layout.runs, help="the jobs' run directories (default: %(default)s)")
     ap.add_argument("--spec", type=Path, default=SPEC_FILE,
                     help="the job list (default: the package's leaderboard.yml)")
+    ap.add_argument("--inference", choices=INFERENCE, default=None,
+                    help="the forward pass the learned results were scored with (default: the spec's, lean); results "
+                         "scored otherwise are listed as stale")
     ap.add_argument("--force", action="store_true",
                     help="let other inputs (--root, --spec, or --json with --from-json) overwrite the default outputs")
     args = ap.parse_args(argv)
@@ -93,7 +97,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
     else:
         if not args.root.is_dir():
             ap.error(f"--root {args.root} is not a directory")
-        data = build(args.root, args.spec, base=layout.root)
+        data = build(args.root, args.spec, base=layout.root, inference=args.inference)
         data = validate_data(json.loads(json.dumps(data)), "built from " + str(args.root))  # what is written renders
     # everything rendered in memory first, then written all together (nothing changes if any part fails)
     outputs = {}

@@ -10,9 +10,11 @@ Run directories go under ``--root`` (default ``./results/leaderboard_runs``; in 
 tier they are evaluated on) are skipped, so an interrupted run is continued by running the command again;
 a task added to a cell's ``also_evaluated_on`` (a tier added to the spec) only runs the missing evaluations.
 ``--reevaluate`` re-runs every evaluation with the committed models (after a change of env or controller code).
-``--rescore`` re-runs only the stale evaluations of jobs that have a result: tiers or tasks they lack, and results
-recorded before the windowed metrics (episodes without ``rms_position_error_steady``, ``compute_us_per_step``,
-...), with the committed models; it never trains (a learned job without its model fails, naming it) and leaves
+``--rescore`` re-runs only the stale parts of the evaluations of jobs that have a result: tiers or tasks they lack,
+results recorded before the windowed metrics (episodes without ``rms_position_error_steady``,
+``compute_us_per_step``, ...), missing selection episodes, a missing per-robot compute pass (``compute_us_single``),
+learned results scored with another forward pass than ``--inference`` (default: the spec's, ``lean``), with the
+committed models; it never trains (a learned job without its model fails, naming it) and leaves
 the jobs that have no result to a run without it.
 
     softpvtol run-jobs --rescore --workers 2      # learned cells with stale results, re-scored (windowed metrics)
@@ -43,6 +45,7 @@ from pathlib import Path
 from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_jobs, pending, run_jobs, stale_jobs
 from softpvtol_gym.baselines.leaderboard.process_executor import ProcessPerJobExecutor
 from softpvtol_gym.baselines.leaderboard.ray_executor import RayExecutor, start_ray
+from softpvtol_gym.baselines.leaderboard.spec import INFERENCE
 from softpvtol_gym.baselines.util.args import Parser, check_output_dir, command_main, int_arg, interrupted
 from softpvtol_gym.baselines.util.extras import DISTRIBUTED, require
 from softpvtol_gym.baselines.util.locks import DirectoryLock
@@ -71,6 +74,10 @@ def _main(argv, layout: Layout, prog: str) -> int:
     ap.add_argument("--rescore", action="store_true",
                     help="re-run only the stale evaluations (missing tiers, results without the windowed metrics) of "
                          "jobs that have a result, with their committed models; never trains")
+    ap.add_argument("--inference", choices=INFERENCE, default=None,
+                    help="the learned entries' forward pass (default: the spec's evaluation.inference, lean): torch "
+                         "re-scores them with SB3's torch forward (with --rescore: only what is not scored so yet); "
+                         "build the leaderboard with the same --inference")
     ap.add_argument("--no-progress-bar", action="store_true", help="no progress bar (one line per job stays)")
     args = ap.parse_args(argv)
     given = sys.argv[1:] if argv is None else list(argv)
@@ -97,7 +104,7 @@ def _checked(ap: Parser, args, layout: Layout, prog: str, rerun: str) -> int:
         ap.error(f"no leaderboard spec at {args.spec}" + (" (it is a directory)" if args.spec.is_dir() else ""))
     if args.root.exists() and not args.root.is_dir():
         ap.error(f"--root {args.root} is a file; expected a directory")
-    every = load_jobs(args.spec)
+    every = load_jobs(args.spec, inference=args.inference)
     if args.only is not None:
         every = [j for j in every if args.only in j.name]
         if not every:

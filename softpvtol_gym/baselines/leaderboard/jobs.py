@@ -9,10 +9,14 @@ so any executor can run the list: :func:`run_jobs` takes anything with ``concurr
 writing into a file system that every node shares; ``check_root=True`` makes each task check that it does).
 
 Job outputs (``<root>/<job.name>/``): ``eval.json`` (per evaluation tier, the episode list of
-:func:`softpvtol_gym.baselines.evaluation.run_episodes` on the job's own task under ``eval``; a learned cell listed
-with ``also_evaluated_on`` is evaluated on those tasks too, under ``eval_other_tasks``: task -> tier ->
+:func:`softpvtol_gym.baselines.evaluation.run_episodes` on the job's own *test* episodes under ``eval``; a learned
+cell listed with ``also_evaluated_on`` is evaluated on those tasks too, under ``eval_other_tasks``: task -> tier ->
 episodes, so that a policy trained on ``track_random`` is scored on ``track_paper``, which it never
-saw), and for learned policies the run directory contents that the leaderboard needs (the final model
+saw; the *selection* episodes, disjoint seeds on which the headline picks each side's strongest entry, under
+``selection``: task -> tier -> episodes; every test episode carries the run's per-robot compute on its task and
+tier, ``compute_us_single``, measured in a pass of its own,
+:func:`~softpvtol_gym.baselines.evaluation.per_robot_compute_us`; ``inference``: the forward pass a learned
+job was scored with), and for learned policies the run directory contents that the leaderboard needs (the final model
 in the safe checkpoint format: ``model.safetensors``, ``model.json``, ``vecnormalize.json``,
 ``config.yaml`` and the manifest ``checkpoint.json``, plus ``evaluations.json``). A job whose
 ``eval.json`` holds every (task, tier) it is evaluated on is done and skipped, so an interrupted list
@@ -20,20 +24,23 @@ can simply be re-run, and a task added to ``also_evaluated_on`` only evaluates w
 
 A learned policy is evaluated through :class:`~softpvtol_gym.baselines.training.policy.LearnedPolicy`'s default,
 the lean forward pass (:class:`~softpvtol_gym.baselines.training.lean.LeanMLPPolicy`): an episode's actions do not
-depend on how many episodes are evaluated beside it.
+depend on how many episodes are evaluated beside it (the spec's ``evaluation.inference``, or ``run-jobs
+--inference torch``, picks SB3's torch forward instead).
 
 Analytic entries (the spec's ``analytic`` list, or the older ``passivity`` list whose entries are all of kind
 ``passivity``) have a ``kind``: ``passivity`` (:class:`softpvtol_gym.PassivityPolicy` with the entry's
 ``allocation`` and ``loop``) or ``mpc`` (``softpvtol_gym.MPCPolicy.from_env(env, **options)``, imported only
-when such a job runs); an entry's ``episodes`` overrides ``evaluation.episodes`` for it (the MPC is slow:
-its episodes are the first ``episodes`` of the shared, seeded ones).
+when such a job runs); every entry gets the same ``evaluation.episodes`` episodes.
 
-A result is *stale* for a (task, tier) when it lacks it, when its episodes lack a metric the evaluator now
-records (:data:`~softpvtol_gym.baselines.evaluation.EPISODE_METRICS`, the timing of
-:data:`~softpvtol_gym.baselines.evaluation.TIMING_METRICS`: results from before the windowed metrics), or when
-it holds another number of episodes than the job asks for. Stale evaluations are run again (with the committed
-model: a learned job with a model is never trained again); ``rescore=True`` (``run-jobs --rescore``) runs
-only those, of jobs that have a result, and refuses to train.
+A result is *stale* for a (task, tier) in up to three parts (:func:`stale_parts`): ``test`` when it lacks the
+test episodes, when they lack a metric the evaluator now records
+(:data:`~softpvtol_gym.baselines.evaluation.EPISODE_METRICS`, the timing of
+:data:`~softpvtol_gym.baselines.evaluation.TIMING_METRICS`: results from before the windowed metrics) or come in
+another number than the job asks for; ``selection`` likewise for the selection episodes; ``compute`` when the test
+episodes lack ``compute_us_single``. A learned result scored with another forward pass than the job's
+``inference`` (results from before the lean path record none) is stale in all three. Only the stale parts are run
+again (with the committed model: a learned job with a model is never trained again); ``rescore=True``
+(``run-jobs --rescore``) runs only those, of jobs that have a result, and refuses to train.
 
 The spec is validated before any job runs (:func:`load_spec`: unknown keys, wrong types, unknown tasks,
 tiers, kinds or action modes, episode counts out of range are errors naming the key); job names are safe
@@ -64,8 +71,21 @@ from softpvtol_gym.baselines.config.hyperparams import (
 from softpvtol_gym.baselines.config.recipes import load_recipe, recipe_config_fields, recipe_hyperparams
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.baselines.evaluation import EPISODE_METRICS, TIMING_METRICS, run_episodes
-from softpvtol_gym.baselines.leaderboard.spec import ANALYTIC_KINDS, SPEC_FILE, analytic_entries, load_spec
+from softpvtol_gym.baselines.evaluation import (
+    COMPUTE_SINGLE,
+    EPISODE_METRICS,
+    TIMING_METRICS,
+    per_robot_compute_us,
+    run_episodes,
+)
+from softpvtol_gym.baselines.leaderboard.spec import (
+    ANALYTIC_KINDS,
+    INFERENCE,
+    SPEC_FILE,
+    analytic_entries,
+    load_spec,
+    selection_seed,
+)
 from softpvtol_gym.baselines.training.loop import EVALUATIONS_FILE, train
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
 from softpvtol_gym.baselines.util.args import interrupted, io_error_message
@@ -102,6 +122,9 @@ class Job:
     kind: str = "passivity"         # analytic entries: "passivity" or "mpc" (ANALYTIC_KINDS); ignored for "ppo"
     options: tuple = ()             # mpc entries: (name, value) pairs passed to MPCPolicy.from_env
     recipe: str | None = None       # learned cells: the training recipe (data/hyperparams/recipes.yml), or None
+    selection_episodes: int = 0     # held-out episodes to choose the headline's entries on (0: none)
+    selection_seed: int = 0         # their first seed (disjoint from the test episodes')
+    inference: str = "lean"         # learned cells: the forward pass they are scored with (spec.INFERENCE)
 
     @property
     def eval_tasks(self) -> tuple:
@@ -131,15 +154,20 @@ class Job:
         return under(root, self.name, "job folder")
 
 
-def load_jobs(spec_path: Path = SPEC_FILE) -> list[Job]:
-    """The job list of a leaderboard spec (``softpvtol_gym/baselines/data/leaderboard.yml``)."""
+def load_jobs(spec_path: Path = SPEC_FILE, inference: str | None = None) -> list[Job]:
+    """The job list of a leaderboard spec (``softpvtol_gym/baselines/data/leaderboard.yml``); ``inference``: the
+    forward pass of the learned jobs (default: the spec's ``evaluation.inference``, else ``lean``)."""
     spec = load_spec(spec_path)
     ev = spec["evaluation"]
-    common = dict(eval_tiers=tuple(ev["tiers"]), eval_episodes=int(ev["episodes"]), eval_seed=int(ev["seed"]))
+    inference = ev.get("inference", "lean") if inference is None else inference
+    if inference not in INFERENCE:
+        raise ConfigError(f"inference must be one of {list(INFERENCE)}, got {inference!r}")
+    common = dict(eval_tiers=tuple(ev["tiers"]), eval_episodes=int(ev["episodes"]), eval_seed=int(ev["seed"]),
+                  selection_episodes=int(ev.get("selection_episodes", 0)), selection_seed=selection_seed(ev))
     jobs = []
     for task in spec["tasks"]:
         for p in analytic_entries(spec):
-            own = {**common, "eval_episodes": int(p.get("episodes", ev["episodes"]))}
+            own = common
             if p["kind"] == "passivity":
                 jobs.append(Job(policy=p["name"], action_mode="actuators", task=task, train_tier=None, seed=0,
                                 allocation=p["allocation"], loop=p.get("loop", p["allocation"]), **own))
@@ -153,7 +181,7 @@ def load_jobs(spec_path: Path = SPEC_FILE) -> list[Job]:
             jobs.append(Job(policy="ppo", action_mode=cell["action_mode"], task=cell["task"], train_tier=cell["tier"],
                             seed=int(seed), timesteps=int(cell["timesteps"]),
                             other_eval_tasks=tuple(cell.get("also_evaluated_on", ())),
-                            hp=tuple(cell.get("hp", ())), recipe=cell.get("recipe"), **common))
+                            hp=tuple(cell.get("hp", ())), recipe=cell.get("recipe"), inference=inference, **common))
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
@@ -191,7 +219,8 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
 
     A learned job whose final model exists (a checkpoint folder that verifies) is not trained again, only
     evaluated; ``reevaluate=True`` re-runs the evaluation of a finished job (after a change of the env or
-    controller code); otherwise only its stale evaluations run (:func:`stale_evaluations`).
+    controller code); otherwise only the stale parts of its evaluations run (:func:`stale_parts`: test episodes,
+    selection episodes, the per-robot compute pass), each with a policy of its own.
     ``train_missing=False`` (re-scoring): a learned job without a final model is a ConfigError, not trained.
     Training happens in ``<job>.run/`` (resumed if a run was interrupted, started over if
     it never reached a checkpoint); the final model is copied into the job's folder (manifest last) and
@@ -202,11 +231,8 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
     if previous is not None and not reevaluate and not stale_evaluations(job, previous):
         return previous
     t0 = time.perf_counter()
-    env_kwargs = {}
     train_seconds = None
     if job.learned and (out / MANIFEST_FILE).is_file():
-        policy, run_config = LearnedPolicy.load(out)
-        env_kwargs = run_config.eval_env_kwargs()  # the base loop the policy was trained on
         train_seconds = None if previous is None else previous["train_seconds"]
     elif job.learned:
         if not train_missing:
@@ -230,40 +256,64 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
                            checkpoint_freq=max(job.timesteps // 4, 1), eval_episodes=5,
                            eval_freq=max(job.timesteps // 10, 1))  # ten points of the learning curves
         run = train(config, run_dir, resume=True)
-        env_kwargs = config.eval_env_kwargs()
         train_seconds = run["seconds"] if run["status"] == "trained" else None
-        policy = LearnedPolicy(run["model"], run["vecnorm"])
 
         for fname in (*MODEL_FILES, EVALUATIONS_FILE, MANIFEST_FILE):  # the manifest last: it marks the copy done
             if (run_dir / fname).is_file():
                 atomic_copy(run_dir / fname, out / fname)
         shutil.rmtree(run_dir, ignore_errors=True)  # checkpoints and TensorBoard logs are not kept
-    else:
-        policy, env_kwargs = analytic_policy(job)
-    # per evaluated task and tier; a finished job that is only missing some (a task added to its
-    # also_evaluated_on, a tier added to the spec) keeps the episodes that are not stale unless reevaluate
-    stale = set() if previous is None else set(stale_evaluations(job, previous))
-    kept = {} if previous is None or reevaluate else {
-        task: {tier: eps for tier, eps in tiers.items() if (task, tier) not in stale}
-        for task, tiers in evaluations_of(previous).items()}
-    evaluations = {}
-    for task in job.eval_tasks:
-        for tier in job.eval_tiers:
-            done = kept.get(task, {}).get(tier)
-            evaluations.setdefault(task, {})[tier] = done if done is not None else run_episodes(
-                policy, job.action_mode, task, tier, job.eval_episodes, job.eval_seed, env_kwargs=env_kwargs,
-                timing=True)
+    every = {pair: PARTS for pair in _pairs(job)}
+    todo = every if previous is None or reevaluate else stale_parts(job, previous)
+    kept_test = {} if previous is None else evaluations_of(previous)
+    kept_selection = {} if previous is None else selections_of(previous)
+    evaluations, selections = {}, {}
+    for task, tier in _pairs(job):  # a part that is not stale is kept as it is
+        parts = todo.get((task, tier), ())
+        test = kept_test[task][tier] if "test" not in parts else _episodes(job, out, task, tier, "test")
+        if job.selection_episodes:
+            selections.setdefault(task, {})[tier] = (
+                kept_selection[task][tier] if "selection" not in parts else
+                _episodes(job, out, task, tier, "selection"))
+        if "compute" in parts:
+            policy, env_kwargs = job_policy(job, out)
+            us = per_robot_compute_us(policy, job.action_mode, task, tier, job.eval_seed, env_kwargs=env_kwargs)
+            test = [{**e, COMPUTE_SINGLE: us} for e in test]
+        evaluations.setdefault(task, {})[tier] = test
     record = {
         "job": dataclasses.asdict(job),
         "checkpoint": _checkpoint_field(out, base) if job.learned else None,
         "train_seconds": None if train_seconds is None else round(train_seconds, 1),
+        "inference": job.inference if job.learned else None,
         "eval": evaluations[job.task],
     }
     if job.other_eval_tasks:
         record["eval_other_tasks"] = {task: evaluations[task] for task in job.other_eval_tasks}
+    if job.selection_episodes:
+        record["selection"] = selections
     atomic_write_text(out / EVAL_FILE, json.dumps(record, indent=1))
     record["wall_seconds"] = time.perf_counter() - t0
     return record
+
+
+def _pairs(job: Job) -> list[tuple[str, str]]:
+    return [(task, tier) for task in job.eval_tasks for tier in job.eval_tiers]
+
+
+def _episodes(job: Job, out: Path, task: str, tier: str, which: str) -> list[dict]:
+    """The ``which`` ("test" or "selection") episodes of ``job`` on a task and tier, with a policy of their own."""
+    policy, env_kwargs = job_policy(job, out)
+    count, seed = ((job.eval_episodes, job.eval_seed) if which == "test" else
+                   (job.selection_episodes, job.selection_seed))
+    return run_episodes(policy, job.action_mode, task, tier, count, seed, env_kwargs=env_kwargs, timing=True)
+
+
+def job_policy(job: Job, out: Path) -> tuple:
+    """(a fresh policy, env_kwargs) of a job: a learned job's model from its folder ``out`` with the job's
+    ``inference``, on the base loop it was trained on; an analytic job's controller (:func:`analytic_policy`)."""
+    if job.learned:
+        policy, run_config = LearnedPolicy.load(out, inference=job.inference)
+        return policy, run_config.eval_env_kwargs()
+    return analytic_policy(job)
 
 
 def analytic_policy(job: Job) -> tuple:
@@ -295,19 +345,51 @@ def missing_evaluations(job: Job, record: dict) -> list[tuple[str, str]]:
     return [(task, tier) for task in job.eval_tasks for tier in job.eval_tiers if tier not in have.get(task, {})]
 
 
-def stale_evaluations(job: Job, record: dict) -> list[tuple[str, str]]:
-    """The (task, tier) pairs that ``job`` is evaluated on and its result ``record`` lacks, or holds with
-    episodes that lack a metric of :data:`EPISODE_METRICS` / :data:`TIMING_METRICS` (recorded before the
-    windowed metrics) or in another number than ``job.eval_episodes``: what re-scoring runs again."""
-    have = evaluations_of(record)
+#: the parts of a (task, tier) evaluation that run on their own (:func:`stale_parts`)
+PARTS = ("test", "selection", "compute")
+
+
+def selections_of(record: dict) -> dict:
+    """task -> tier -> selection episodes of a job record (empty for results without them)."""
+    chosen = record.get("selection", {})
+    return chosen if isinstance(chosen, dict) else {}
+
+
+def _fresh(episodes, count: int) -> bool:
+    """``count`` episodes, each with every metric the evaluator records."""
     keys = (*EPISODE_METRICS, *TIMING_METRICS)
+    return (isinstance(episodes, list) and len(episodes) == count
+            and all(isinstance(e, dict) and all(k in e for k in keys) for e in episodes))
 
-    def fresh(episodes) -> bool:
-        return (isinstance(episodes, list) and len(episodes) == job.eval_episodes
-                and all(isinstance(e, dict) and all(k in e for k in keys) for e in episodes))
 
-    return [(task, tier) for task in job.eval_tasks for tier in job.eval_tiers
-            if not fresh(have.get(task, {}).get(tier))]
+def stale_parts(job: Job, record: dict) -> dict[tuple[str, str], tuple[str, ...]]:
+    """(task, tier) -> the parts of :data:`PARTS` that ``job``'s result ``record`` lacks or holds stale: ``test``
+    (missing, another number than ``job.eval_episodes``, or episodes without a metric of :data:`EPISODE_METRICS` /
+    :data:`TIMING_METRICS`), ``selection`` (the same for ``job.selection_episodes``, where the job has them),
+    ``compute`` (test episodes without ``compute_us_single``; always with ``test``); a learned result scored with
+    another forward pass than ``job.inference`` (none recorded: from before the lean path): every part."""
+    have, chosen = evaluations_of(record), selections_of(record)
+    other_path = job.learned and record.get("inference") != job.inference
+    out = {}
+    for task, tier in _pairs(job):
+        test = have.get(task, {}).get(tier)
+        parts = []
+        if other_path or not _fresh(test, job.eval_episodes):
+            parts.append("test")
+        if job.selection_episodes and (other_path or not _fresh(chosen.get(task, {}).get(tier),
+                                                                job.selection_episodes)):
+            parts.append("selection")
+        if "test" in parts or not all(COMPUTE_SINGLE in e for e in test):
+            parts.append("compute")
+        if parts:
+            out[(task, tier)] = tuple(parts)
+    return out
+
+
+def stale_evaluations(job: Job, record: dict) -> list[tuple[str, str]]:
+    """The (task, tier) pairs that ``job`` is evaluated on and whose result in ``record`` is missing or stale in
+    any part (:func:`stale_parts`): what re-scoring runs again."""
+    return list(stale_parts(job, record))
 
 
 def reevaluate_job(job: Job, root: Path = RUNS_DIR) -> dict:

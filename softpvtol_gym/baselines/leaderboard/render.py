@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from softpvtol_gym.baselines.evaluation import WINDOW_METRICS
-from softpvtol_gym.baselines.leaderboard.stats import REFERENCE, WINDOWS, headline, window_headline
+from softpvtol_gym.baselines.evaluation import COMPUTE_SINGLE, WINDOW_METRICS
+from softpvtol_gym.baselines.leaderboard.stats import MIN_CI_VALUES, REFERENCE, WINDOWS, headline, window_headline
 from softpvtol_gym.baselines.util.atomic import atomic_path
 from softpvtol_gym.baselines.util.blocks import markers
 
@@ -29,16 +29,43 @@ def num(v: float | None) -> str:
     return f"{v:.3f}"
 
 
+#: the mark of a CI resampled from fewer than MIN_CI_VALUES values, and its footnote
+FEW_VALUES = "†"
+FEW_VALUES_NOTE = (f"{FEW_VALUES}: a CI resampled from fewer than {MIN_CI_VALUES} values (runs x episodes, or runs "
+                   "on a deterministic task and tier): too few for the bootstrap to be trusted; read it as a rough "
+                   "range.")
+
+
+def ci_values(row: dict) -> int:
+    """How many values a row's CIs resample (``ci_values``; for rows from before the key: runs x episodes, or runs
+    on a deterministic task and tier)."""
+    if "ci_values" in row:
+        return row["ci_values"]
+    return row["runs"] * (1 if row.get("deterministic") else row.get("episodes", 1))
+
+
+def marks(row: dict) -> str:
+    """The marks after a row's CI: † (fewer than MIN_CI_VALUES values), ‡ (a deterministic task and tier)."""
+    few = "runs" in row and ci_values(row) < MIN_CI_VALUES
+    return (f" {FEW_VALUES}" if few else "") + (" ‡" if row.get("deterministic") else "")
+
+
 def fmt_window(row: dict, metric: str) -> str:
-    """``IQM [lo, hi]`` of one metric of a row (crashed windows: "crash"); "—" where the row lacks it."""
+    """``IQM [lo, hi]`` of one metric of a row (crashed windows: "crash"), with its marks (:func:`marks`); "—"
+    where the row lacks it."""
     if f"{metric}_iqm" not in row:
         return "—"
     ci = row[f"{metric}_ci"]
-    return f"{num(row[f'{metric}_iqm'])} [{num(ci[0])}, {num(ci[1])}]" + (" ‡" if row.get("deterministic") else "")
+    return f"{num(row[f'{metric}_iqm'])} [{num(ci[0])}, {num(ci[1])}]" + marks(row)
 
 
 def _us(v: float | None) -> str:
     return "—" if v is None else f"{v:.0f}" if v >= 10 else f"{v:.1f}"
+
+
+def fmt_single(row: dict) -> str:
+    """The per-robot compute of a row (µs per observation, one at a time); "—" where it was not measured."""
+    return _us(row.get(COMPUTE_SINGLE))
 
 
 def fmt_us(row: dict, spread: bool = False) -> str:
@@ -69,23 +96,39 @@ def headline_markdown(data: dict, heading: bool = True) -> list[str]:
         "other's and its crash rate is no higher. Windows: whole episode, first quarter (transient), last half "
         "(steady), and the max error over the last 5 s; a window an episode crashed in counts as worse than any "
         "value. ‡: a deterministic task and tier (identical episodes): one value per run (its mean), the CI over "
-        "training seeds only (zero width for an analytic entry). Compute: median µs of the policy's own `predict` "
-        "per control step and env (wall time, machine- and load-dependent).",
+        f"training seeds only (zero width for an analytic entry). {FEW_VALUES_NOTE} "
+        + _selection_sentence(data, rows)
+        + " µs/robot: the per-robot compute, the median µs of the entry's `predict` on one observation at a time "
+        "(`compute_us_single`, a pass of its own; wall time, machine- and load-dependent; — where not measured).",
         "",
         f"**Model-based control wins {counts['model-based']} of {len(rows)} (task, tier, window) cells, learned "
         f"control {counts['learned']}, neither {counts['neither']}.**"
         + (f" Model-based wins: {', '.join(mb)}." if mb else " Model-based control wins nowhere."),
         "",
-        "| task | tier | window | strongest model-based | its error [m] | µs/step | strongest learned | its error "
-        "[m] | µs/step | winner |",
+        "| task | tier | window | strongest model-based | its error [m] | µs/robot | strongest learned | its error "
+        "[m] | µs/robot | winner |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         a, b = r["model_based"], r["learned"]
         lines.append(f"| {r['task']} | {r['tier']} | {r['what']} | {a['entry']} | {fmt_window(a, r['metric'])} | "
-                     f"{fmt_us(a)} | {b['entry']} | {fmt_window(b, r['metric'])} | {fmt_us(b)} | "
+                     f"{fmt_single(a)} | {b['entry']} | {fmt_window(b, r['metric'])} | {fmt_single(b)} | "
                      f"{WINNER[r['winner']]} |")
     return lines + [""]
+
+
+def _selection_sentence(data: dict, rows: list[dict]) -> str:
+    """How the headline's entries were chosen: on held-out selection episodes, or (results from before them) on
+    the test episodes it reports."""
+    meta = data["meta"]
+    if rows and all(r["selected_on"] == "selection" for r in rows):
+        return (f"Each side's strongest entry is chosen on {meta.get('selection_episodes', '?')} held-out selection "
+                f"episodes per run (seeds {meta.get('selection_seed', '?')} + i) and reported on the disjoint test "
+                f"episodes (seeds {meta.get('test_seed', meta['eval_seed'])} + i), so the choice does not flatter "
+                "the numbers shown.")
+    return ("These results predate the held-out selection episodes: each side's strongest entry is chosen on the "
+            "same test episodes it is reported on, which flatters the winner of a close race (re-score: "
+            "`python baselines/run_jobs.py --rescore`).")
 
 
 def policy_headline_markdown(data: dict) -> list[str]:
@@ -135,9 +178,9 @@ def summary_markdown(data: dict, page: str = "docs/leaderboard.md") -> str:
     by = {(r["task"], r["window"]): [] for r in rows}
     for r in rows:
         by[(r["task"], r["window"])].append(r)
-    us = {side: [x[side].get("compute_us_per_step_median") for x in rows] for side in ("model_based", "learned")}
+    us = {side: [x[side].get(COMPUTE_SINGLE) for x in rows] for side in ("model_based", "learned")}
     us = {k: [v for v in vs if v is not None] for k, vs in us.items()}
-    compute = (" Compute per step and env (median µs of `predict`): strongest model-based "
+    compute = (" Per-robot compute (median µs of `predict` on one observation): strongest model-based "
                f"{min(us['model_based']):.0f}-{max(us['model_based']):.0f}, strongest learned "
                f"{min(us['learned']):.0f}-{max(us['learned']):.0f}." if us["model_based"] and us["learned"] else "")
     lines = [f"Learned vs the strongest model-based controller per task, tier and time window (95 % CIs disjoint and "
@@ -170,9 +213,12 @@ def render_markdown(data: dict, chart: str = "../results/leaderboard.png") -> st
         "the job list is `softpvtol_gym/baselines/data/leaderboard.yml`, the per-run results are in "
         f"`{SOURCE}`.",
         "",
-        f"Each entry is evaluated on the same {meta['episodes']} seeded episodes per task and tier (seeds "
-        f"{meta['eval_seed']} + i; training seeds are below 500,000; an entry with fewer, such as the MPC, gets the "
-        f"first ones: the `episodes` column). PPO entries have {meta['seeds']} training seeds "
+        f"Each entry is evaluated on the same {meta['episodes']} seeded test episodes per task and tier (seeds "
+        f"{meta.get('test_seed', meta['eval_seed'])} + i; training seeds are below 500,000)"
+        + (f", and on {meta['selection_episodes']} held-out selection episodes (seeds {meta['selection_seed']} + i), "
+           "on which the headline chooses each side's strongest entry" if meta.get("selection_episodes") else "")
+        + (f"; learned entries through the `{meta['inference']}` forward pass" if meta.get("inference") else "")
+        + f". PPO entries have {meta['seeds']} training seeds "
         "each. Point estimates: IQM (interquartile mean) over runs x episodes of the RMS position error [m] (whole "
         "episode, first quarter, last half) and of the max position error over the last 5 s [m], IQM of the return, "
         "and the mean crash rate. Brackets: 95 % stratified-bootstrap CIs over runs and episodes "
@@ -186,7 +232,10 @@ def render_markdown(data: dict, chart: str = "../results/leaderboard.png") -> st
         "(rliable's pair bootstrap does not resample episodes). µs/step: the median wall time of the policy's own "
         "`predict` per control step and env (the per-env share of a batch of all the episodes), on the machine and "
         "at the load the jobs ran; in brackets the worst episode's 99th percentile and maximum (which includes "
-        "one-off costs such as compiling on the first call). Lower error, higher return, lower crash rate are better.",
+        "one-off costs such as compiling on the first call). µs/robot: the per-robot compute, the median wall time "
+        "of `predict` on one observation at a time in one thread (`compute_us_single`, measured in a pass of its own "
+        "on observations of each run's first test episode; the median over runs); — where not measured. "
+        f"{FEW_VALUES_NOTE} Lower error, higher return, lower crash rate are better.",
         "",
     ]
     if meta.get("missing_jobs"):
@@ -204,17 +253,16 @@ def render_markdown(data: dict, chart: str = "../results/leaderboard.png") -> st
         rows = by_task.get(task, [])
         lines += [f"## {task}", "",
                   "| tier | policy | runs x episodes | RMS position error [m] | RMS, first quarter [m] | RMS, last "
-                  "half [m] | max, last 5 s [m] | crash rate | return | µs/step | P(better than "
-                  f"{REFERENCE}) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "half [m] | max, last 5 s [m] | crash rate | return | µs/step | µs/robot | P(better than "
+                  f"{REFERENCE}) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in sorted(rows, key=lambda r: (tier_order.index(r["tier"]), _entry_order(r["entry"]))):
             p = fmt_ci(r["prob_improvement"], r["prob_improvement_ci"], 2) if "prob_improvement" in r else "—"
-            err = fmt_ci(r["rms_position_error_iqm"], r["rms_position_error_ci"], 3) + (
-                " ‡" if r.get("deterministic") else "")
+            err = fmt_ci(r["rms_position_error_iqm"], r["rms_position_error_ci"], 3) + marks(r)
             windows = " | ".join(fmt_window(r, m) for m in WINDOW_METRICS)
-            crash = fmt_ci(r["crash_rate"], r["crash_rate_ci"], 2)
-            ret = fmt_ci(r["return_iqm"], r["return_ci"], 0)
+            crash = fmt_ci(r["crash_rate"], r["crash_rate_ci"], 2) + marks(r).replace(" ‡", "")
+            ret = fmt_ci(r["return_iqm"], r["return_ci"], 0) + marks(r).replace(" ‡", "")
             lines.append(f"| {r['tier']} | {r['entry']} | {r['runs']} x {r.get('episodes', '?')} | {err} | {windows} | "
-                         f"{crash} | {ret} | {fmt_us(r, spread=True)} | {p} |")
+                         f"{crash} | {ret} | {fmt_us(r, spread=True)} | {fmt_single(r)} | {p} |")
         lines.append("")
     lines += _budget_markdown(data)
     lines += [f"![IQM RMS position error per tier]({chart})", ""]

@@ -4,7 +4,15 @@ counts out of range are errors naming the key). :mod:`softpvtol_gym.baselines.le
 
 Analytic entries (the spec's ``analytic`` list, or the older ``passivity`` list whose entries are all of kind
 ``passivity``) have a ``kind``: ``passivity`` (``allocation``, optional ``loop``) or ``mpc`` (optional
-``options``, passed to ``softpvtol_gym.MPCPolicy.from_env``); either may set its own ``episodes``.
+``options``, passed to ``softpvtol_gym.MPCPolicy.from_env``). Every entry is evaluated on the same
+``evaluation.episodes`` seeded test episodes (an entry's own ``episodes`` is refused: fewer episodes would give
+it CIs that are not comparable).
+
+``evaluation``: ``episodes`` and ``seed`` (the test episodes, seeds ``seed + i``), ``tiers``, and optionally
+``selection_episodes`` and ``selection_seed`` (default :data:`SELECTION_SEED`): the held-out episodes on which the
+headline chooses each side's strongest entry before it reports that entry on the test episodes (0, the default,
+chooses on the test episodes), and ``inference`` (:data:`INFERENCE`, default ``lean``): the forward pass that
+learned entries are scored with.
 """
 
 from __future__ import annotations
@@ -35,13 +43,18 @@ SPEC_FILE = data_file("leaderboard.yml")
 #: the spec's keys, and those of its entries (anything else is an error, not ignored)
 SPEC_KEYS = ("evaluation", "passivity", "analytic", "tasks", "trained", "seeds")
 REQUIRED_SPEC_KEYS = ("evaluation", "tasks", "trained", "seeds")  # passivity, analytic: optional (default [])
-EVALUATION_KEYS = ("episodes", "seed", "tiers")
-# loop: optional, default the loop named as the allocation; episodes: optional, default evaluation.episodes
-PASSIVITY_KEYS = ("name", "allocation", "loop", "episodes")
+EVALUATION_KEYS = ("episodes", "seed", "tiers", "selection_episodes", "selection_seed", "inference")
+REQUIRED_EVALUATION_KEYS = ("episodes", "seed", "tiers")
+#: the first seed of the selection episodes by default (the test episodes' default seed is 1,000,000)
+SELECTION_SEED = 2_000_000
+#: the forward passes a learned entry can be scored with (LearnedPolicy's ``inference``)
+INFERENCE = ("lean", "torch")
+# loop: optional, default the loop named as the allocation
+PASSIVITY_KEYS = ("name", "allocation", "loop")
 #: the kinds of analytic entries, and the keys each takes (name and kind required; see validate_spec)
-ANALYTIC_KINDS = {"passivity": ("name", "kind", "allocation", "loop", "episodes"),
-                  "mpc": ("name", "kind", "episodes", "options")}
-ANALYTIC_KEYS = ("name", "kind", "allocation", "loop", "episodes", "options")
+ANALYTIC_KINDS = {"passivity": ("name", "kind", "allocation", "loop"),
+                  "mpc": ("name", "kind", "options")}
+ANALYTIC_KEYS = ("name", "kind", "allocation", "loop", "options")
 # the last three optional; recipe: a training recipe of data/hyperparams/recipes.yml (its action mode must be the
 # cell's; hp overrides apply on top of the recipe's)
 TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps", "also_evaluated_on", "hp", "recipe")
@@ -82,13 +95,8 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
     if spec is None:
         raise ConfigError(f"{source} is empty; expected a mapping with the keys {list(SPEC_KEYS)}")
     _mapping(spec, SPEC_KEYS, source, required=REQUIRED_SPEC_KEYS)
-    ev = _mapping(spec["evaluation"], EVALUATION_KEYS, f"{source}: evaluation")
-    if not is_int(ev["episodes"]) or not 1 <= ev["episodes"] <= MAX_EPISODES:
-        raise ConfigError(f"{source}: evaluation.episodes must be an integer in [1, {MAX_EPISODES:,}], "
-                          f"got {ev['episodes']!r}")
-    if not is_int(ev["seed"]) or ev["seed"] < EVAL_SEED_OFFSET:
-        raise ConfigError(f"{source}: evaluation.seed must be an integer >= {EVAL_SEED_OFFSET:,} (evaluation seeds "
-                          f"never overlap training seeds), got {ev['seed']!r}")
+    ev = _mapping(spec["evaluation"], EVALUATION_KEYS, f"{source}: evaluation", required=REQUIRED_EVALUATION_KEYS)
+    _evaluation_episodes(ev, source)
     tiers = _list(ev["tiers"], f"{source}: evaluation.tiers", allow_empty=False)
     for t in tiers:
         _choice(t, registered_tiers(), f"{source}: each of evaluation.tiers")
@@ -150,8 +158,37 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
     return spec
 
 
+def _evaluation_episodes(ev: dict, source: str) -> None:
+    """Check the episode counts, seeds and inference of the spec's ``evaluation`` (ConfigError naming the key): the
+    test and selection episodes never share a seed, and neither shares one with training."""
+    for key, low in (("episodes", 1), ("selection_episodes", 0)):
+        v = ev.get(key, 0)
+        if not is_int(v) or not low <= v <= MAX_EPISODES:
+            raise ConfigError(f"{source}: evaluation.{key} must be an integer in [{low}, {MAX_EPISODES:,}], "
+                              f"got {v!r}")
+    for key in ("seed", "selection_seed"):
+        v = ev.get(key, SELECTION_SEED)
+        if not is_int(v) or v < EVAL_SEED_OFFSET:
+            raise ConfigError(f"{source}: evaluation.{key} must be an integer >= {EVAL_SEED_OFFSET:,} (evaluation "
+                              f"seeds never overlap training seeds), got {v!r}")
+    test = (ev["seed"], ev["seed"] + ev["episodes"])
+    selection = (selection_seed(ev), selection_seed(ev) + ev.get("selection_episodes", 0))
+    if selection[1] > selection[0] and selection[0] < test[1] and test[0] < selection[1]:
+        raise ConfigError(f"{source}: the selection episodes (seeds {selection[0]:,} to {selection[1] - 1:,}) overlap "
+                          f"the test episodes (seeds {test[0]:,} to {test[1] - 1:,}); move evaluation.selection_seed")
+    _choice(ev.get("inference", "lean"), INFERENCE, f"{source}: evaluation.inference")
+
+
+def selection_seed(evaluation: dict) -> int:
+    """The first seed of the selection episodes of a spec's ``evaluation``."""
+    return int(evaluation.get("selection_seed", SELECTION_SEED))
+
+
 def _analytic_entry(p, section: str, where: str, names: set) -> None:
     """Check one entry of the spec's ``passivity`` (kind passivity only) or ``analytic`` list (ConfigError)."""
+    if isinstance(p, dict) and "episodes" in p:
+        raise ConfigError(f"{where}.episodes: every entry is evaluated on the same evaluation.episodes seeded "
+                          f"episodes (comparable CIs); remove the entry's episodes (got {p['episodes']!r})")
     if section == "passivity":
         _mapping(p, PASSIVITY_KEYS, where, required=("name", "allocation"))
         kind = "passivity"
@@ -173,9 +210,6 @@ def _analytic_entry(p, section: str, where: str, names: set) -> None:
         if "loop" in p:
             _choice(p["loop"], [k for k in LOOPS if LOOPS[k]["allocation"] == p["allocation"]],
                     f"{where}.loop (a loop with the {p['allocation']} allocation)")
-    if "episodes" in p and (not is_int(p["episodes"]) or not 1 <= p["episodes"] <= MAX_EPISODES):
-        raise ConfigError(f"{where}.episodes must be an integer in [1, {MAX_EPISODES:,}] (this entry's evaluation "
-                          f"episodes per task and tier; default evaluation.episodes), got {p['episodes']!r}")
     options = p.get("options", {})
     if not isinstance(options, dict) or not all(isinstance(k, str) and k.isidentifier() for k in options):
         raise ConfigError(f"{where}.options must be a mapping of option names to values (passed to "

@@ -4,8 +4,13 @@ the headline, and the JSON that holds them (built and validated).
 Per (task, tier, entry) row: the IQM and 95 % CI of the whole-episode RMS position error, of the return and of
 the crash rate, and of each window of :data:`~softpvtol_gym.baselines.evaluation.WINDOW_METRICS`
 (``<metric>_iqm``, ``<metric>_ci``), plus ``compute_us_per_step_median`` (the median over the row's episodes
-of their median per-step time) and ``compute_us_per_step_p99`` / ``_max`` (the worst episode's). Two rules keep
-the CIs honest:
+of their median per-step time: the per-env share of a batch), ``compute_us_per_step_p99`` / ``_max`` (the worst
+episode's) and ``compute_us_single`` (the per-robot compute: the median over the row's runs of each run's figure,
+measured in a pass of its own on one observation at a time). ``ci_values``: how many values the CIs resample
+(runs x episodes, or runs on a deterministic task and tier); a CI from fewer than :data:`MIN_CI_VALUES` is
+marked on the page. ``selection``: the IQM of each headline metric on the held-out selection episodes, on which
+:func:`window_headline` chooses each side's strongest entry before it reports that entry on the test episodes.
+Two rules keep the CIs honest:
 
 * Crashed windows (None in an episode) are scored +inf: worse than any value, never dropped. The IQM trims
   the worst quarter, so it stays finite while at most a quarter of a sample's windows crashed; beyond that it
@@ -31,6 +36,7 @@ import numpy as np
 
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import (
+    COMPUTE_SINGLE,
     EPISODE_METRICS,
     TIMING_METRICS,
     WINDOW_METRICS,
@@ -46,14 +52,18 @@ from softpvtol_gym.baselines.leaderboard.jobs import (
     load_jobs,
     load_spec,
     read_eval,
+    selections_of,
     stale_evaluations,
 )
+from softpvtol_gym.baselines.leaderboard.spec import selection_seed
 from softpvtol_gym.baselines.util.safe_load import loads_json
 
 REFERENCE = "passivity-bounded"   # the strongest analytic loop, the env's default (docs/control.md)
 BOOTSTRAP_REPS = 2000
 POI_BOOTSTRAP_REPS = 300  # rliable's probability of improvement runs scipy per episode: slow
 BOOTSTRAP_SEED = 0
+#: a CI resampled from fewer values than this is marked (a dagger) on the page
+MIN_CI_VALUES = 10
 COMMAND = "python baselines/run_jobs.py && python baselines/leaderboard.py"
 #: the per-episode metrics every result must hold (results without the windows and the timing are
 #: stale, re-scored by ``run-jobs --rescore``)
@@ -77,10 +87,13 @@ def entry_label(job: dict, task: str | None = None) -> str:
 
 
 # ------------------------------------------------------------------------------------ collect
-def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> tuple[list[dict], list[str]]:
-    """Every (job, evaluation tier) as a cell with its per-episode metrics; and the missing job names."""
+def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, inference: str | None = None) -> tuple[list[dict],
+                                                                                                 list[str]]:
+    """Every (job, evaluation tier) as a cell with its per-episode metrics (test episodes under ``episodes``,
+    selection episodes under ``selection``); and the missing job names. ``inference``: the forward pass the learned
+    results must have been scored with (default: the spec's)."""
     cells, missing = [], []
-    for job in load_jobs(spec):
+    for job in load_jobs(spec, inference=inference):
         path = job.folder(root) / EVAL_FILE
         if not path.is_file():
             missing.append(job.name)
@@ -112,6 +125,7 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE) -> tuple[list[dict], 
                     "seed": j["seed"], "timesteps": j.get("timesteps") or None, "checkpoint": rec["checkpoint"],
                     "train_seconds": rec["train_seconds"],
                     "eval_seed": j["eval_seed"], "episodes": episodes, "summary": _summary(episodes),
+                    "selection": selections_of(rec).get(task, {}).get(tier, []),
                 })
     return cells, missing
 
@@ -148,7 +162,11 @@ def check_result(rec: dict, path: Path) -> dict:
     other = rec.get("eval_other_tasks", {})
     if not isinstance(other, dict):
         bad("eval_other_tasks must be an object (task -> tier -> episodes)")
-    for where, tiers in [("eval", rec["eval"]), *((f"eval_other_tasks.{t}", v) for t, v in other.items())]:
+    chosen = rec.get("selection", {})
+    if not isinstance(chosen, dict):
+        bad("selection must be an object (task -> tier -> episodes)")
+    for where, tiers in [("eval", rec["eval"]), *((f"eval_other_tasks.{t}", v) for t, v in other.items()),
+                         *((f"selection.{t}", v) for t, v in chosen.items())]:
         if not isinstance(tiers, dict):
             bad(f"{where} must be an object (tier -> episodes)")
         for tier, episodes in tiers.items():
@@ -168,7 +186,7 @@ def check_result(rec: dict, path: Path) -> dict:
                     if key in e and e[key] is not None and not (_number(e[key]) and e[key] >= 0):
                         bad(f"{where}.{tier}[{i}].{key} must be a finite number >= 0 or null (crashed), "
                             f"got {e[key]!r}")
-                for key in TIMING_METRICS:
+                for key in (*TIMING_METRICS, COMPUTE_SINGLE):
                     if key in e and not (_number(e[key]) and e[key] >= 0):
                         bad(f"{where}.{tier}[{i}].{key} must be a finite number >= 0, got {e[key]!r}")
     return rec
@@ -272,11 +290,13 @@ def _finite_or_none(v: float) -> float | None:
     return float(v) if np.isfinite(v) else None
 
 
-def aggregate(cells: list[dict]) -> list[dict]:
+def aggregate(cells: list[dict], deterministic: set | None = None) -> list[dict]:
     """Per (task, tier, entry): IQM RMS position error, IQM return, mean crash rate, P(improvement)
     over the reference passivity controller, each with a 95 % stratified-bootstrap CI; the IQM and CI of each
-    window metric (where the cells hold them) and the median compute per step. Rows whose every run has
-    identical episodes count each run once (``deterministic``; module docstring)."""
+    window metric (where the cells hold them), the median compute per step, the per-robot compute and the IQMs on
+    the selection episodes (where the cells hold them). Rows whose every run has identical episodes count each run
+    once (``deterministic``; module docstring); ``deterministic``: the (task, tier) pairs to treat so (default:
+    :func:`deterministic_pairs` of ``cells``)."""
     from rliable import metrics
 
     warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
@@ -284,7 +304,7 @@ def aggregate(cells: list[dict]) -> list[dict]:
     for c in cells:
         groups.setdefault((c["task"], c["tier"], c["entry"]), []).append(c)
     rows = []
-    fixed = deterministic_pairs(cells)
+    fixed = deterministic_pairs(cells) if deterministic is None else set(deterministic)
     for (task, tier, entry), group in sorted(groups.items()):
         det = (task, tier) in fixed
         row = {"task": task, "tier": tier, "entry": entry, "policy": group[0]["policy"],
@@ -293,7 +313,8 @@ def aggregate(cells: list[dict]) -> list[dict]:
                "runs": len(group), "episodes": len(group[0]["episodes"]), "deterministic": det,
                "ci_over": ("none (one run of a deterministic task and tier)" if det and len(group) == 1 else
                            "training seeds only (a deterministic task and tier)" if det else
-                           "runs and episodes" if len(group) > 1 else "episodes")}
+                           "runs and episodes" if len(group) > 1 else "episodes"),
+               "ci_values": len(group) * (1 if det else len(group[0]["episodes"]))}
         # one bootstrap for the three metrics: scores (runs x episodes x 3)
         scores = np.stack([_matrix(group, "rms_position_error", per_run=det),
                            _matrix(group, "return", per_run=det),
@@ -313,6 +334,10 @@ def aggregate(cells: list[dict]) -> list[dict]:
             TIMING_METRICS[0]] else None
         for k in TIMING_METRICS[1:]:  # the worst episode's p99 and max
             row[k] = float(np.max(timing[k])) if timing[k] else None
+        single = [c["episodes"][0].get(COMPUTE_SINGLE) for c in group]  # one figure per run
+        row[COMPUTE_SINGLE] = float(np.median(single)) if all(v is not None for v in single) else None
+        if all(c.get("selection") for c in group):
+            row["selection"] = selection_iqms(group, per_run=det)
         ref = groups.get((task, tier, REFERENCE))
         if ref is not None and entry != REFERENCE:
             x = _matrix(group, "rms_position_error", -1.0)  # higher is better for rliable
@@ -325,6 +350,15 @@ def aggregate(cells: list[dict]) -> list[dict]:
             row["prob_improvement_ci"] = [float(v) for v in np.asarray(ci["p"]).reshape(-1)[:2]]
         rows.append(row)
     return rows
+
+
+def selection_iqms(group: list[dict], per_run: bool = False) -> dict:
+    """The IQM of each headline metric (:data:`WINDOWS`) over the selection episodes of one entry's cells (a
+    crashed window: None where it reaches the IQM), and their number per run."""
+    metrics = [metric for _, metric, _ in WINDOWS]
+    selection = [{**c, "episodes": c["selection"]} for c in group]
+    iqm = _iqms(np.stack([_matrix(selection, k, per_run=per_run) for k in metrics], axis=-1))
+    return {"episodes": len(group[0]["selection"]), **{f"{k}_iqm": _finite_or_none(v) for k, v in zip(metrics, iqm)}}
 
 
 # ------------------------------------------------------------------------------------- headline
@@ -389,7 +423,10 @@ def window_headline(data: dict) -> list[dict]:
     """Learned against model-based control per (task, tier, window) of :data:`WINDOWS`: the strongest learned
     entry (the PPO entry with the lowest IQM of the window's metric there) against the strongest model-based one
     (the analytic entry, passivity or MPC, with the lowest), both chosen per (task, tier, window), so each side
-    gets its best. ``winner``: "learned" or "model-based" where that side's 95 % CI lies entirely below the
+    gets its best. Each side's strongest entry is chosen on the held-out selection episodes where every row there
+    holds them (``selected_on: "selection"``), and reported, like the verdict, on the test episodes; rows without
+    them (results from before the selection episodes) are chosen on the test episodes (``"test"``).
+    ``winner``: "learned" or "model-based" where that side's 95 % CI lies entirely below the
     other's and its crash rate is no higher; "neither" otherwise (overlapping CIs, or a lower error bought
     with more crashes). Windows the rows do not hold (results scored before the windows existed) are left out."""
     meta, rows = data["meta"], data["aggregates"]
@@ -404,9 +441,12 @@ def window_headline(data: dict) -> list[dict]:
                 model = [r for r in have if r["policy"] != "ppo"]
                 if not learned or not model:
                     continue
+                held_out = all("selection" in r for r in have)
 
-                def best(side, metric=metric):
-                    return min(sorted(side, key=lambda x: x["entry"]), key=lambda x: _key(x[f"{metric}_iqm"]))
+                def best(side, metric=metric, held_out=held_out):
+                    def score(x):
+                        return _key((x["selection"] if held_out else x)[f"{metric}_iqm"])
+                    return min(sorted(side, key=lambda x: x["entry"]), key=score)
 
                 a, b = best(model), best(learned)
                 ci_a = [_key(v) for v in a[f"{metric}_ci"]]
@@ -418,7 +458,8 @@ def window_headline(data: dict) -> list[dict]:
                 else:
                     winner = "neither"
                 out.append({"task": task, "tier": tier, "window": window, "metric": metric, "what": what,
-                            "model_based": a, "learned": b, "winner": winner})
+                            "model_based": a, "learned": b, "winner": winner,
+                            "selected_on": "selection" if held_out else "test"})
     return out
 
 
@@ -432,23 +473,28 @@ def _commit(base: Path) -> str:
         return "unknown"
 
 
-def build(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, base: Path = Path(".")) -> dict:
-    """The leaderboard JSON from the job results under ``root``; ``base``: where the recorded commit is read."""
+def build(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, base: Path = Path("."), inference: str | None = None) -> dict:
+    """The leaderboard JSON from the job results under ``root``; ``base``: where the recorded commit is read;
+    ``inference``: the learned entries' forward pass (default: the spec's)."""
     s = load_spec(spec)
-    cells, missing = collect(root, spec)
+    cells, missing = collect(root, spec, inference=inference)
     if not cells:
         raise ConfigError(f"no results under {root}; run python baselines/run_jobs.py first")
     meta = {"command": COMMAND, "commit": _commit(base), "date": _dt.date.today().isoformat(),
             "tasks": list(s["tasks"]), "tiers": list(s["evaluation"]["tiers"]),
             "episodes": int(s["evaluation"]["episodes"]), "eval_seed": int(s["evaluation"]["seed"]),
+            "test_seed": int(s["evaluation"]["seed"]), "selection_seed": selection_seed(s["evaluation"]),
+            "selection_episodes": int(s["evaluation"].get("selection_episodes", 0)),
+            "inference": inference or s["evaluation"].get("inference", "lean"), "min_ci_values": MIN_CI_VALUES,
             "seeds": len(s["seeds"]), "bootstrap_reps": BOOTSTRAP_REPS, "poi_bootstrap_reps": POI_BOOTSTRAP_REPS,
             "bootstrap_seed": BOOTSTRAP_SEED,
-            "reference": REFERENCE, "missing_jobs": missing, "version": 3}
+            "reference": REFERENCE, "missing_jobs": missing, "version": 4}
     return {"meta": meta, "aggregates": aggregate(cells), "cells": cells}
 
 
 _META_KEYS = {"command": str, "commit": str, "date": str, "tasks": list, "tiers": list, "episodes": int,
               "eval_seed": int, "seeds": int, "bootstrap_reps": int, "poi_bootstrap_reps": int}
+_SEED_KEYS = ("test_seed", "selection_seed", "selection_episodes")
 _ROW_NUMBERS = ("rms_position_error_iqm", "crash_rate", "return_iqm")
 _ROW_CIS = ("rms_position_error_ci", "crash_rate_ci", "return_ci")
 
@@ -472,6 +518,9 @@ def validate_data(data, source: str) -> dict:
     for key, typ in _META_KEYS.items():
         if not isinstance(meta.get(key), typ) or isinstance(meta.get(key), bool):
             bad(f"meta.{key} must be a {typ.__name__}, got {meta.get(key)!r}")
+    for key in _SEED_KEYS:  # v4: the test and the selection episodes
+        if key in meta and (not isinstance(meta[key], int) or isinstance(meta[key], bool)):
+            bad(f"meta.{key} must be an int, got {meta[key]!r}")
     if not isinstance(data["aggregates"], list) or not isinstance(data["cells"], list):
         bad("aggregates and cells must be lists")
     non_finite = first_non_finite(data)
@@ -506,9 +555,17 @@ def validate_data(data, source: str) -> dict:
                     isinstance(ci, list) and len(ci) == 2 and all(number_or_none(v) for v in ci)):
                 bad(f"{where}.{metric}_iqm must be a finite number or null and {metric}_ci a list of two, got "
                     f"{r[f'{metric}_iqm']!r} and {ci!r}")
-        for key in ("compute_us_per_step_median", *TIMING_METRICS[1:]):
+        for key in ("compute_us_per_step_median", *TIMING_METRICS[1:], COMPUTE_SINGLE):
             if not number_or_none(r.get(key)):
                 bad(f"{where}.{key} must be a finite number or null")
+        if "ci_values" in r and (not isinstance(r["ci_values"], int) or isinstance(r["ci_values"], bool)
+                                 or r["ci_values"] < 1):
+            bad(f"{where}.ci_values must be an integer >= 1, got {r['ci_values']!r}")
+        if "selection" in r:
+            chosen = r["selection"]
+            if not isinstance(chosen, dict) or not all(number_or_none(chosen.get(f"{m}_iqm")) for _, m, _ in WINDOWS):
+                bad(f"{where}.selection must be an object with a finite number or null per "
+                    f"{[f'{m}_iqm' for _, m, _ in WINDOWS]}, got {chosen!r}")
         if not isinstance(r.get("deterministic", False), bool):
             bad(f"{where}.deterministic must be true or false")
     return data

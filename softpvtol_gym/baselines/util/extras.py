@@ -22,6 +22,7 @@ NEEDS = {
     "export.py": _LEARNED,
     "run_jobs.py": (*_LEARNED, "tensorboard", "tqdm"),
     "leaderboard.py": ("yaml", "filelock", "rliable", "matplotlib"),
+    "score.py": ("yaml", "filelock", "rliable"),
     "ablation.py": ("yaml", "filelock", "rliable", "matplotlib"),
     "passivity_metrics.py": (),
     "reproduce_paper.py": (),  # matplotlib for the figures only (--no-plots, --render-only run without it)
