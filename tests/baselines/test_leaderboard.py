@@ -21,6 +21,7 @@ from scipy import stats
 
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import EPISODE_METRICS, run_episodes
+from softpvtol_gym.baselines.leaderboard.headline import window_headline
 from softpvtol_gym.baselines.leaderboard.jobs import (
     Job,
     analytic_policy,
@@ -36,7 +37,6 @@ from softpvtol_gym.baselines.leaderboard.stats import (
     _three_metrics,
     aggregate,
     validate_data,
-    window_headline,
 )
 from tests.conftest import LAYOUT, LEADERBOARD_JSON
 
@@ -66,7 +66,7 @@ def test_every_job_of_the_spec_is_in_the_leaderboard():
 
 
 def test_headline_is_the_best_learned_policy_on_both_tracking_tasks():
-    from softpvtol_gym.baselines.leaderboard.stats import HEADLINE_TASKS, headline
+    from softpvtol_gym.baselines.leaderboard.headline import HEADLINE_TASKS, headline
 
     h = headline(DATA)
     assert h is not None and len(h["rows"]) == len(HEADLINE_TASKS) * len(DATA["meta"]["tiers"])
@@ -259,7 +259,7 @@ def _row(task, tier, entry, err, ci, crash=0.0, policy="ppo", mode="residual", t
 
 
 def test_headline_picks_one_policy_for_every_pair_and_the_strongest_analytic_per_pair():
-    from softpvtol_gym.baselines.leaderboard.stats import headline
+    from softpvtol_gym.baselines.leaderboard.headline import headline
 
     meta = {"tasks": ["hover", "track_paper", "track_random"], "tiers": ["nominal", "wind"]}
     rows = []

@@ -26,7 +26,8 @@ from softpvtol_gym.baselines.checkpoints.resume import global_rng_state, restore
 from softpvtol_gym.baselines.config.hyperparams import normalize_kwargs
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import CheckpointError, ConfigError
-from softpvtol_gym.baselines.training.models import build_model, frame_stack_wrapper, make_env, stack_frames
+from softpvtol_gym.baselines.training.models import build_model, make_env, stack_frames
+from softpvtol_gym.baselines.training.stacking import frame_stack_wrapper
 from softpvtol_gym.baselines.util.safe_load import loads_yaml
 
 

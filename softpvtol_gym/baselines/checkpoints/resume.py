@@ -20,7 +20,7 @@ from softpvtol_gym.baselines.checkpoints.manifest import (
     npz_bytes,
 )
 from softpvtol_gym.baselines.errors import CheckpointError
-from softpvtol_gym.baselines.training.models import frame_stack_wrapper
+from softpvtol_gym.baselines.training.stacking import frame_stack_wrapper
 from softpvtol_gym.baselines.util.atomic import (
     atomic_write_bytes,
     atomic_write_text,

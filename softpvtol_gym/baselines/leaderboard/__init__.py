@@ -1,2 +1,2 @@
 """The leaderboard: the job list and its runs (``jobs``), the Ray executor (``ray_executor``), the statistics
-(``stats``, rliable) and the Markdown page and chart (``render``)."""
+(``stats``, rliable), the headline (``headline``) and the Markdown page and chart (``render``)."""

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from softpvtol_gym.baselines.evaluation import COMPUTE_SINGLE, WINDOW_METRICS
-from softpvtol_gym.baselines.leaderboard.stats import MIN_CI_VALUES, REFERENCE, WINDOWS, headline, window_headline
+from softpvtol_gym.baselines.leaderboard.headline import headline, window_headline
+from softpvtol_gym.baselines.leaderboard.stats import MIN_CI_VALUES, REFERENCE, WINDOWS
 from softpvtol_gym.baselines.util.atomic import atomic_path
 from softpvtol_gym.baselines.util.blocks import markers
 
@@ -82,7 +83,7 @@ WINNER = {"learned": "**learned**", "model-based": "**model-based**",
 
 def headline_markdown(data: dict, heading: bool = True) -> list[str]:
     """The headline section of the leaderboard page (``heading=False``: its body only, the generated block):
-    learned against model-based control per (task, tier, window) (:func:`~.stats.window_headline`)."""
+    learned against model-based control per (task, tier, window) (:func:`~.headline.window_headline`)."""
     rows = window_headline(data)
     if not rows:
         return []
@@ -92,7 +93,7 @@ def headline_markdown(data: dict, heading: bool = True) -> list[str]:
         *(["## Headline: learned vs model-based control, per time window", ""] if heading else []),
         "Per task, tier and time window: the strongest learned entry against the strongest model-based controller "
         "(each the entry with the lowest IQM there; `window_headline()` in "
-        "`softpvtol_gym/baselines/leaderboard/stats.py`). A side wins where its 95 % CI lies entirely below the "
+        "`softpvtol_gym/baselines/leaderboard/headline.py`). A side wins where its 95 % CI lies entirely below the "
         "other's and its crash rate is no higher. Windows: whole episode, first quarter (transient), last half "
         "(steady), and the max error over the last 5 s; a window an episode crashed in counts as worse than any "
         "value. ‡: a deterministic task and tier (identical episodes): one value per run (its mean), the CI over "
@@ -133,7 +134,7 @@ def _selection_sentence(data: dict, rows: list[dict]) -> str:
 
 def policy_headline_markdown(data: dict) -> list[str]:
     """One learned policy against the strongest analytic controller on every (tracking task, tier) (the
-    whole-episode headline, :func:`~.stats.headline`), whole-episode RMS."""
+    whole-episode headline, :func:`~.headline.headline`), whole-episode RMS."""
     h = headline(data)
     if h is None:
         return []
@@ -144,7 +145,7 @@ def policy_headline_markdown(data: dict) -> list[str]:
         f"One learned policy, **{h['policy']}**, against the strongest analytic controller of each task and tier "
         "(the analytic entry with the lowest IQM RMS position error there). The policy is the learned entry "
         "evaluated on every tier of both tracking tasks with the smallest sum of its error relative to that "
-        "controller's (`headline()` in `softpvtol_gym/baselines/leaderboard/stats.py`). "
+        "controller's (`headline()` in `softpvtol_gym/baselines/leaderboard/headline.py`). "
         f"Its whole-episode IQM RMS position error is lower in {counts[0]} of {n} (task, tier) pairs, with disjoint "
         f"95 % CIs in {counts[1]} of {n}; its crash rate is no higher in {counts[2]} of {n}.", "",
         "| task | tier | strongest analytic | its RMS position error [m] | its crash rate | learned RMS position "

@@ -39,7 +39,7 @@ import numpy as np
 from numba import njit
 
 from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.baselines.training.stacking import ObservationStack
+from softpvtol_gym.baselines.training.stacking import ObservationStack, frame_stack_wrapper
 
 __all__ = ["LeanMLPPolicy", "OPS"]
 
@@ -236,8 +236,6 @@ class LeanMLPPolicy:
         """The lean policy of an SB3 model (PPO, A2C, SAC, TD3, DDPG with an MLP policy; an algorithm or its
         ``.policy``) and its VecNormalize (None: no normalisation). ``frame_stack``: K (None: that of the
         VecFrameStack the model's env is wrapped in, 1 without one). ConfigError naming what is not supported."""
-        from softpvtol_gym.baselines.training.models import frame_stack_wrapper
-
         policy = getattr(model, "policy", model)
         ops = sb3_actor(policy)
         if frame_stack is None:

@@ -56,17 +56,6 @@ def stack_frames(config: RunConfig, venv):
     return VecFrameStack(venv, n_stack=k)
 
 
-def frame_stack_wrapper(venv):
-    """The VecFrameStack in a chain of SB3 VecEnv wrappers, or None."""
-    from stable_baselines3.common.vec_env import VecEnvWrapper, VecFrameStack
-
-    while isinstance(venv, VecEnvWrapper):
-        if isinstance(venv, VecFrameStack):
-            return venv
-        venv = venv.venv
-    return None
-
-
 DEVICES = ("auto", "cpu", "cuda")
 
 

@@ -16,10 +16,7 @@ from softpvtol_gym.baselines.config.hyperparams import frame_stack
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import CheckpointError
 from softpvtol_gym.baselines.training.lean import LeanMLPPolicy
-from softpvtol_gym.baselines.training.models import (
-    frame_stack_wrapper,
-)
-from softpvtol_gym.baselines.training.stacking import ObservationStack
+from softpvtol_gym.baselines.training.stacking import ObservationStack, frame_stack_wrapper
 
 #: how a LearnedPolicy computes its actions: ``lean`` (:class:`~.lean.LeanMLPPolicy`: a compiled float64 pass
 #: per observation row, the same action whatever the batch) or ``torch`` (the model's own float32 forward)

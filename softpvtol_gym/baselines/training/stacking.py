@@ -52,3 +52,14 @@ class ObservationStack:
         self._stack[starts] = 0
         self._stack[:, -dim:] = obs
         return self._stack.copy()
+
+
+def frame_stack_wrapper(venv):
+    """The VecFrameStack in a chain of SB3 VecEnv wrappers, or None."""
+    from stable_baselines3.common.vec_env import VecEnvWrapper, VecFrameStack
+
+    while isinstance(venv, VecEnvWrapper):
+        if isinstance(venv, VecFrameStack):
+            return venv
+        venv = venv.venv
+    return None
