@@ -7,7 +7,7 @@ import time
 import numpy as np
 
 from .._validation import short_repr
-from ..control.mpc import NU, NX, MPCOptions, TrackingOCP, hover_input, import_casadi
+from ..control.mpc import ND, NU, NX, MPCOptions, TrackingOCP, hover_input, import_casadi
 from ..envs.config import EnvConfig
 from ._common import _episode_start_mask, actuator_action, env_config, policy_observations, state_from_observation
 
@@ -74,7 +74,8 @@ class MPCPolicy:
         self.ocp = TrackingOCP(config.params, config.input_map, config.thrust_max, config.arm_torque_max,
                                config.dt, options)
         self._n: int | None = None
-        self._plans = self._applied = self._last_ref_acc = None
+        self._plans = self._applied = self._last_ref_acc = self._last_state = self._disturbance = None
+        self._qps: list = []
         #: seconds per solve (one entry per batch entry and control step), since the last :meth:`reset_stats`
         self.solve_times: list[float] = []
         self._solves = 0
@@ -101,6 +102,32 @@ class MPCPolicy:
         self._plans[mask] = self.ocp.u_hover
         self._applied[mask] = self.ocp.u_hover
         self._last_ref_acc[mask] = np.nan
+        self._last_state[mask] = np.nan
+        self._disturbance[mask] = 0.0
+        for i in np.flatnonzero(mask):
+            self._qps[i] = None  # a new QP solver instance at the entry's next solve: no memory of the last episode
+
+    @property
+    def disturbance(self) -> np.ndarray | None:
+        """The estimated generalized-force disturbance of each batch entry, (N, 5) [N, N, N m, N m, N m]
+        on (x, z, theta, q_l, q_r) (None before the first :meth:`predict`)."""
+        return None if self._disturbance is None else self._disturbance.copy()
+
+    def _estimate_disturbance(self, i: int, x0: np.ndarray) -> None:
+        """Update entry i's disturbance estimate from the velocities measured now against the model's
+        prediction from the last state and input (with the current estimate): d += gain * J^-1 r, for the
+        velocity residual r and J = d(velocities one period later)/d(d)."""
+        gain = self.options.disturbance_gain
+        last = self._last_state[i]
+        if gain == 0.0 or not np.isfinite(last).all():
+            return
+        predicted, jac = self.ocp.predict_step(last, self._applied[i], self._disturbance[i])
+        try:
+            step = np.linalg.solve(jac[5:], x0[5:] - predicted[5:])
+        except np.linalg.LinAlgError:
+            return
+        if np.isfinite(step).all():
+            self._disturbance[i] += gain * step
 
     @property
     def stats(self) -> dict:
@@ -137,8 +164,12 @@ class MPCPolicy:
             else np.zeros(3)
         x0 = np.concatenate([q, qd])
         x0[0:2] = obs_row[0:2]  # positions relative to the reference position now
+        self._estimate_disturbance(i, x0)
+        if self._qps[i] is None:
+            self._qps[i] = self.ocp.new_qp()
         guess = self._plans[i]
-        plan, ok = self.ocp.solve(x0, self._reference(obs_row, q[2], jerk), guess, self._applied[i])
+        plan, ok = self.ocp.solve(x0, self._reference(obs_row, q[2], jerk), guess, self._applied[i],
+                                  self._disturbance[i], self._qps[i])
         self._solves += 1
         if not ok:
             self._failures += 1
@@ -146,6 +177,7 @@ class MPCPolicy:
         self._plans[i] = self.ocp.shift(plan, self.config.dt)
         self._applied[i] = u
         self._last_ref_acc[i] = acc
+        self._last_state[i] = x0
         self.solve_times.append(time.perf_counter() - t0)
         return u
 
@@ -161,6 +193,9 @@ class MPCPolicy:
             self._plans = np.empty((n, self.options.horizon, NU))
             self._applied = np.empty((n, NU))
             self._last_ref_acc = np.empty((n, 3))
+            self._last_state = np.empty((n, NX))
+            self._disturbance = np.zeros((n, ND))
+            self._qps = [None] * n
             self._reset_entries(np.ones(n, dtype=bool))
             self._n = n
         elif mask is not None and mask.any():

@@ -97,8 +97,9 @@ def test_unknown_option_names_the_valid_ones(env):
     ({"step": -0.05}, r"step must be a finite number in \[0.0001, 10\]"),
     ({"weight_position": float("nan")}, "weight_position must be a finite number"),
     ({"curvature_limit": 4.0}, r"curvature_limit must be a finite number in \[0.001, 3.14159"),
-    ({"qp_solver": "gurobi"}, r"qp_solver must be one of \['daqp', 'osqp', 'qpoases', 'qrqp'\]"),
+    ({"qp_solver": "gurobi"}, r"qp_solver must be one of \['daqp', 'hpipm', 'osqp', 'qpoases', 'qrqp'\]"),
     ({"compile_model": "yes"}, "compile_model must be None, True or False"),
+    ({"disturbance_gain": 1.5}, r"disturbance_gain must be a finite number in \[0, 1\]"),
 ])
 def test_bad_option_values(options, message):
     with pytest.raises(ValueError, match=message):
@@ -188,7 +189,7 @@ def test_a_failed_solve_falls_back_to_the_previous_plan(monkeypatch):
     obs = _hover_obs(offset=(0.5, -0.5))[0]
     pol.predict(obs)
     planned_next = pol._plans[0][0].copy()  # the previous plan's input for the next control period
-    monkeypatch.setattr(pol.ocp, "solve", lambda x0, ref, guess, u_prev: (guess, False))
+    monkeypatch.setattr(pol.ocp, "solve", lambda x0, ref, guess, u_prev, d, qp: (guess, False))
     action, _ = pol.predict(obs)
     cfg = pol.config
     expected = np.array([2 * planned_next[0] / cfg.thrust_max - 1, 2 * planned_next[1] / cfg.thrust_max - 1,
