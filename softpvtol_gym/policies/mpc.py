@@ -71,7 +71,8 @@ class MPCPolicy:
         check_limits(config)
         self.config = config
         self.options = options
-        self.ocp = TrackingOCP(config.params, config.input_map, config.thrust_max, config.arm_torque_max,
+        input_map = options.model_input_map if options.model_input_map is not None else config.input_map
+        self.ocp = TrackingOCP(config.params, input_map, config.thrust_max, config.arm_torque_max,
                                config.dt, options)
         self._n: int | None = None
         self._plans = self._applied = self._last_ref_acc = self._last_state = self._disturbance = None

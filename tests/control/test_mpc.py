@@ -322,3 +322,82 @@ def test_docs_table_is_the_committed_benchmark():
     assert mpc["rms_0_10s"] < ref["rms_0_10s"] and mpc["rms_20_40s"] <= 1e-3
     assert mpc["solver"]["solve_ms_median"] <= 10.0
     assert not any(cells[(tier, "mpc")]["crashed"] for tier in ("nominal", "wind", "noisy"))
+
+
+# --------------------------------------------------------------------------------- solvers and independence
+def _random_problems(ocp, count: int, seed: int):
+    """States far from hover and input guesses far from the plan: QPs with active input bounds."""
+    rng = np.random.default_rng(seed)
+    n = ocp.options.horizon
+    out = []
+    for _ in range(count):
+        x0 = np.zeros(10)
+        x0[:2] = rng.uniform(-2, 2, 2)
+        x0[2:5] = rng.uniform(-0.5, 0.5, 3)
+        x0[5:] = rng.uniform(-1, 1, 5)
+        out.append((x0, np.tile(ocp.u_hover, (n, 1)) + rng.uniform(-3, 3, (n, 4))))
+    return out
+
+
+def test_structured_qp_gives_the_condensed_qps_plan():
+    """HPIPM on the QP with its stage structure and daqp on the condensed QP: the same plans (the same
+    Gauss-Newton step and line search) to 1e-6 of the thrust range, on problems with active bounds."""
+    opts = {"horizon": 12}
+    sparse = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, 9.8, 0.01, MPCOptions(qp_solver="hpipm", **opts))
+    dense = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, 9.8, 0.01, MPCOptions(qp_solver="daqp", **opts))
+    assert sparse.formulation == "sparse" and dense.formulation == "condensed"
+    active = 0
+    for x0, guess in _random_problems(sparse, 6, seed=4):
+        a, ok_a = sparse.solve(x0, np.zeros((12, 10)), guess, sparse.u_hover)
+        b, ok_b = dense.solve(x0, np.zeros((12, 10)), guess, sparse.u_hover)
+        assert ok_a and ok_b
+        np.testing.assert_allclose(a, b, atol=1e-6 * 102.9)
+        active += np.isclose(a[:, :2], 0.0).sum() + np.isclose(a[:, :2], 102.9).sum()
+    assert active > 0  # some thrust bound was active
+
+
+@pytest.mark.parametrize("solver", ["hpipm", "qpoases"])
+def test_a_solver_instance_keeps_no_memory_that_changes_a_plan(solver):
+    """Problems solved one after the other on one QP solver instance = each solved on a fresh one.
+    (CasADi's HPIPM interface once carried state from one call to the next through its work memory.)"""
+    ocp = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, 9.8, 0.01, MPCOptions(qp_solver=solver, horizon=12))
+    problems = _random_problems(ocp, 4, seed=5)
+    qp = ocp.new_qp()
+    in_turn = [ocp.solve(x0, np.zeros((12, 10)), g, ocp.u_hover, qp=qp)[0] for x0, g in problems]
+    alone = [ocp.solve(x0, np.zeros((12, 10)), g, ocp.u_hover, qp=ocp.new_qp())[0] for x0, g in problems]
+    for a, b in zip(in_turn, alone):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * 102.9)
+
+
+class _Recorder:
+    """A policy wrapper that keeps every action it returns."""
+
+    def __init__(self, policy):
+        self.policy, self.actions = policy, []
+
+    def predict(self, observation, **kwargs):
+        action, state = self.policy.predict(observation, **kwargs)
+        self.actions.append(np.array(action, dtype=np.float64, copy=True))
+        return action, state
+
+
+@pytest.mark.parametrize("solver", ["hpipm", "qpoases"])
+def test_an_episode_acts_the_same_alone_and_in_a_batch(solver):
+    """3 hover episodes of the model_gap tier, where many QPs fail (the MPC's model lacks the plant's
+    thrust bending of the arms): each episode's actions, step by step, are the same run alone and in a
+    batch of 3, with the disturbance estimate on."""
+    from softpvtol_gym.baselines.evaluation import run_episodes
+
+    cfg = EnvConfig(task="hover", tier="model_gap", action_mode="actuators")
+    options = {"qp_solver": solver, "horizon": 10}
+    batch = _Recorder(MPCPolicy(cfg, **options))
+    together = run_episodes(batch, "actuators", "hover", "model_gap", 3, seed=7)
+    assert batch.policy.stats["failures"] > 0  # the case this test is about: failed QPs in the batch
+    for i in range(3):
+        alone = _Recorder(MPCPolicy(cfg, **options))
+        episode = run_episodes(alone, "actuators", "hover", "model_gap", 1, seed=7 + i)[0]
+        steps = episode["length"]
+        assert steps == together[i]["length"]
+        mine = np.stack([a[i] for a in batch.actions[:steps]])
+        ref = np.stack([a[0] for a in alone.actions[:steps]])
+        np.testing.assert_allclose(mine, ref, rtol=1e-9, atol=1e-12)

@@ -98,6 +98,10 @@ class MPCOptions:
     ``jerk_extrapolation``    True     extrapolate the reference with its jerk, estimated from the
                                        reference accelerations of consecutive observations (else
                                        constant acceleration)
+    ``model_input_map``       None     the input map of the MPC's model: None the env's (``input_map``,
+                                       "paper" unless given), "paper" or "exact" (the virtual work of the
+                                       thrusts at the tips, which also bend the arms: the map of
+                                       ``model_gap``'s consistent plant)
     ``compile_model``         None     compile the model's Functions with the system's C compiler (cached
                                        on disk; ~10x faster than CasADi's virtual machine): None if a
                                        compiler is found, True always (error without one), False never
@@ -125,6 +129,7 @@ class MPCOptions:
     qp_solver: str = "hpipm"
     disturbance_gain: float = 0.05
     jerk_extrapolation: bool = True
+    model_input_map: str | None = None
     compile_model: bool | None = None
 
     def __post_init__(self) -> None:
@@ -142,6 +147,9 @@ class MPCOptions:
         if not isinstance(self.qp_solver, str) or self.qp_solver not in QP_SOLVERS:
             raise ValueError(f"MPC option qp_solver must be one of {sorted(QP_SOLVERS)}, got "
                              f"{short_repr(self.qp_solver)}")
+        if self.model_input_map not in (None, "paper", "exact"):
+            raise ValueError(f"MPC option model_input_map must be None, 'paper' or 'exact', got "
+                             f"{short_repr(self.model_input_map)}")
         if self.compile_model is not None and not isinstance(self.compile_model, (bool, np.bool_)):
             raise ValueError(f"MPC option compile_model must be None, True or False, got "
                              f"{short_repr(self.compile_model)}")
