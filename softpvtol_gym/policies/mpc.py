@@ -30,10 +30,16 @@ class MPCPolicy:
     a least-squares tracking cost on (x, z, theta) and their rates, the arm curvatures and their rates
     (towards straight arms), the input relative to hover and its changes; the env's actuator limits as
     hard input bounds; |q_l|, |q_r| <= ``curvature_limit`` (pi, the env's) as hard state bounds at every
-    node. Solved by real-time iteration: one Gauss-Newton SQP step per control step (condensed dense
-    QP, qpOASES through CasADi), with a backtracking line search on the nonlinear cost, warm-started from
-    the previous plan shifted by one control period. When a QP fails, the policy applies the previous
-    plan's next input (the fallback) and counts it in :attr:`stats`.
+    node. Solved by real-time iteration: one Gauss-Newton SQP step per control step (by default HPIPM on
+    the QP with its stage structure; ``qp_solver`` selects a dense solver on the condensed QP), with a
+    backtracking line search on the nonlinear cost, warm-started from the previous plan shifted by one
+    control period. When a QP fails, the policy applies the previous plan's next input (the fallback)
+    and counts it in :attr:`stats`.
+
+    **Disturbance estimate** (offset-free): each entry keeps d, a generalized force on (x, z, theta,
+    q_l, q_r) added to the model over the horizon. After each control step the velocities the model
+    predicted (from the last state, the applied input and d) are compared with the measured ones, and
+    d moves by ``disturbance_gain`` times the force that explains the difference (:attr:`disturbance`).
 
     **Reference over the horizon: extrapolated from the observation** (no preview of the task): the
     observation holds the position error, the reference attitude (theta - e_theta) and the reference's
@@ -44,8 +50,11 @@ class MPCPolicy:
     observations, so the comparison gives the MPC no information the learned policies lack, besides the
     model itself.
 
-    Memory per batch entry: the plan (warm start), the input applied last and the last reference
-    acceleration; it is reset where ``episode_start`` is True (and entirely when the batch size changes).
+    Memory per batch entry: the plan (warm start), the input applied last, the last state and reference
+    acceleration, the disturbance estimate and its own QP solver instance (a solver's memory, such as
+    qpOASES's hot start, never crosses from one entry to another: an episode's actions are the same
+    alone and in a batch); it is reset where ``episode_start`` is True (and entirely when the batch
+    size changes).
 
     Args:
         config: the env's :class:`EnvConfig` (use :meth:`from_env`); ``action_mode`` must be "actuators".

@@ -14,10 +14,17 @@ control period: the first input is exactly what the env holds) then ``step`` sec
 Solver: real-time iteration, i.e. Gauss-Newton SQP with ``sqp_iterations`` steps per control step
 (default one; each step shortened by a backtracking line search on the nonlinear cost), single
 shooting. Each iteration rolls the model out from x0 under the current input guess and gets the
-interval Jacobians A_k = dF/dx, B_k = dF/du from one CasADi Function (symbolic RK4, AD), condenses them
-(states eliminated: the QP has the N x 4 inputs as variables, the 2N curvature rows as constraints),
-and solves the dense QP with a CasADi ``conic`` solver (qpOASES by default). The guess is the previous
-solution shifted by one control period (warm start).
+interval Jacobians A_k = dF/dx, B_k = dF/du from one CasADi Function (symbolic RK4, AD), and solves the
+Gauss-Newton QP in the steps of the plan: by default with HPIPM on the QP with its stage structure
+(state and input steps as variables, the linearised dynamics as equality constraints; ``_SparseQP``),
+else with a dense solver on the QP condensed to the input steps (states eliminated: the N x 4 inputs as
+variables, the 2N curvature rows as constraints; ``_CondensedQP``). Both are the same QP. The guess is
+the previous solution shifted by one control period (warm start).
+
+Disturbance: ``d`` (5), a generalized force added to the model's B(q) u, held over the horizon (the
+policy's estimate of what the model lacks: wind, parameter errors, another input map). With ``d`` the
+problem predicts the plant's drift, so a constant disturbance leaves no steady offset (up to the small
+input weight on u - u_hover).
 """
 
 from __future__ import annotations
