@@ -32,6 +32,8 @@ def main(argv=None) -> int:
     ap.add_argument("--tiers", nargs="+", default=["nominal", "mismatch", "wind", "noisy", "hard", "model_gap"])
     ap.add_argument("--policies", nargs="+", default=["mpc", "integral"], choices=["mpc", "integral"])
     ap.add_argument("--episodes", type=int, default=10)
+    ap.add_argument("--task-episodes", nargs="*", default=[], metavar="TASK=N",
+                    help="episodes for one task instead of --episodes, e.g. track_paper=3")
     ap.add_argument("--seed", type=int, default=1_000_000)
     ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                     help="an MPCOptions field (repeatable), e.g. qp_solver=daqp")
@@ -42,6 +44,12 @@ def main(argv=None) -> int:
     from softpvtol_gym.control.mpc import MPCOptions
 
     options = MPCOptions.parse_items(args.option)
+    episodes_of = {task: args.episodes for task in args.tasks}
+    for item in args.task_episodes:
+        task, _, count = item.partition("=")
+        if task not in episodes_of or not count.isdigit() or int(count) < 1:
+            ap.error(f"--task-episodes takes TASK=N for one of --tasks {args.tasks} and N >= 1, got {item!r}")
+        episodes_of[task] = int(count)
     rows = []
     for task in args.tasks:
         for tier in args.tiers:
@@ -52,10 +60,12 @@ def main(argv=None) -> int:
                 else:
                     policy = PassivityPolicy.from_env(env, loop="integral")
                 load0, tic = os.getloadavg()[0], time.perf_counter()
-                episodes = run_episodes(policy, "actuators", task, tier, args.episodes, args.seed)
+                count = episodes_of[task]
+                episodes = run_episodes(policy, "actuators", task, tier, count, args.seed)
                 crashed = [e for e in episodes if e["crashed"]]
-                row = {"task": task, "tier": tier, "policy": name, "episodes": args.episodes, "seed": args.seed,
-                       "crashes": len(crashed), "crash_rate": len(crashed) / args.episodes,
+                row = {"task": task, "tier": tier, "policy": name, "episodes": count, "seed": args.seed,
+                       "crashes": len(crashed), "crash_rate": len(crashed) / count,
+                       "crash_seeds": [args.seed + i for i, e in enumerate(episodes) if e["crashed"]],
                        "crash_steps": [e["length"] for e in crashed], "seconds": round(time.perf_counter() - tic, 1),
                        "load_average_1min": [round(load0, 2), round(os.getloadavg()[0], 2)]}
                 if name == "mpc":
@@ -65,9 +75,10 @@ def main(argv=None) -> int:
                 extra = ""
                 if name == "mpc":
                     s = row["solver"]
-                    extra = (f"  QPs failed {s['failures']}/{s['solves']}, solve ms median {s['solve_ms_median']:.2f} "
+                    extra = (f"  QPs failed {s['failures']}/{s['solves']}, relaxed {s['relaxed']}, "
+                             f"solve ms median {s['solve_ms_median']:.2f} "
                              f"p99 {s['solve_ms_p99']:.2f}")
-                print(f"{task:12s} {tier:9s} {name:8s} crashes {len(crashed)}/{args.episodes} "
+                print(f"{task:12s} {tier:9s} {name:8s} crashes {len(crashed)}/{count} "
                       f"{extra}  (load {row['load_average_1min']})", flush=True)
             env.close()
     if args.json is not None:

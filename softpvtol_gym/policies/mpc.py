@@ -11,6 +11,9 @@ from ..control.mpc import ND, NU, NX, MPCOptions, TrackingOCP, hover_input, impo
 from ..envs.config import EnvConfig
 from ._common import _episode_start_mask, actuator_action, env_config, policy_observations, state_from_observation
 
+#: a QP's curvature slack [rad] above which :attr:`MPCPolicy.stats` counts the solve as relaxed
+RELAXED_SLACK = 1e-4
+
 
 class MPCPolicy:
     """Nonlinear model-predictive control of the Soft-PVTOL from its observations (actuators mode).
@@ -90,6 +93,7 @@ class MPCPolicy:
         self.solve_times: list[float] = []
         self._solves = 0
         self._failures = 0
+        self._relaxed = 0
 
     @classmethod
     def from_env(cls, env, **options) -> MPCPolicy:
@@ -107,6 +111,7 @@ class MPCPolicy:
         self.solve_times = []
         self._solves = 0
         self._failures = 0
+        self._relaxed = 0
 
     def _reset_entries(self, mask: np.ndarray) -> None:
         self._plans[mask] = self.ocp.u_hover
@@ -143,12 +148,15 @@ class MPCPolicy:
     def stats(self) -> dict:
         """Solver statistics since the last :meth:`reset_stats`: ``solves`` (QPs attempted, one per batch
         entry and control step), ``failures`` (solves that failed; each one applied the fallback, the
-        previous plan's next input), ``fallbacks`` (= failures), and the solve time per control step in
+        previous plan's next input), ``fallbacks`` (= failures), ``relaxed`` (solves whose QP could not
+        meet the curvature limits over the horizon and exceeded them by a slack of more than
+        ``RELAXED_SLACK`` rad: the plan that exceeds them least was applied), and the solve time per control step in
         ms (``solve_ms_median``, ``solve_ms_p99``, ``solve_ms_max``, ``solve_ms_mean``; None before the
         first solve). A solve's time is the policy's whole computation for one entry: reference,
         linearisation, QP, line search."""
         t = np.asarray(self.solve_times) * 1e3
-        summary = {"solves": self._solves, "failures": self._failures, "fallbacks": self._failures}
+        summary = {"solves": self._solves, "failures": self._failures, "fallbacks": self._failures,
+                   "relaxed": self._relaxed}
         for name, fn in (("median", np.median), ("p99", lambda a: np.percentile(a, 99)), ("max", np.max),
                          ("mean", np.mean)):
             summary[f"solve_ms_{name}"] = float(fn(t)) if t.size else None
@@ -183,6 +191,8 @@ class MPCPolicy:
         self._solves += 1
         if not ok:
             self._failures += 1
+        elif self.ocp.last_slack > RELAXED_SLACK:
+            self._relaxed += 1
         u = plan[0].copy()
         self._plans[i] = self.ocp.shift(plan, self.config.dt)
         self._applied[i] = u

@@ -198,12 +198,30 @@ def test_a_failed_solve_falls_back_to_the_previous_plan(monkeypatch):
     assert pol.stats["failures"] == pol.stats["fallbacks"] == 1 and pol.stats["solves"] == 2
 
 
-def test_qp_failure_is_reported_by_the_solver():
-    """A state the curvature bounds cannot hold (an arm beyond the limit at the first node) makes the QP
-    infeasible: ``solve`` says so and returns the guess unchanged."""
-    ocp = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, 9.8, 0.01, MPCOptions(horizon=8, curvature_limit=1.0))
+@pytest.mark.parametrize("solver", ["hpipm", "daqp"])
+def test_soft_curvature_limits_keep_the_qp_solvable(solver):
+    """A state the curvature limits cannot hold (an arm beyond the limit at the first node, still bending
+    outwards) has no plan that meets them: the QP still has a solution, with slacks, and the plan pushes
+    back as hard as it can (the first arm torque at its limit against the bend). Where the limits can be
+    met, no slack is used."""
+    tau_max = 9.8
+    ocp = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, tau_max, 0.01,
+                      MPCOptions(horizon=8, curvature_limit=1.0, qp_solver=solver))
     x0 = np.zeros(10)
     x0[3], x0[8] = 1.2, 5.0  # q_l beyond the limit and still bending outwards
+    guess = np.tile(ocp.u_hover, (8, 1))
+    plan, ok = ocp.solve(x0, np.zeros((8, 10)), guess, ocp.u_hover)
+    assert ok and ocp.last_slack > 0.2
+    assert plan[0, 2] == pytest.approx(-tau_max, abs=1e-6)
+    x0[3], x0[8] = 0.5, 0.0
+    plan, ok = ocp.solve(x0, np.zeros((8, 10)), guess, ocp.u_hover)
+    assert ok and ocp.last_slack < 1e-6
+
+
+def test_a_non_finite_linearisation_is_a_failure():
+    ocp = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, 9.8, 0.01, MPCOptions(horizon=8))
+    x0 = np.zeros(10)
+    x0[8] = np.inf
     guess = np.tile(ocp.u_hover, (8, 1))
     plan, ok = ocp.solve(x0, np.zeros((8, 10)), guess, ocp.u_hover)
     assert not ok and plan is guess
@@ -250,6 +268,36 @@ def test_hover_from_an_offset_settles():
     assert not crashed and e.size == 300
     assert e[-50:].max() < 0.01 < e[0]
     assert pol.stats["fallbacks"] == 0
+
+
+def _closed_loop_on_the_model(pol: MPCPolicy, force: np.ndarray, steps: int) -> np.ndarray:
+    """The policy on its own model as the plant (hover reference), with a constant generalized force
+    ``force`` (5) added to the plant; the position error (x, z) of each step, (steps, 2)."""
+    x = np.zeros(10)
+    errors = []
+    for _ in range(steps):
+        obs = np.zeros(18)
+        obs[0:3], obs[3], obs[4], obs[5:7], obs[7:12] = x[0:3], np.sin(x[2]), np.cos(x[2]), x[3:5], x[5:10]
+        action, _ = pol.predict(obs)
+        u = pol._applied[0]
+        x = pol.ocp.predict_step(x, u, force)[0]
+        errors.append(x[0:2].copy())
+    return np.array(errors)
+
+
+def test_the_disturbance_estimate_removes_a_constant_force_offset():
+    """A constant force (3 N sideways, -2 N vertical) on the MPC's own model: without the estimate the
+    robot settles away from the reference; with it the offset goes to zero and the estimate to the force."""
+    force = np.array([3.0, -2.0, 0.0, 0.0, 0.0])
+    cfg = EnvConfig(task="hover")
+    options = {"horizon": 10, "step": 0.1}
+    without = _closed_loop_on_the_model(MPCPolicy(cfg, disturbance_gain=0.0, **options), force, 300)
+    pol = MPCPolicy(cfg, **options)
+    with_estimate = _closed_loop_on_the_model(pol, force, 300)
+    offset = np.abs(without[-20:]).max()
+    assert offset > 0.01
+    assert np.abs(with_estimate[-20:]).max() < 0.05 * offset
+    np.testing.assert_allclose(pol.disturbance[0], force, atol=0.05)
 
 
 @pytest.mark.slow  # a 40 s episode of the MPC and one of the passivity loop (~1.5 min on 2 cores)
@@ -383,16 +431,16 @@ class _Recorder:
 
 @pytest.mark.parametrize("solver", ["hpipm", "qpoases"])
 def test_an_episode_acts_the_same_alone_and_in_a_batch(solver):
-    """3 hover episodes of the model_gap tier, where many QPs fail (the MPC's model lacks the plant's
-    thrust bending of the arms): each episode's actions, step by step, are the same run alone and in a
-    batch of 3, with the disturbance estimate on."""
+    """3 hover episodes of the model_gap tier, where many QPs cannot meet the curvature limits (the MPC's
+    model lacks the plant's thrust bending of the arms): each episode's actions, step by step, are the
+    same run alone and in a batch of 3, with the disturbance estimate on."""
     from softpvtol_gym.baselines.evaluation import run_episodes
 
     cfg = EnvConfig(task="hover", tier="model_gap", action_mode="actuators")
     options = {"qp_solver": solver, "horizon": 10}
     batch = _Recorder(MPCPolicy(cfg, **options))
     together = run_episodes(batch, "actuators", "hover", "model_gap", 3, seed=7)
-    assert batch.policy.stats["failures"] > 0  # the case this test is about: failed QPs in the batch
+    assert batch.policy.stats["relaxed"] > 0  # the case this test is about: QPs at the curvature limits
     for i in range(3):
         alone = _Recorder(MPCPolicy(cfg, **options))
         episode = run_episodes(alone, "actuators", "hover", "model_gap", 1, seed=7 + i)[0]

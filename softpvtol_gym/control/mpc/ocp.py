@@ -5,11 +5,17 @@ Problem (one per control step, from the measured state x0):
     min_{u_0..u_{N-1}}  sum_{k=1..N} |x_k - r_k|^2_{W_k} + sum_{k=0..N-1} |v_k|^2_{R} + |v_k - v_{k-1}|^2_{R_d}
     s.t.  x_{k+1} = F_k(x_k, u_k)        (RK4 of the paper's model, u held over interval k)
           u_lo <= u_k <= u_hi            (the env's actuator limits, hard)
-          |q_l,k|, |q_r,k| <= q_max      (the curvature limits, hard, k = 1..N)
+          |q_l,k|, |q_r,k| <= q_max      (the curvature limits, soft, k = 1..N)
 
 with v_k = (u_k - u_hover) / u_scale the normalised input, v_{-1} the input applied at the previous step,
 W_k diagonal (the terminal node's times ``terminal_weight``). The intervals are ``first_step`` (the env's
 control period: the first input is exactly what the env holds) then ``step`` seconds.
+
+The curvature limits are soft: each QP has a slack s >= 0 per arm and node (|dq + q| <= q_max + s),
+charged ``VIOLATION_PENALTY`` per rad (an exact L1 penalty: while the limits can be met, the QP's solution
+meets them; when they cannot, as when the arm torques are saturated and the arms still bend outwards,
+the QP still has a solution, the plan that exceeds them least, instead of failing) plus a small
+quadratic term ``SLACK_WEIGHT``. The line search's merit charges a violation at the same price.
 
 Solver: real-time iteration, i.e. Gauss-Newton SQP with ``sqp_iterations`` steps per control step
 (default one; each step shortened by a backtracking line search on the nonlinear cost), single
@@ -51,8 +57,13 @@ NX, NU = 10, 4
 ND = 5
 #: the line search's step lengths (fractions of the Gauss-Newton step)
 LINE_SEARCH_STEPS = (1.0, 0.5, 0.25, 0.125)
-#: merit of a curvature bound violation [cost units per rad]
+#: price of a curvature bound violation [cost units per rad]: the QP's L1 penalty on its slacks and the
+#: line search's merit (far above the curvature limit's multipliers in the QPs met: an exact penalty)
 VIOLATION_PENALTY = 1e4
+#: the QP's quadratic weight on the curvature slacks (keeps the QP strictly convex in them)
+SLACK_WEIGHT = 1.0
+#: slacks per node (one per arm: q_l, q_r)
+NS = 2
 #: CasADi QP solvers the MPC accepts (ones that CasADi's wheels bundle) and their options; none of them
 #: starts from an earlier call's solution (qpOASES hot-starts from its last active set: the policy gives
 #: each batch entry its own instance, see ``TrackingOCP.new_qp``)
@@ -402,7 +413,11 @@ class TrackingOCP:
         initial guess U_guess (N, 4), the previously applied input u_prev (4) and the estimated
         generalized-force disturbance (5; None: zero), held over the horizon. ``qp``: the QP solver
         instance to use (:meth:`new_qp`; None: :attr:`qp`). On failure (a QP solver failure or a
-        non-finite linearisation) U is the guess as given.
+        non-finite linearisation) U is the guess as given, and :attr:`last_failure` says which ("qp" or
+        "rollout"; None after a success). When the model's rollout under the guess is not finite, the
+        iteration starts again from the hover input over the horizon (:attr:`restarted`).
+        :attr:`last_slack`: the largest curvature slack [rad] of the last QP solved (0: the linearised
+        plan meets the curvature limits; nan: no QP solved).
 
         Each SQP iteration takes the Gauss-Newton step of the QP, shortened by a backtracking line search
         on the nonlinear cost (``_merit``: the rollout of the model, steps 1, 1/2, 1/4, 1/8; none of them
@@ -410,6 +425,8 @@ class TrackingOCP:
         o = self.options
         n = o.horizon
         qp = self.qp if qp is None else qp
+        self.last_slack = math.nan
+        self.last_failure = None
         d = np.zeros(ND) if disturbance is None else disturbance
         V = ((U_guess - self.u_hover) / self.u_scale).reshape(-1)
         v_prev = (u_prev - self.u_hover) / self.u_scale
@@ -420,20 +437,31 @@ class TrackingOCP:
         roll.args[0][:] = x0
         roll.args[2][:] = d
         quiet = _quiet_stdout if o.qp_solver in CHATTY_QP_SOLVERS else contextlib.nullcontext
+        self.restarted = False
         for _ in range(o.sqp_iterations):
             lin.args[1][:] = (self.u_hover + V.reshape(n, NU) * self.u_scale).reshape(-1)
             lin()
+            if not np.isfinite(lin.res[0]).all() and not self.restarted and V.any():
+                # the model's rollout under the guess diverged (e.g. full thrust held over the horizon by a
+                # model whose thrusts bend the arms beyond the torques' reach): linearise at hover instead
+                self.restarted = True
+                V = np.zeros_like(V)
+                lin.args[1][:] = np.tile(self.u_hover, n)
+                lin()
             X = lin.res[0].reshape(n + 1, NX)[1:]  # (N, 10), nodes 1 .. N
             A = lin.res[1].reshape(NX * n, NX).T  # (10, 10 N)
             B = lin.res[2].reshape(NU * n, NX).T  # (10, 4 N)
             if not (np.isfinite(X).all() and np.isfinite(A).all() and np.isfinite(B).all()):
+                self.last_failure = "rollout"
                 return U_guess, False
             self._qp_data.fill(qp, A, B, self.u_scale, X, x_ref, V, v_prev, lo, hi, o.curvature_limit)
             with quiet():  # qpOASES prints some failures even at printLevel "none"
                 qp()
             step = self._qp_data.input_step(qp)
             if not qp.success() or not np.isfinite(step).all():
+                self.last_failure = "qp"
                 return U_guess, False
+            self.last_slack = float(self._qp_data.slacks(qp).max())
             merit0 = self._merit(X, V, x_ref, v_prev)
             for alpha in LINE_SEARCH_STEPS:
                 V_try = np.clip(V + alpha * step, lo, hi)
@@ -455,45 +483,67 @@ class TrackingOCP:
 
 class _CondensedQP:
     """The Gauss-Newton QP in the input steps alone (states eliminated by the compiled condensing): a
-    dense 4N x 4N Hessian, the 2N curvature rows as constraints. For the dense solvers."""
+    dense 4N x 4N Hessian, and the N x 2 curvature slacks s >= 0 as variables after the input steps, with
+    the 4N rows G dv + s >= -q_max - q, G dv - s <= q_max - q. For the dense solvers."""
 
     def __init__(self, n: int, state_weights: np.ndarray, weight_input: float, weight_input_rate: float):
         ca = import_casadi()
         nv = NU * n
-        self.n, self.W, self.wu, self.wd = n, state_weights, weight_input, weight_input_rate
-        self.sparsity = {"h": ca.Sparsity.dense(nv, nv), "a": ca.Sparsity.dense(2 * n, nv)}
+        ns = NS * n
+        self.n, self.nv, self.W, self.wu, self.wd = n, nv, state_weights, weight_input, weight_input_rate
+        self.sparsity = {"h": ca.Sparsity.dense(nv + ns, nv + ns), "a": ca.Sparsity.dense(2 * ns, nv + ns)}
         self.solver_options = {}
         # input cost: R on v_k, R_d on v_k - v_{k-1}: H_u = R I + R_d D^T D (D the difference operator)
         D = np.eye(nv) - np.eye(nv, k=-NU)
         self._input_hessian = weight_input * np.eye(nv) + weight_input_rate * D.T @ D
         self._G = np.zeros((NX * n, nv))
-        self._H = np.zeros((nv, nv))
+        self._Hu = np.zeros((nv, nv))
+        self._H = np.zeros((nv + ns, nv + ns))
+        self._H[nv:, nv:] = SLACK_WEIGHT * np.eye(ns)
+        self._A = np.zeros((2 * ns, nv + ns))
+        self._A[:ns, nv:] = np.eye(ns)
+        self._A[ns:, nv:] = -np.eye(ns)
         self._g = np.zeros(nv)
         self._arm_rows = np.concatenate([np.arange(NX * k + 3, NX * k + 5) for k in range(n)])
 
     def prepare(self, qp: _Buffered) -> None:
-        """Nothing constant to set."""
+        """The slacks' constant entries: their linear cost, their bounds, the rows' open sides."""
+        nv, ns = self.nv, NS * self.n
+        arg = qp.named_args
+        arg["g"][nv:] = VIOLATION_PENALTY
+        arg["lbx"][nv:] = 0.0
+        arg["ubx"][nv:] = FREE_BOUND
+        arg["uba"][:ns] = FREE_BOUND
+        arg["lba"][ns:] = -FREE_BOUND
 
     def fill(self, qp: _Buffered, A, B, u_scale, X, x_ref, V, v_prev, lo, hi, qmax) -> None:
         """The QP's arguments into the solver instance's arrays."""
-        G, H, g_state = self._G, self._H, self._g
-        condense(A, B, u_scale, self.W, (X - x_ref).reshape(-1), G, H, g_state)
-        H += self._input_hessian
+        nv, ns = self.nv, NS * self.n
+        G, Hu, g_state = self._G, self._Hu, self._g
+        condense(A, B, u_scale, self.W, (X - x_ref).reshape(-1), G, Hu, g_state)
+        H = self._H
+        H[:nv, :nv] = Hu + self._input_hessian
         dv = _differences(V, v_prev)
         dtd = dv.copy()  # D^T dv
         dtd[:-NU] -= dv[NU:]
         qa = X[:, 3:5].reshape(-1)
+        self._A[:ns, :nv] = G[self._arm_rows]
+        self._A[ns:, :nv] = G[self._arm_rows]
         arg = qp.named_args
         arg["h"][:] = H.reshape(-1)  # symmetric: its column-major order is its row-major one
-        arg["g"][:] = g_state + self.wu * V + self.wd * dtd
-        arg["a"][:] = G[self._arm_rows].T.reshape(-1)  # column-major
-        arg["lba"][:] = -qmax - qa
-        arg["uba"][:] = qmax - qa
-        arg["lbx"][:] = lo - V
-        arg["ubx"][:] = hi - V
+        arg["g"][:nv] = g_state + self.wu * V + self.wd * dtd
+        arg["a"][:] = self._A.T.reshape(-1)  # column-major
+        arg["lba"][:ns] = -qmax - qa
+        arg["uba"][ns:] = qmax - qa
+        arg["lbx"][:nv] = lo - V
+        arg["ubx"][:nv] = hi - V
 
     def input_step(self, qp: _Buffered) -> np.ndarray:
-        return qp.named_res["x"].copy()
+        return qp.named_res["x"][:self.nv].copy()
+
+    def slacks(self, qp: _Buffered) -> np.ndarray:
+        """The curvature slacks of the last solve, (N, 2) [rad]."""
+        return qp.named_res["x"][self.nv:].reshape(self.n, NS).copy()
 
 
 class _SparseQP:
@@ -501,57 +551,83 @@ class _SparseQP:
     method: work linear in N, against cubic for a dense QP in the 4N inputs).
 
     Variables (the state steps of the rollout and the input steps, in stage order): u_0, then for
-    k = 1 .. N-1 (x_k, u_k), then x_N, where x_k = (dx_k (10), p_k (4)) and p_k = dv_{k-1} carries the
-    previous stage's input step, so that the input-rate cost |v_k + dv_k - v_{k-1} - p_k|^2 is a cost of
-    stage k alone (HPIPM's stage costs cannot couple two stages). x_0 = 0 is not a variable (the measured
-    state: no step). Constraints: the linearised dynamics, dx_{k+1} = A_k dx_k + B_k S dv_k, p_{k+1} = dv_k
-    (S = diag(u_scale)), as the equality rows HPIPM eliminates by its Riccati recursion, and the
-    actuator and curvature limits as bounds on dv_k and on the curvatures of dx_k. The rollout is the
-    model's (single shooting): the dynamics rows have no residual.
+    k = 1 .. N-1 (x_k, u_k), then x_N, where u_k = (dv_k (4), w_k (2)) and x_k = (dx_k (10), p_k (4),
+    s_k (2)): p_k = dv_{k-1} carries the previous stage's input step, so that the input-rate cost
+    |v_k + dv_k - v_{k-1} - p_k|^2 is a cost of stage k alone (HPIPM's stage costs cannot couple two
+    stages), and s_k = w_{k-1} >= 0 is node k's curvature slack, chosen one stage ahead as an input (stage
+    N has no inputs) and carried into the stage whose curvatures it relaxes. x_0 = 0 is not a variable (the
+    measured state: no step). Constraints: the linearised dynamics, dx_{k+1} = A_k dx_k + B_k S dv_k,
+    p_{k+1} = dv_k, s_{k+1} = w_k (S = diag(u_scale)), as the equality rows HPIPM eliminates by its
+    Riccati recursion; the actuator limits as bounds on dv_k; and at each node k = 1 .. N four rows of
+    stage k, dq_k + s_k >= -q_max - q_k and dq_k - s_k <= q_max - q_k (q = (q_l, q_r) of the rollout).
+    The rollout is the model's (single shooting): the dynamics rows have no residual. CasADi's HPIPM
+    interface takes the rows in the order (dynamics of interval 0, rows of stage 0, dynamics of interval 1,
+    rows of stage 1, ..., rows of stage N).
     """
 
     def __init__(self, n: int, state_weights: np.ndarray, weight_input: float, weight_input_rate: float):
         ca = import_casadi()
-        nxa = NX + NU  # augmented state (dx, p)
+        nxa = NX + NU + NS  # augmented state (dx, p, s)
+        nua = NU + NS  # augmented input (dv, w)
+        ng = 2 * NS  # curvature rows per stage k >= 1
         self.n, self.wu, self.wd = n, weight_input, weight_input_rate
         self.W = state_weights.reshape(n, NX)
         # column offsets: u_k's first column, x_k's first column (k >= 1)
-        ucol = np.array([0] + [NU + (nxa + NU) * (k - 1) + nxa for k in range(1, n)])
-        xcol = np.array([-1] + [NU + (nxa + NU) * (k - 1) for k in range(1, n + 1)])
+        ucol = np.array([0] + [nua + (nxa + nua) * (k - 1) + nxa for k in range(1, n)])
+        xcol = np.array([-1] + [nua + (nxa + nua) * (k - 1) for k in range(1, n + 1)])
         self.nvar = int(xcol[n] + nxa)
         self.ucols = (ucol[:, None] + np.arange(NU)).reshape(-1)
-        self.xcols = xcol[1:, None] + np.arange(nxa)  # (N, 14): x_k, k = 1 .. N
-        self.solver_options = {"N": n, "nx": [0] + [nxa] * n, "nu": [NU] * n + [0], "ng": [0] * (n + 1)}
+        self.wcols = (ucol[:, None] + NU + np.arange(NS)).reshape(-1)
+        self.xcols = xcol[1:, None] + np.arange(nxa)  # (N, 16): x_k, k = 1 .. N
+        self.scols = self.xcols[:, NX + NU:]  # (N, 2): s_k
+        self.solver_options = {"N": n, "nx": [0] + [nxa] * n, "nu": [nua] * n + [0], "ng": [0] + [ng] * n}
+        # row offsets: dynamics of interval k, then the rows of stage k (none at stage 0)
+        dyn_row = np.array([k * nxa + ng * max(k - 1, 0) for k in range(n)])
+        stage_row = np.array([-1] + [dyn_row[k] + nxa for k in range(1, n)] + [n * nxa + ng * (n - 1)])
+        self.nrow = n * nxa + ng * n
+        #: rows q + s >= lo and q - s <= hi of stages 1 .. N, (N, 2) each
+        self.lower_rows = stage_row[1:, None] + np.arange(NS)
+        self.upper_rows = stage_row[1:, None] + NS + np.arange(NS)
+        self.dynamics_rows = (dyn_row[:, None] + np.arange(nxa)).reshape(-1)
 
-        # constraint matrix: rows nxa k .. nxa (k+1) are the dynamics of interval k
-        rows, cols = [], []
+        rows, cols, consts = [], [], []
         i10, j10 = np.meshgrid(np.arange(NX), np.arange(NX), indexing="ij")
         for k in range(1, n):  # A_k (interval 0 starts at x_0, not a variable)
-            rows.append(nxa * k + i10)
+            rows.append(dyn_row[k] + i10)
             cols.append(xcol[k] + j10)
         i4, j4 = np.meshgrid(np.arange(NX), np.arange(NU), indexing="ij")
         for k in range(n):  # B_k S
-            rows.append(nxa * k + i4)
+            rows.append(dyn_row[k] + i4)
             cols.append(ucol[k] + j4)
-        for k in range(n):  # p_{k+1} = dv_k
-            rows.append(nxa * k + NX + np.arange(NU))
-            cols.append(ucol[k] + np.arange(NU))
+        for k in range(n):  # p_{k+1} = dv_k, s_{k+1} = w_k
+            rows.append(dyn_row[k] + NX + np.arange(NU + NS))
+            cols.append(ucol[k] + np.arange(NU + NS))
+            consts.append(np.ones(NU + NS))
         for k in range(n):  # - x_{k+1}
-            rows.append(nxa * k + np.arange(nxa))
+            rows.append(dyn_row[k] + np.arange(nxa))
             cols.append(xcol[k + 1] + np.arange(nxa))
+            consts.append(-np.ones(nxa))
+        for k in range(1, n + 1):  # stage k's curvature rows: dq + s (lower bound), dq - s (upper bound)
+            for j in range(NS):
+                for row, sign in ((stage_row[k] + j, 1.0), (stage_row[k] + NS + j, -1.0)):
+                    rows.append(np.array([row, row]))
+                    cols.append(np.array([xcol[k] + 3 + j, xcol[k] + NX + NU + j]))
+                    consts.append(np.array([1.0, sign]))
         rows = np.concatenate([r.ravel() for r in rows])
         cols = np.concatenate([c.ravel() for c in cols])
         self._n_a, self._n_b = NX * NX * (n - 1), NX * NU * n
-        a_sp, self._a_order = _sparsity_and_order(ca, rows, cols, nxa * n, self.nvar)
+        a_sp, self._a_order = _sparsity_and_order(ca, rows, cols, self.nrow, self.nvar)
         self._a_values = np.zeros(rows.size)
-        self._a_values[self._n_a + self._n_b:] = np.concatenate([np.ones(NU * n), -np.ones(nxa * n)])
+        self._a_values[self._n_a + self._n_b:] = np.concatenate(consts)
 
-        # Hessian (constant): W on dx_k, wu + wd on dv_k, wd on p_k and -wd between dv_k and p_k (k >= 1)
+        # Hessian (constant): W on dx_k, wu + wd on dv_k, wd on p_k and -wd between dv_k and p_k (k >= 1),
+        # SLACK_WEIGHT on s_k
         diag = np.zeros(self.nvar)
         diag[self.ucols] = weight_input + weight_input_rate
         diag[self.xcols[:, :NX]] = self.W
-        diag[self.xcols[:-1, NX:]] = weight_input_rate
-        off_r = self.xcols[:-1, NX:].reshape(-1)
+        diag[self.xcols[:-1, NX:NX + NU]] = weight_input_rate
+        diag[self.scols] = SLACK_WEIGHT
+        off_r = self.xcols[:-1, NX:NX + NU].reshape(-1)
         off_c = self.ucols[NU:]
         hr = np.concatenate([np.arange(self.nvar), off_r, off_c])
         hc = np.concatenate([np.arange(self.nvar), off_c, off_r])
@@ -562,17 +638,23 @@ class _SparseQP:
         self.sparsity = {"h": h_sp, "a": a_sp}
 
     def prepare(self, qp: _Buffered) -> None:
-        """The constant Hessian, dynamics residuals and unbounded entries into the instance's arrays."""
+        """The constant Hessian, dynamics residuals, slack costs and bounds, and unbounded entries into the
+        instance's arrays."""
         arg = qp.named_args
         arg["h"][:] = self._h_values
-        arg["lba"][:] = 0.0
-        arg["uba"][:] = 0.0
-        # the unbounded entries (all state steps but the curvatures') get wide finite bounds: HPIPM bounds
-        # every variable, and at its default replacement of an infinite bound (1e8) its interior point
-        # iterations stall (100 iterations without convergence); the ``inf`` option did not keep its calls
-        # independent (a call's result depended on the call before it)
+        arg["lba"][self.dynamics_rows] = 0.0
+        arg["uba"][self.dynamics_rows] = 0.0
+        arg["uba"][self.lower_rows] = FREE_BOUND
+        arg["lba"][self.upper_rows] = -FREE_BOUND
+        # the unbounded entries (all state steps) get wide finite bounds: HPIPM bounds every variable, and
+        # at its default replacement of an infinite bound (1e8) its interior point iterations stall (100
+        # iterations without convergence); the ``inf`` option did not keep its calls independent (a call's
+        # result depended on the call before it)
         arg["lbx"][:] = -FREE_BOUND
         arg["ubx"][:] = FREE_BOUND
+        arg["lbx"][self.scols] = 0.0
+        arg["lbx"][self.wcols] = 0.0
+        arg["g"][self.scols] = VIOLATION_PENALTY
 
     def fill(self, qp: _Buffered, A, B, u_scale, X, x_ref, V, v_prev, lo, hi, qmax) -> None:
         """The QP's arguments into the solver instance's arrays."""
@@ -589,15 +671,18 @@ class _SparseQP:
         g = arg["g"]
         g[self.ucols] = (self.wu * Vk + self.wd * change).reshape(-1)
         g[self.xcols[:, :NX]] = self.W * (X - x_ref)
-        g[self.xcols[:-1, NX:]] = -self.wd * change[1:]
-        lbx, ubx = arg["lbx"], arg["ubx"]
-        lbx[self.ucols] = lo - V
-        ubx[self.ucols] = hi - V
-        lbx[self.xcols[:, 3:5]] = -qmax - X[:, 3:5]
-        ubx[self.xcols[:, 3:5]] = qmax - X[:, 3:5]
+        g[self.xcols[:-1, NX:NX + NU]] = -self.wd * change[1:]
+        arg["lbx"][self.ucols] = lo - V
+        arg["ubx"][self.ucols] = hi - V
+        arg["lba"][self.lower_rows] = -qmax - X[:, 3:5]
+        arg["uba"][self.upper_rows] = qmax - X[:, 3:5]
 
     def input_step(self, qp: _Buffered) -> np.ndarray:
         return qp.named_res["x"][self.ucols]
+
+    def slacks(self, qp: _Buffered) -> np.ndarray:
+        """The curvature slacks of the last solve, (N, 2) [rad]."""
+        return qp.named_res["x"][self.scols].copy()
 
 
 def _sparsity_and_order(ca, rows: np.ndarray, cols: np.ndarray, nrow: int, ncol: int):

@@ -15,12 +15,16 @@ over a step (zero-order hold, B(q) evaluated at every RK4 stage as in the env's 
 
 from __future__ import annotations
 
+import math
+
 from ...model.series import A_COEFFS, C1_COEFFS, D1P_COEFFS, D2_COEFFS, D2PQ_COEFFS, S0_COEFFS
 from ...params import P_EPS, P_G, P_I, P_IL, P_IR, P_LL, P_LR, P_M, P_ML, P_MR
 from ._casadi import import_casadi
 
 #: the input maps written here (:data:`softpvtol_gym.dynamics.INPUT_MAPS`)
 INPUT_MAPS = ("paper", "exact")
+#: |q_l|, |q_r| [rad] beyond which ``continuous_dynamics`` holds the curvature terms constant
+CURVATURE_RANGE = 2.0 * math.pi
 
 
 def horner(c, s):
@@ -109,6 +113,10 @@ def continuous_dynamics(p, input_map: str, disturbance: bool = False):
     x = ca.SX.sym("x", 10)
     u = ca.SX.sym("u", 4)
     q, qd = [x[i] for i in range(5)], [x[5 + i] for i in range(5)]
+    # the curvature terms are polynomials accurate to |q| = 2 pi (twice the env's limit) that grow without
+    # bound beyond: there they are held at their values at +-2 pi, so that a rollout of the model that
+    # leaves that range (an open-loop plan over the horizon) stays finite
+    q[3], q[4] = (ca.fmin(ca.fmax(qi, -CURVATURE_RANGE), CURVATURE_RANGE) for qi in (q[3], q[4]))
     tau = generalized_forces(q, [u[i] for i in range(4)], p, input_map)
     inputs, names = [x, u], ["x", "u"]
     if disturbance:
