@@ -47,9 +47,10 @@ def main(argv=None) -> int:
     episodes_of = {task: args.episodes for task in args.tasks}
     for item in args.task_episodes:
         task, _, count = item.partition("=")
-        if task not in episodes_of or not count.isdigit() or int(count) < 1:
-            ap.error(f"--task-episodes takes TASK=N for one of --tasks {args.tasks} and N >= 1, got {item!r}")
-        episodes_of[task] = int(count)
+        if not task or not count.isdigit() or int(count) < 1:
+            ap.error(f"--task-episodes takes TASK=N with N >= 1, got {item!r}")
+        if task in episodes_of:
+            episodes_of[task] = int(count)
     rows = []
     for task in args.tasks:
         for tier in args.tiers:
