@@ -27,17 +27,26 @@ class MPCPolicy:
     neither a tier's parameter mismatch, nor its wind, noise or actuator lag, nor the consistent plant
     of ``model_gap``), written symbolically in :mod:`softpvtol_gym.control.mpc.symbolic` (checked against
     the package's numeric model to ~1e-12), discretised by RK4 with the input held over each interval.
+    ``model_input_map="exact"`` gives the model the virtual-work input map instead (the thrusts' work on
+    the curvatures, which the paper's map omits: docs/model.md), the map of ``model_gap``'s consistent
+    plant: the MPC then knows how that plant's thrusts bend the arms, which a learned policy only sees
+    through its observations. It is not the default: with it a track_paper nominal episode (paper's map
+    in the plant) crashed, while with the paper's map every model_gap episode measured crashed
+    (benchmarks/README.md).
 
     **Problem** (:mod:`softpvtol_gym.control.mpc.ocp`): N = ``horizon`` intervals, the first one the env's
     control period, the others ``step`` seconds (defaults: 25 intervals, 0.01 s + 24 x 0.05 s = 1.21 s);
     a least-squares tracking cost on (x, z, theta) and their rates, the arm curvatures and their rates
     (towards straight arms), the input relative to hover and its changes; the env's actuator limits as
-    hard input bounds; |q_l|, |q_r| <= ``curvature_limit`` (pi, the env's) as hard state bounds at every
-    node. Solved by real-time iteration: one Gauss-Newton SQP step per control step (by default HPIPM on
+    hard input bounds; |q_l|, |q_r| <= ``curvature_limit`` (pi, the env's) at every node as soft bounds
+    (a slack per arm and node with an exact L1 penalty: met whenever the linearised problem can meet them;
+    when it cannot, the QP still has a solution, the plan that exceeds them least, counted as ``relaxed``
+    in :attr:`stats`). Solved by real-time iteration: one Gauss-Newton SQP step per control step (by default HPIPM on
     the QP with its stage structure; ``qp_solver`` selects a dense solver on the condensed QP), with a
     backtracking line search on the nonlinear cost, warm-started from the previous plan shifted by one
-    control period. When a QP fails, the policy applies the previous plan's next input (the fallback)
-    and counts it in :attr:`stats`.
+    control period (from the hover input instead when the model's rollout under that guess diverges).
+    When a solve fails (the QP solver, or a rollout that diverges from hover too), the policy applies the
+    previous plan's next input (the fallback) and counts it in :attr:`stats`.
 
     **Disturbance estimate** (offset-free): each entry keeps d, a generalized force on (x, z, theta,
     q_l, q_r) added to the model over the horizon. After each control step the velocities the model

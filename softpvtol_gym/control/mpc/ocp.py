@@ -105,7 +105,9 @@ class MPCOptions:
     ``weight_input``          0.01     on the normalised input (u - u_hover) / u_scale
     ``weight_input_rate``     0.1      on the change of the normalised input from interval to interval
     ``terminal_weight``       5        factor of the state weights at the last node
-    ``curvature_limit``       pi       |q_l|, |q_r| bound [rad] (the env ends an episode beyond pi)
+    ``curvature_limit``       pi       |q_l|, |q_r| bound [rad] (the env ends an episode beyond pi); soft:
+                                       each QP may exceed it at a price of ``VIOLATION_PENALTY`` per rad
+                                       (an exact L1 penalty), so that a state it cannot hold still has a plan
     ``sqp_iterations``        1        Gauss-Newton SQP iterations per control step (1: real-time iteration)
     ``qp_solver``             hpipm    CasADi conic plugin: "hpipm" (the QP with its OCP structure, a
                                        Riccati-based interior point method) | "qpoases" | "daqp" |
@@ -119,7 +121,9 @@ class MPCOptions:
     ``model_input_map``       None     the input map of the MPC's model: None the env's (``input_map``,
                                        "paper" unless given), "paper" or "exact" (the virtual work of the
                                        thrusts at the tips, which also bend the arms: the map of
-                                       ``model_gap``'s consistent plant)
+                                       ``model_gap``'s consistent plant; with it the MPC holds model_gap
+                                       but crashed a track_paper nominal episode, whose plant has the
+                                       paper's map, so it is not the default)
     ``compile_model``         None     compile the model's Functions with the system's C compiler (cached
                                        on disk; ~10x faster than CasADi's virtual machine): None if a
                                        compiler is found, True always (error without one), False never
