@@ -7,9 +7,12 @@ import time
 import numpy as np
 
 from .._validation import short_repr
-from ..control.mpc import NU, NX, MPCOptions, TrackingOCP, hover_input, import_casadi
+from ..control.mpc import ND, NU, NX, MPCOptions, TrackingOCP, hover_input, import_casadi
 from ..envs.config import EnvConfig
 from ._common import _episode_start_mask, actuator_action, env_config, policy_observations, state_from_observation
+
+#: a QP's curvature slack [rad] above which :attr:`MPCPolicy.stats` counts the solve as relaxed
+RELAXED_SLACK = 1e-4
 
 
 class MPCPolicy:
@@ -24,16 +27,31 @@ class MPCPolicy:
     neither a tier's parameter mismatch, nor its wind, noise or actuator lag, nor the consistent plant
     of ``model_gap``), written symbolically in :mod:`softpvtol_gym.control.mpc.symbolic` (checked against
     the package's numeric model to ~1e-12), discretised by RK4 with the input held over each interval.
+    ``model_input_map="exact"`` gives the model the virtual-work input map instead (the thrusts' work on
+    the curvatures, which the paper's map omits: docs/model.md), the map of ``model_gap``'s consistent
+    plant: the MPC then knows how that plant's thrusts bend the arms, which a learned policy only sees
+    through its observations. It is not the default: with it a track_paper nominal episode (paper's map
+    in the plant) crashed, while with the paper's map every model_gap episode measured crashed
+    (benchmarks/README.md).
 
     **Problem** (:mod:`softpvtol_gym.control.mpc.ocp`): N = ``horizon`` intervals, the first one the env's
     control period, the others ``step`` seconds (defaults: 25 intervals, 0.01 s + 24 x 0.05 s = 1.21 s);
     a least-squares tracking cost on (x, z, theta) and their rates, the arm curvatures and their rates
     (towards straight arms), the input relative to hover and its changes; the env's actuator limits as
-    hard input bounds; |q_l|, |q_r| <= ``curvature_limit`` (pi, the env's) as hard state bounds at every
-    node. Solved by real-time iteration: one Gauss-Newton SQP step per control step (condensed dense
-    QP, qpOASES through CasADi), with a backtracking line search on the nonlinear cost, warm-started from
-    the previous plan shifted by one control period. When a QP fails, the policy applies the previous
-    plan's next input (the fallback) and counts it in :attr:`stats`.
+    hard input bounds; |q_l|, |q_r| <= ``curvature_limit`` (pi, the env's) at every node as soft bounds
+    (a slack per arm and node with an exact L1 penalty: met whenever the linearised problem can meet them;
+    when it cannot, the QP still has a solution, the plan that exceeds them least, counted as ``relaxed``
+    in :attr:`stats`). Solved by real-time iteration: one Gauss-Newton SQP step per control step (by default HPIPM on
+    the QP with its stage structure; ``qp_solver`` selects a dense solver on the condensed QP), with a
+    backtracking line search on the nonlinear cost, warm-started from the previous plan shifted by one
+    control period (from the hover input instead when the model's rollout under that guess diverges).
+    When a solve fails (the QP solver, or a rollout that diverges from hover too), the policy applies the
+    previous plan's next input (the fallback) and counts it in :attr:`stats`.
+
+    **Disturbance estimate** (offset-free): each entry keeps d, a generalized force on (x, z, theta,
+    q_l, q_r) added to the model over the horizon. After each control step the velocities the model
+    predicted (from the last state, the applied input and d) are compared with the measured ones, and
+    d moves by ``disturbance_gain`` times the force that explains the difference (:attr:`disturbance`).
 
     **Reference over the horizon: extrapolated from the observation** (no preview of the task): the
     observation holds the position error, the reference attitude (theta - e_theta) and the reference's
@@ -44,8 +62,11 @@ class MPCPolicy:
     observations, so the comparison gives the MPC no information the learned policies lack, besides the
     model itself.
 
-    Memory per batch entry: the plan (warm start), the input applied last and the last reference
-    acceleration; it is reset where ``episode_start`` is True (and entirely when the batch size changes).
+    Memory per batch entry: the plan (warm start), the input applied last, the last state and reference
+    acceleration, the disturbance estimate and its own QP solver instance (a solver's memory, such as
+    qpOASES's hot start, never crosses from one entry to another: an episode's actions are the same
+    alone and in a batch); it is reset where ``episode_start`` is True (and entirely when the batch
+    size changes).
 
     Args:
         config: the env's :class:`EnvConfig` (use :meth:`from_env`); ``action_mode`` must be "actuators".
@@ -71,14 +92,17 @@ class MPCPolicy:
         check_limits(config)
         self.config = config
         self.options = options
-        self.ocp = TrackingOCP(config.params, config.input_map, config.thrust_max, config.arm_torque_max,
+        input_map = options.model_input_map if options.model_input_map is not None else config.input_map
+        self.ocp = TrackingOCP(config.params, input_map, config.thrust_max, config.arm_torque_max,
                                config.dt, options)
         self._n: int | None = None
-        self._plans = self._applied = self._last_ref_acc = None
+        self._plans = self._applied = self._last_ref_acc = self._last_state = self._disturbance = None
+        self._qps: list = []
         #: seconds per solve (one entry per batch entry and control step), since the last :meth:`reset_stats`
         self.solve_times: list[float] = []
         self._solves = 0
         self._failures = 0
+        self._relaxed = 0
 
     @classmethod
     def from_env(cls, env, **options) -> MPCPolicy:
@@ -96,22 +120,52 @@ class MPCPolicy:
         self.solve_times = []
         self._solves = 0
         self._failures = 0
+        self._relaxed = 0
 
     def _reset_entries(self, mask: np.ndarray) -> None:
         self._plans[mask] = self.ocp.u_hover
         self._applied[mask] = self.ocp.u_hover
         self._last_ref_acc[mask] = np.nan
+        self._last_state[mask] = np.nan
+        self._disturbance[mask] = 0.0
+        for i in np.flatnonzero(mask):
+            self._qps[i] = None  # a new QP solver instance at the entry's next solve: no memory of the last episode
+
+    @property
+    def disturbance(self) -> np.ndarray | None:
+        """The estimated generalized-force disturbance of each batch entry, (N, 5) [N, N, N m, N m, N m]
+        on (x, z, theta, q_l, q_r) (None before the first :meth:`predict`)."""
+        return None if self._disturbance is None else self._disturbance.copy()
+
+    def _estimate_disturbance(self, i: int, x0: np.ndarray) -> None:
+        """Update entry i's disturbance estimate from the velocities measured now against the model's
+        prediction from the last state and input (with the current estimate): d += gain * J^-1 r, for the
+        velocity residual r and J = d(velocities one period later)/d(d)."""
+        gain = self.options.disturbance_gain
+        last = self._last_state[i]
+        if gain == 0.0 or not np.isfinite(last).all():
+            return
+        predicted, jac = self.ocp.predict_step(last, self._applied[i], self._disturbance[i])
+        try:
+            step = np.linalg.solve(jac[5:], x0[5:] - predicted[5:])
+        except np.linalg.LinAlgError:
+            return
+        if np.isfinite(step).all():
+            self._disturbance[i] += gain * step
 
     @property
     def stats(self) -> dict:
         """Solver statistics since the last :meth:`reset_stats`: ``solves`` (QPs attempted, one per batch
         entry and control step), ``failures`` (solves that failed; each one applied the fallback, the
-        previous plan's next input), ``fallbacks`` (= failures), and the solve time per control step in
+        previous plan's next input), ``fallbacks`` (= failures), ``relaxed`` (solves whose QP could not
+        meet the curvature limits over the horizon and exceeded them by a slack of more than
+        ``RELAXED_SLACK`` rad: the plan that exceeds them least was applied), and the solve time per control step in
         ms (``solve_ms_median``, ``solve_ms_p99``, ``solve_ms_max``, ``solve_ms_mean``; None before the
         first solve). A solve's time is the policy's whole computation for one entry: reference,
         linearisation, QP, line search."""
         t = np.asarray(self.solve_times) * 1e3
-        summary = {"solves": self._solves, "failures": self._failures, "fallbacks": self._failures}
+        summary = {"solves": self._solves, "failures": self._failures, "fallbacks": self._failures,
+                   "relaxed": self._relaxed}
         for name, fn in (("median", np.median), ("p99", lambda a: np.percentile(a, 99)), ("max", np.max),
                          ("mean", np.mean)):
             summary[f"solve_ms_{name}"] = float(fn(t)) if t.size else None
@@ -137,15 +191,22 @@ class MPCPolicy:
             else np.zeros(3)
         x0 = np.concatenate([q, qd])
         x0[0:2] = obs_row[0:2]  # positions relative to the reference position now
+        self._estimate_disturbance(i, x0)
+        if self._qps[i] is None:
+            self._qps[i] = self.ocp.new_qp()
         guess = self._plans[i]
-        plan, ok = self.ocp.solve(x0, self._reference(obs_row, q[2], jerk), guess, self._applied[i])
+        plan, ok = self.ocp.solve(x0, self._reference(obs_row, q[2], jerk), guess, self._applied[i],
+                                  self._disturbance[i], self._qps[i])
         self._solves += 1
         if not ok:
             self._failures += 1
+        elif self.ocp.last_slack > RELAXED_SLACK:
+            self._relaxed += 1
         u = plan[0].copy()
         self._plans[i] = self.ocp.shift(plan, self.config.dt)
         self._applied[i] = u
         self._last_ref_acc[i] = acc
+        self._last_state[i] = x0
         self.solve_times.append(time.perf_counter() - t0)
         return u
 
@@ -161,6 +222,9 @@ class MPCPolicy:
             self._plans = np.empty((n, self.options.horizon, NU))
             self._applied = np.empty((n, NU))
             self._last_ref_acc = np.empty((n, 3))
+            self._last_state = np.empty((n, NX))
+            self._disturbance = np.zeros((n, ND))
+            self._qps = [None] * n
             self._reset_entries(np.ones(n, dtype=bool))
             self._n = n
         elif mask is not None and mask.any():

@@ -97,8 +97,9 @@ def test_unknown_option_names_the_valid_ones(env):
     ({"step": -0.05}, r"step must be a finite number in \[0.0001, 10\]"),
     ({"weight_position": float("nan")}, "weight_position must be a finite number"),
     ({"curvature_limit": 4.0}, r"curvature_limit must be a finite number in \[0.001, 3.14159"),
-    ({"qp_solver": "gurobi"}, r"qp_solver must be one of \['daqp', 'osqp', 'qpoases', 'qrqp'\]"),
+    ({"qp_solver": "gurobi"}, r"qp_solver must be one of \['daqp', 'hpipm', 'osqp', 'qpoases', 'qrqp'\]"),
     ({"compile_model": "yes"}, "compile_model must be None, True or False"),
+    ({"disturbance_gain": 1.5}, r"disturbance_gain must be a finite number in \[0, 1\]"),
 ])
 def test_bad_option_values(options, message):
     with pytest.raises(ValueError, match=message):
@@ -188,7 +189,7 @@ def test_a_failed_solve_falls_back_to_the_previous_plan(monkeypatch):
     obs = _hover_obs(offset=(0.5, -0.5))[0]
     pol.predict(obs)
     planned_next = pol._plans[0][0].copy()  # the previous plan's input for the next control period
-    monkeypatch.setattr(pol.ocp, "solve", lambda x0, ref, guess, u_prev: (guess, False))
+    monkeypatch.setattr(pol.ocp, "solve", lambda x0, ref, guess, u_prev, d, qp: (guess, False))
     action, _ = pol.predict(obs)
     cfg = pol.config
     expected = np.array([2 * planned_next[0] / cfg.thrust_max - 1, 2 * planned_next[1] / cfg.thrust_max - 1,
@@ -197,12 +198,30 @@ def test_a_failed_solve_falls_back_to_the_previous_plan(monkeypatch):
     assert pol.stats["failures"] == pol.stats["fallbacks"] == 1 and pol.stats["solves"] == 2
 
 
-def test_qp_failure_is_reported_by_the_solver():
-    """A state the curvature bounds cannot hold (an arm beyond the limit at the first node) makes the QP
-    infeasible: ``solve`` says so and returns the guess unchanged."""
-    ocp = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, 9.8, 0.01, MPCOptions(horizon=8, curvature_limit=1.0))
+@pytest.mark.parametrize("solver", ["hpipm", "daqp"])
+def test_soft_curvature_limits_keep_the_qp_solvable(solver):
+    """A state the curvature limits cannot hold (an arm beyond the limit at the first node, still bending
+    outwards) has no plan that meets them: the QP still has a solution, with slacks, and the plan pushes
+    back as hard as it can (the first arm torque at its limit against the bend). Where the limits can be
+    met, no slack is used."""
+    tau_max = 9.8
+    ocp = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, tau_max, 0.01,
+                      MPCOptions(horizon=8, curvature_limit=1.0, qp_solver=solver))
     x0 = np.zeros(10)
     x0[3], x0[8] = 1.2, 5.0  # q_l beyond the limit and still bending outwards
+    guess = np.tile(ocp.u_hover, (8, 1))
+    plan, ok = ocp.solve(x0, np.zeros((8, 10)), guess, ocp.u_hover)
+    assert ok and ocp.last_slack > 0.2
+    assert plan[0, 2] == pytest.approx(-tau_max, abs=1e-6)
+    x0[3], x0[8] = 0.5, 0.0
+    plan, ok = ocp.solve(x0, np.zeros((8, 10)), guess, ocp.u_hover)
+    assert ok and ocp.last_slack < 1e-6
+
+
+def test_a_non_finite_linearisation_is_a_failure():
+    ocp = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, 9.8, 0.01, MPCOptions(horizon=8))
+    x0 = np.zeros(10)
+    x0[8] = np.inf
     guess = np.tile(ocp.u_hover, (8, 1))
     plan, ok = ocp.solve(x0, np.zeros((8, 10)), guess, ocp.u_hover)
     assert not ok and plan is guess
@@ -249,6 +268,36 @@ def test_hover_from_an_offset_settles():
     assert not crashed and e.size == 300
     assert e[-50:].max() < 0.01 < e[0]
     assert pol.stats["fallbacks"] == 0
+
+
+def _closed_loop_on_the_model(pol: MPCPolicy, force: np.ndarray, steps: int) -> np.ndarray:
+    """The policy on its own model as the plant (hover reference), with a constant generalized force
+    ``force`` (5) added to the plant; the position error (x, z) of each step, (steps, 2)."""
+    x = np.zeros(10)
+    errors = []
+    for _ in range(steps):
+        obs = np.zeros(18)
+        obs[0:3], obs[3], obs[4], obs[5:7], obs[7:12] = x[0:3], np.sin(x[2]), np.cos(x[2]), x[3:5], x[5:10]
+        action, _ = pol.predict(obs)
+        u = pol._applied[0]
+        x = pol.ocp.predict_step(x, u, force)[0]
+        errors.append(x[0:2].copy())
+    return np.array(errors)
+
+
+def test_the_disturbance_estimate_removes_a_constant_force_offset():
+    """A constant force (3 N sideways, -2 N vertical) on the MPC's own model: without the estimate the
+    robot settles away from the reference; with it the offset goes to zero and the estimate to the force."""
+    force = np.array([3.0, -2.0, 0.0, 0.0, 0.0])
+    cfg = EnvConfig(task="hover")
+    options = {"horizon": 10, "step": 0.1}
+    without = _closed_loop_on_the_model(MPCPolicy(cfg, disturbance_gain=0.0, **options), force, 300)
+    pol = MPCPolicy(cfg, **options)
+    with_estimate = _closed_loop_on_the_model(pol, force, 300)
+    offset = np.abs(without[-20:]).max()
+    assert offset > 0.01
+    assert np.abs(with_estimate[-20:]).max() < 0.05 * offset
+    np.testing.assert_allclose(pol.disturbance[0], force, atol=0.05)
 
 
 @pytest.mark.slow  # a 40 s episode of the MPC and one of the passivity loop (~1.5 min on 2 cores)
@@ -321,3 +370,82 @@ def test_docs_table_is_the_committed_benchmark():
     assert mpc["rms_0_10s"] < ref["rms_0_10s"] and mpc["rms_20_40s"] <= 1e-3
     assert mpc["solver"]["solve_ms_median"] <= 10.0
     assert not any(cells[(tier, "mpc")]["crashed"] for tier in ("nominal", "wind", "noisy"))
+
+
+# --------------------------------------------------------------------------------- solvers and independence
+def _random_problems(ocp, count: int, seed: int):
+    """States far from hover and input guesses far from the plan: QPs with active input bounds."""
+    rng = np.random.default_rng(seed)
+    n = ocp.options.horizon
+    out = []
+    for _ in range(count):
+        x0 = np.zeros(10)
+        x0[:2] = rng.uniform(-2, 2, 2)
+        x0[2:5] = rng.uniform(-0.5, 0.5, 3)
+        x0[5:] = rng.uniform(-1, 1, 5)
+        out.append((x0, np.tile(ocp.u_hover, (n, 1)) + rng.uniform(-3, 3, (n, 4))))
+    return out
+
+
+def test_structured_qp_gives_the_condensed_qps_plan():
+    """HPIPM on the QP with its stage structure and daqp on the condensed QP: the same plans (the same
+    Gauss-Newton step and line search) to 1e-6 of the thrust range, on problems with active bounds."""
+    opts = {"horizon": 12}
+    sparse = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, 9.8, 0.01, MPCOptions(qp_solver="hpipm", **opts))
+    dense = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, 9.8, 0.01, MPCOptions(qp_solver="daqp", **opts))
+    assert sparse.formulation == "sparse" and dense.formulation == "condensed"
+    active = 0
+    for x0, guess in _random_problems(sparse, 6, seed=4):
+        a, ok_a = sparse.solve(x0, np.zeros((12, 10)), guess, sparse.u_hover)
+        b, ok_b = dense.solve(x0, np.zeros((12, 10)), guess, sparse.u_hover)
+        assert ok_a and ok_b
+        np.testing.assert_allclose(a, b, atol=1e-6 * 102.9)
+        active += np.isclose(a[:, :2], 0.0).sum() + np.isclose(a[:, :2], 102.9).sum()
+    assert active > 0  # some thrust bound was active
+
+
+@pytest.mark.parametrize("solver", ["hpipm", "qpoases"])
+def test_a_solver_instance_keeps_no_memory_that_changes_a_plan(solver):
+    """Problems solved one after the other on one QP solver instance = each solved on a fresh one.
+    (CasADi's HPIPM interface once carried state from one call to the next through its work memory.)"""
+    ocp = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, 9.8, 0.01, MPCOptions(qp_solver=solver, horizon=12))
+    problems = _random_problems(ocp, 4, seed=5)
+    qp = ocp.new_qp()
+    in_turn = [ocp.solve(x0, np.zeros((12, 10)), g, ocp.u_hover, qp=qp)[0] for x0, g in problems]
+    alone = [ocp.solve(x0, np.zeros((12, 10)), g, ocp.u_hover, qp=ocp.new_qp())[0] for x0, g in problems]
+    for a, b in zip(in_turn, alone):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * 102.9)
+
+
+class _Recorder:
+    """A policy wrapper that keeps every action it returns."""
+
+    def __init__(self, policy):
+        self.policy, self.actions = policy, []
+
+    def predict(self, observation, **kwargs):
+        action, state = self.policy.predict(observation, **kwargs)
+        self.actions.append(np.array(action, dtype=np.float64, copy=True))
+        return action, state
+
+
+@pytest.mark.parametrize("solver", ["hpipm", "qpoases"])
+def test_an_episode_acts_the_same_alone_and_in_a_batch(solver):
+    """3 hover episodes of the model_gap tier, where many QPs cannot meet the curvature limits (the MPC's
+    model lacks the plant's thrust bending of the arms): each episode's actions, step by step, are the
+    same run alone and in a batch of 3, with the disturbance estimate on."""
+    from softpvtol_gym.baselines.evaluation import run_episodes
+
+    cfg = EnvConfig(task="hover", tier="model_gap", action_mode="actuators")
+    options = {"qp_solver": solver, "horizon": 10}
+    batch = _Recorder(MPCPolicy(cfg, **options))
+    together = run_episodes(batch, "actuators", "hover", "model_gap", 3, seed=7)
+    assert batch.policy.stats["relaxed"] > 0  # the case this test is about: QPs at the curvature limits
+    for i in range(3):
+        alone = _Recorder(MPCPolicy(cfg, **options))
+        episode = run_episodes(alone, "actuators", "hover", "model_gap", 1, seed=7 + i)[0]
+        steps = episode["length"]
+        assert steps == together[i]["length"]
+        mine = np.stack([a[i] for a in batch.actions[:steps]])
+        ref = np.stack([a[0] for a in alone.actions[:steps]])
+        np.testing.assert_allclose(mine, ref, rtol=1e-9, atol=1e-12)

@@ -13,6 +13,6 @@ when it is missing).
 """
 
 from ._casadi import import_casadi
-from .ocp import NU, NX, QP_SOLVERS, MPCOptions, TrackingOCP, hover_input
+from .ocp import ND, NU, NX, QP_SOLVERS, MPCOptions, TrackingOCP, hover_input
 
-__all__ = ["MPCOptions", "QP_SOLVERS", "TrackingOCP", "hover_input", "import_casadi", "NU", "NX"]
+__all__ = ["MPCOptions", "QP_SOLVERS", "TrackingOCP", "hover_input", "import_casadi", "ND", "NU", "NX"]

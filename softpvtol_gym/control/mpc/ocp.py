@@ -5,19 +5,32 @@ Problem (one per control step, from the measured state x0):
     min_{u_0..u_{N-1}}  sum_{k=1..N} |x_k - r_k|^2_{W_k} + sum_{k=0..N-1} |v_k|^2_{R} + |v_k - v_{k-1}|^2_{R_d}
     s.t.  x_{k+1} = F_k(x_k, u_k)        (RK4 of the paper's model, u held over interval k)
           u_lo <= u_k <= u_hi            (the env's actuator limits, hard)
-          |q_l,k|, |q_r,k| <= q_max      (the curvature limits, hard, k = 1..N)
+          |q_l,k|, |q_r,k| <= q_max      (the curvature limits, soft, k = 1..N)
 
 with v_k = (u_k - u_hover) / u_scale the normalised input, v_{-1} the input applied at the previous step,
 W_k diagonal (the terminal node's times ``terminal_weight``). The intervals are ``first_step`` (the env's
 control period: the first input is exactly what the env holds) then ``step`` seconds.
 
+The curvature limits are soft: each QP has a slack s >= 0 per arm and node (|dq + q| <= q_max + s),
+charged ``VIOLATION_PENALTY`` per rad (an exact L1 penalty: while the limits can be met, the QP's solution
+meets them; when they cannot, as when the arm torques are saturated and the arms still bend outwards,
+the QP still has a solution, the plan that exceeds them least, instead of failing) plus a small
+quadratic term ``SLACK_WEIGHT``. The line search's merit charges a violation at the same price.
+
 Solver: real-time iteration, i.e. Gauss-Newton SQP with ``sqp_iterations`` steps per control step
 (default one; each step shortened by a backtracking line search on the nonlinear cost), single
 shooting. Each iteration rolls the model out from x0 under the current input guess and gets the
-interval Jacobians A_k = dF/dx, B_k = dF/du from one CasADi Function (symbolic RK4, AD), condenses them
-(states eliminated: the QP has the N x 4 inputs as variables, the 2N curvature rows as constraints),
-and solves the dense QP with a CasADi ``conic`` solver (qpOASES by default). The guess is the previous
-solution shifted by one control period (warm start).
+interval Jacobians A_k = dF/dx, B_k = dF/du from one CasADi Function (symbolic RK4, AD), and solves the
+Gauss-Newton QP in the steps of the plan: by default with HPIPM on the QP with its stage structure
+(state and input steps as variables, the linearised dynamics as equality constraints; ``_SparseQP``),
+else with a dense solver on the QP condensed to the input steps (states eliminated: the N x 4 inputs as
+variables, the 2N curvature rows as constraints; ``_CondensedQP``). Both are the same QP. The guess is
+the previous solution shifted by one control period (warm start).
+
+Disturbance: ``d`` (5), a generalized force added to the model's B(q) u, held over the horizon (the
+policy's estimate of what the model lacks: wind, parameter errors, another input map). With ``d`` the
+problem predicts the plant's drift, so a constant disturbance leaves no steady offset (up to the small
+input weight on u - u_hover).
 """
 
 from __future__ import annotations
@@ -40,18 +53,35 @@ from ._codegen import compile_functions, find_compiler
 from ._kernels import condense
 
 NX, NU = 10, 4
+#: the generalized-force disturbance's size (one per generalized coordinate x, z, theta, q_l, q_r)
+ND = 5
 #: the line search's step lengths (fractions of the Gauss-Newton step)
 LINE_SEARCH_STEPS = (1.0, 0.5, 0.25, 0.125)
-#: merit of a curvature bound violation [cost units per rad]
+#: price of a curvature bound violation [cost units per rad]: the QP's L1 penalty on its slacks and the
+#: line search's merit (far above the curvature limit's multipliers in the QPs met: an exact penalty)
 VIOLATION_PENALTY = 1e4
-#: CasADi QP solvers the MPC accepts (dense ones that CasADi's wheels bundle) and their options
+#: the QP's quadratic weight on the curvature slacks (keeps the QP strictly convex in them)
+SLACK_WEIGHT = 1.0
+#: slacks per node (one per arm: q_l, q_r)
+NS = 2
+#: CasADi QP solvers the MPC accepts (ones that CasADi's wheels bundle) and their options; none of them
+#: starts from an earlier call's solution (qpOASES hot-starts from its last active set: the policy gives
+#: each batch entry its own instance, see ``TrackingOCP.new_qp``)
 QP_SOLVERS: dict[str, dict] = {
+    "hpipm": {"hpipm": {"mode": "balance", "iter_max": 50, "warm_start": 0}, "error_on_fail": False},
     "qpoases": {"printLevel": "none", "sparse": False, "error_on_fail": False},
     "daqp": {"error_on_fail": False},
     "qrqp": {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False},
     "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-7, "eps_rel": 1e-7, "max_iter": 4000, "polish": True},
              "warm_start_primal": True, "error_on_fail": False},
 }
+#: the solvers that take the QP with its OCP structure (states and inputs as variables); the others
+#: take it condensed (inputs only)
+SPARSE_QP_SOLVERS = ("hpipm",)
+#: the bound of the sparse QP's unbounded variables (state steps) for HPIPM
+FREE_BOUND = 1e4
+#: the solvers that print to stdout (silenced around each call)
+CHATTY_QP_SOLVERS = ("qpoases",)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,12 +105,25 @@ class MPCOptions:
     ``weight_input``          0.01     on the normalised input (u - u_hover) / u_scale
     ``weight_input_rate``     0.1      on the change of the normalised input from interval to interval
     ``terminal_weight``       5        factor of the state weights at the last node
-    ``curvature_limit``       pi       |q_l|, |q_r| bound [rad] (the env ends an episode beyond pi)
+    ``curvature_limit``       pi       |q_l|, |q_r| bound [rad] (the env ends an episode beyond pi); soft:
+                                       each QP may exceed it at a price of ``VIOLATION_PENALTY`` per rad
+                                       (an exact L1 penalty), so that a state it cannot hold still has a plan
     ``sqp_iterations``        1        Gauss-Newton SQP iterations per control step (1: real-time iteration)
-    ``qp_solver``             qpoases  CasADi conic plugin: "qpoases" | "daqp" | "qrqp" | "osqp"
+    ``qp_solver``             hpipm    CasADi conic plugin: "hpipm" (the QP with its OCP structure, a
+                                       Riccati-based interior point method) | "qpoases" | "daqp" |
+                                       "qrqp" | "osqp" (the QP condensed to the inputs, dense)
+    ``disturbance_gain``      0.05     gain per control step of the disturbance estimate (a constant
+                                       generalized force added to the model over the horizon, updated
+                                       from the measured velocities against the predicted ones; 0: none)
     ``jerk_extrapolation``    True     extrapolate the reference with its jerk, estimated from the
                                        reference accelerations of consecutive observations (else
                                        constant acceleration)
+    ``model_input_map``       None     the input map of the MPC's model: None the env's (``input_map``,
+                                       "paper" unless given), "paper" or "exact" (the virtual work of the
+                                       thrusts at the tips, which also bend the arms: the map of
+                                       ``model_gap``'s consistent plant; with it the MPC holds model_gap
+                                       but crashed a track_paper nominal episode, whose plant has the
+                                       paper's map, so it is not the default)
     ``compile_model``         None     compile the model's Functions with the system's C compiler (cached
                                        on disk; ~10x faster than CasADi's virtual machine): None if a
                                        compiler is found, True always (error without one), False never
@@ -105,8 +148,10 @@ class MPCOptions:
     terminal_weight: float = 5.0
     curvature_limit: float = math.pi
     sqp_iterations: int = 1
-    qp_solver: str = "qpoases"
+    qp_solver: str = "hpipm"
+    disturbance_gain: float = 0.05
     jerk_extrapolation: bool = True
+    model_input_map: str | None = None
     compile_model: bool | None = None
 
     def __post_init__(self) -> None:
@@ -120,9 +165,13 @@ class MPCOptions:
             if f.name.startswith("weight_") or f.name == "terminal_weight":
                 _real(f.name, getattr(self, f.name), 0.0, 1e12)
         _real("curvature_limit", self.curvature_limit, 1e-3, math.pi)
+        _real("disturbance_gain", self.disturbance_gain, 0.0, 1.0)
         if not isinstance(self.qp_solver, str) or self.qp_solver not in QP_SOLVERS:
             raise ValueError(f"MPC option qp_solver must be one of {sorted(QP_SOLVERS)}, got "
                              f"{short_repr(self.qp_solver)}")
+        if self.model_input_map not in (None, "paper", "exact"):
+            raise ValueError(f"MPC option model_input_map must be None, 'paper' or 'exact', got "
+                             f"{short_repr(self.model_input_map)}")
         if self.compile_model is not None and not isinstance(self.compile_model, (bool, np.bool_)):
             raise ValueError(f"MPC option compile_model must be None, True or False, got "
                              f"{short_repr(self.compile_model)}")
@@ -235,7 +284,12 @@ def hover_input(params: SoftPVTOLParams, input_map: str) -> np.ndarray:
 
 class TrackingOCP:
     """The tracking problem of the module docstring for one parameter set, limits and options; the
-    CasADi Functions are built once here. :meth:`solve` runs the SQP iterations for one state."""
+    CasADi Functions are built once here. :meth:`solve` runs the SQP iterations for one state.
+
+    The QP solver is a CasADi Function that may keep memory between calls (qpOASES hot-starts from
+    its last active set): :meth:`new_qp` builds another instance, so that each of several problems
+    solved in turn (the policy's batch entries) has its own; :meth:`solve` uses ``qp`` or the
+    problem's own instance :attr:`qp`."""
 
     def __init__(self, params: SoftPVTOLParams, input_map: str, thrust_max: float, arm_torque_max: float,
                  control_period: float, options: MPCOptions):
@@ -252,13 +306,16 @@ class TrackingOCP:
         self.u_hover = hover_input(params, input_map)
         self.u_scale = np.array([0.5 * thrust_max, 0.5 * thrust_max, arm_torque_max, arm_torque_max])
 
-        f = symbolic.continuous_dynamics(params.array, input_map)
-        step = symbolic.rk4_step(f, o.substeps)  # (x, u, h) -> x_next
-        xs, us, hs = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("h")
-        out = step(xs, us, hs)
-        # (x, u, h) -> (x_next, dx_next/dx, dx_next/du)
-        step_lin = ca.Function("softpvtol_rk4_linearized", [xs, us, hs],
+        f = symbolic.continuous_dynamics(params.array, input_map, disturbance=True)
+        step = symbolic.rk4_step(f, o.substeps)  # (x, u, h, d) -> x_next
+        xs, us, hs, ds = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("h"), ca.SX.sym("d", ND)
+        out = step(xs, us, hs, ds)
+        # (x, u, h, d) -> (x_next, dx_next/dx, dx_next/du)
+        step_lin = ca.Function("softpvtol_rk4_linearized", [xs, us, hs, ds],
                                ca.cse([out, ca.jacobian(out, xs), ca.jacobian(out, us)]))
+        # (x, u, h, d) -> (x_next, dx_next/dd): the disturbance estimator's one-period prediction
+        step_dist = ca.Function("softpvtol_rk4_disturbance", [xs, us, hs, ds],
+                                ca.cse([out, ca.densify(ca.jacobian(out, ds))]))
         #: how the model's Functions run: "compiled" (machine code, see _codegen) or "virtual machine"
         self.backend = "virtual machine"
         compiler = find_compiler() if o.compile_model is not False else None
@@ -267,34 +324,36 @@ class TrackingOCP:
                              "was found; install one, or pass compile_model=None (use one if found) or False")
         if compiler is not None:
             try:
-                step, step_lin = compile_functions([step, step_lin], compiler)
+                step, step_lin, step_dist = compile_functions([step, step_lin, step_dist], compiler)
                 self.backend = "compiled"
             except RuntimeError as exc:
                 if o.compile_model:
                     raise
                 warnings.warn(f"{exc}; the MPC runs its model in CasADi's virtual machine (slower)", stacklevel=3)
+        self._step_disturbance = _Buffered(step_dist)
+        self._step_disturbance.args[2][0] = float(self.intervals[0])
         x0 = ca.MX.sym("x0", NX)
         U = ca.MX.sym("U", NU, n)
+        d = ca.MX.sym("d", ND)
         X, A, B = [x0], [], []
         x = x0
         for k in range(n):
-            x, a, b = step_lin(x, U[:, k], float(self.intervals[k]))
+            x, a, b = step_lin(x, U[:, k], float(self.intervals[k]), d)
             X.append(x)
             A.append(a)
             B.append(b)
-        #: (x0, U) -> (X (10, N+1), A (10, 10 N), B (10, 4 N)): rollout and interval Jacobians
-        self.linearize = ca.Function("mpc_linearize", [x0, U], [ca.horzcat(*X), ca.horzcat(*A), ca.horzcat(*B)])
+        #: (x0, U, d) -> (X (10, N+1), A (10, 10 N), B (10, 4 N)): rollout and interval Jacobians
+        self.linearize = ca.Function("mpc_linearize", [x0, U, d],
+                                     [ca.densify(ca.horzcat(*M)) for M in (X, A, B)])
+        self._linearize = _Buffered(self.linearize)
         x = x0
         X = [x0]
         for k in range(n):
-            x = step(x, U[:, k], float(self.intervals[k]))
+            x = step(x, U[:, k], float(self.intervals[k]), d)
             X.append(x)
-        #: (x0, U) -> X (10, N+1): the rollout alone
-        self.rollout = ca.Function("mpc_rollout", [x0, U], [ca.horzcat(*X)])
-        nv = NU * n
-        with _quiet_stdout():  # qpOASES prints its banner when its plugin loads
-            dense = {"h": ca.Sparsity.dense(nv, nv), "a": ca.Sparsity.dense(2 * n, nv)}
-            self.qp = ca.conic("mpc_qp", o.qp_solver, dense, dict(QP_SOLVERS[o.qp_solver]))
+        #: (x0, U, d) -> X (10, N+1): the rollout alone
+        self.rollout = ca.Function("mpc_rollout", [x0, U, d], [ca.densify(ca.horzcat(*X))])
+        self._rollout = _Buffered(self.rollout)
 
         # weights per node k = 1 .. N (rows) and state coordinate (columns)
         w = np.array([o.weight_position, o.weight_position, o.weight_attitude, o.weight_arms, o.weight_arms,
@@ -305,19 +364,42 @@ class TrackingOCP:
         W *= (self.intervals / o.step)[:, None]
         W[-1] = w * o.terminal_weight
         self.state_weights = W.reshape(-1)
-        # input cost: R on v_k, R_d on v_k - v_{k-1}: H_u = R I + R_d D^T D (D the difference operator)
-        D = np.eye(nv) - np.eye(nv, k=-NU)
-        self._input_hessian = o.weight_input * np.eye(nv) + o.weight_input_rate * D.T @ D
-        self._cond = np.zeros((NX * n, nv))
-        self._hessian = np.zeros((nv, nv))
-        self._gradient = np.zeros(nv)
         self._v_lo = np.tile((self.u_lo - self.u_hover) / self.u_scale, n)
         self._v_hi = np.tile((self.u_hi - self.u_hover) / self.u_scale, n)
-        self._arm_rows = np.concatenate([np.arange(NX * k + 3, NX * k + 5) for k in range(n)])
+        #: "sparse" (states and inputs as variables, the OCP structure: hpipm) or "condensed" (inputs only)
+        self.formulation = "sparse" if o.qp_solver in SPARSE_QP_SOLVERS else "condensed"
+        if self.formulation == "sparse":
+            self._qp_data = _SparseQP(n, self.state_weights, o.weight_input, o.weight_input_rate)
+        else:
+            self._qp_data = _CondensedQP(n, self.state_weights, o.weight_input, o.weight_input_rate)
+        #: the problem's own QP solver instance (:meth:`new_qp` builds more)
+        self.qp = self.new_qp()
         # one solve now: loads the QP solver's library (qpOASES prints its banner then, silenced here) and
         # the compiled condensing, so that the first control step is not the slow one
         with _quiet_stdout():
             self.solve(np.zeros(NX), np.zeros((n, NX)), np.tile(self.u_hover, (n, 1)), self.u_hover)
+            self.qp = self.new_qp()  # forget that solve (a fresh instance: no memory of it)
+
+    def new_qp(self) -> _Buffered:
+        """A fresh instance of the QP solver: a CasADi ``conic`` Function with no memory of earlier
+        calls, with its argument and result arrays (:class:`_Buffered`)."""
+        ca = import_casadi()
+        with _quiet_stdout():  # qpOASES prints its banner when its plugin loads
+            fn = ca.conic("mpc_qp", self.options.qp_solver, self._qp_data.sparsity,
+                          {**QP_SOLVERS[self.options.qp_solver], **self._qp_data.solver_options})
+        qp = _Buffered(fn, fresh_work=self.options.qp_solver in SPARSE_QP_SOLVERS)
+        self._qp_data.prepare(qp)
+        return qp
+
+    def predict_step(self, x: np.ndarray, u: np.ndarray, disturbance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(x_next (10), dx_next/dd (10, 5)): the model's state one control period after x under the
+        input u and the generalized-force disturbance d (the estimator's prediction)."""
+        fn = self._step_disturbance
+        fn.args[0][:] = x
+        fn.args[1][:] = u
+        fn.args[3][:] = disturbance
+        fn()
+        return fn.res[0].copy(), fn.res[1].reshape(ND, NX).T.copy()
 
     def _merit(self, X: np.ndarray, V: np.ndarray, x_ref: np.ndarray, v_prev: np.ndarray) -> float:
         """The cost of the plan V with the rollout X (N, 10), plus ``VIOLATION_PENALTY`` x the curvature
@@ -329,47 +411,67 @@ class TrackingOCP:
         excess = np.maximum(np.abs(X[:, 3:5]) - o.curvature_limit, 0.0).sum()
         return 0.5 * cost + VIOLATION_PENALTY * excess
 
-    def solve(self, x0: np.ndarray, x_ref: np.ndarray, U_guess: np.ndarray, u_prev: np.ndarray
-              ) -> tuple[np.ndarray, bool]:
+    def solve(self, x0: np.ndarray, x_ref: np.ndarray, U_guess: np.ndarray, u_prev: np.ndarray,
+              disturbance: np.ndarray | None = None, qp=None) -> tuple[np.ndarray, bool]:
         """(U (N, 4), success) from the state x0 (10), the reference x_ref (N, 10) at nodes 1 .. N, the
-        initial guess U_guess (N, 4) and the previously applied input u_prev (4). On failure (a QP
-        solver failure or a non-finite linearisation) U is the guess as given.
+        initial guess U_guess (N, 4), the previously applied input u_prev (4) and the estimated
+        generalized-force disturbance (5; None: zero), held over the horizon. ``qp``: the QP solver
+        instance to use (:meth:`new_qp`; None: :attr:`qp`). On failure (a QP solver failure or a
+        non-finite linearisation) U is the guess as given, and :attr:`last_failure` says which ("qp" or
+        "rollout"; None after a success). When the model's rollout under the guess is not finite, the
+        iteration starts again from the hover input over the horizon (:attr:`restarted`).
+        :attr:`last_slack`: the largest curvature slack [rad] of the last QP solved (0: the linearised
+        plan meets the curvature limits; nan: no QP solved).
 
         Each SQP iteration takes the Gauss-Newton step of the QP, shortened by a backtracking line search
         on the nonlinear cost (``_merit``: the rollout of the model, steps 1, 1/2, 1/4, 1/8; none of them
         better than the current plan: the plan is kept)."""
         o = self.options
         n = o.horizon
+        qp = self.qp if qp is None else qp
+        self.last_slack = math.nan
+        self.last_failure = None
+        d = np.zeros(ND) if disturbance is None else disturbance
         V = ((U_guess - self.u_hover) / self.u_scale).reshape(-1)
         v_prev = (u_prev - self.u_hover) / self.u_scale
         lo, hi = self._v_lo, self._v_hi
-        qmax = o.curvature_limit
-        g_state = self._gradient
+        lin, roll = self._linearize, self._rollout
+        lin.args[0][:] = x0
+        lin.args[2][:] = d
+        roll.args[0][:] = x0
+        roll.args[2][:] = d
+        quiet = _quiet_stdout if o.qp_solver in CHATTY_QP_SOLVERS else contextlib.nullcontext
+        self.restarted = False
         for _ in range(o.sqp_iterations):
-            U = (self.u_hover + V.reshape(n, NU) * self.u_scale).T
-            Xs, As, Bs = self.linearize(x0, U)
-            X = np.asarray(Xs)[:, 1:].T  # (N, 10), nodes 1 .. N
-            A = np.asarray(As)
-            B = np.asarray(Bs)
+            lin.args[1][:] = (self.u_hover + V.reshape(n, NU) * self.u_scale).reshape(-1)
+            lin()
+            if not np.isfinite(lin.res[0]).all() and not self.restarted and V.any():
+                # the model's rollout under the guess diverged (e.g. full thrust held over the horizon by a
+                # model whose thrusts bend the arms beyond the torques' reach): linearise at hover instead
+                self.restarted = True
+                V = np.zeros_like(V)
+                lin.args[1][:] = np.tile(self.u_hover, n)
+                lin()
+            X = lin.res[0].reshape(n + 1, NX)[1:]  # (N, 10), nodes 1 .. N
+            A = lin.res[1].reshape(NX * n, NX).T  # (10, 10 N)
+            B = lin.res[2].reshape(NU * n, NX).T  # (10, 4 N)
             if not (np.isfinite(X).all() and np.isfinite(A).all() and np.isfinite(B).all()):
+                self.last_failure = "rollout"
                 return U_guess, False
-            G, H = self._cond, self._hessian
-            condense(A, B, self.u_scale, self.state_weights, (X - x_ref).reshape(-1), G, H, g_state)
-            H += self._input_hessian
-            dv = _differences(V, v_prev)
-            dtd = dv.copy()  # D^T dv
-            dtd[:-NU] -= dv[NU:]
-            g = g_state + o.weight_input * V + o.weight_input_rate * dtd
-            qa = X[:, 3:5].reshape(-1)
-            with _quiet_stdout():  # qpOASES prints some failures even at printLevel "none"
-                sol = self.qp(h=H, g=g, a=G[self._arm_rows], lba=-qmax - qa, uba=qmax - qa, lbx=lo - V, ubx=hi - V)
-            step = np.asarray(sol["x"]).reshape(-1)
-            if not self.qp.stats()["success"] or not np.isfinite(step).all():
+            self._qp_data.fill(qp, A, B, self.u_scale, X, x_ref, V, v_prev, lo, hi, o.curvature_limit)
+            with quiet():  # qpOASES prints some failures even at printLevel "none"
+                qp()
+            step = self._qp_data.input_step(qp)
+            if not qp.success() or not np.isfinite(step).all():
+                self.last_failure = "qp"
                 return U_guess, False
+            self.last_slack = float(self._qp_data.slacks(qp).max())
             merit0 = self._merit(X, V, x_ref, v_prev)
             for alpha in LINE_SEARCH_STEPS:
                 V_try = np.clip(V + alpha * step, lo, hi)
-                X_try = np.asarray(self.rollout(x0, (self.u_hover + V_try.reshape(n, NU) * self.u_scale).T))[:, 1:].T
+                roll.args[1][:] = (self.u_hover + V_try.reshape(n, NU) * self.u_scale).reshape(-1)
+                roll()
+                X_try = roll.res[0].reshape(n + 1, NX)[1:]
                 if np.isfinite(X_try).all() and self._merit(X_try, V_try, x_ref, v_prev) < merit0:
                     V = V_try
                     break
@@ -382,3 +484,256 @@ class TrackingOCP:
         idx = np.searchsorted(self.node_times, starts, side="right") - 1
         return U[np.minimum(idx, U.shape[0] - 1)]
 
+
+class _CondensedQP:
+    """The Gauss-Newton QP in the input steps alone (states eliminated by the compiled condensing): a
+    dense 4N x 4N Hessian, and the N x 2 curvature slacks s >= 0 as variables after the input steps, with
+    the 4N rows G dv + s >= -q_max - q, G dv - s <= q_max - q. For the dense solvers."""
+
+    def __init__(self, n: int, state_weights: np.ndarray, weight_input: float, weight_input_rate: float):
+        ca = import_casadi()
+        nv = NU * n
+        ns = NS * n
+        self.n, self.nv, self.W, self.wu, self.wd = n, nv, state_weights, weight_input, weight_input_rate
+        self.sparsity = {"h": ca.Sparsity.dense(nv + ns, nv + ns), "a": ca.Sparsity.dense(2 * ns, nv + ns)}
+        self.solver_options = {}
+        # input cost: R on v_k, R_d on v_k - v_{k-1}: H_u = R I + R_d D^T D (D the difference operator)
+        D = np.eye(nv) - np.eye(nv, k=-NU)
+        self._input_hessian = weight_input * np.eye(nv) + weight_input_rate * D.T @ D
+        self._G = np.zeros((NX * n, nv))
+        self._Hu = np.zeros((nv, nv))
+        self._H = np.zeros((nv + ns, nv + ns))
+        self._H[nv:, nv:] = SLACK_WEIGHT * np.eye(ns)
+        self._A = np.zeros((2 * ns, nv + ns))
+        self._A[:ns, nv:] = np.eye(ns)
+        self._A[ns:, nv:] = -np.eye(ns)
+        self._g = np.zeros(nv)
+        self._arm_rows = np.concatenate([np.arange(NX * k + 3, NX * k + 5) for k in range(n)])
+
+    def prepare(self, qp: _Buffered) -> None:
+        """The slacks' constant entries: their linear cost, their bounds, the rows' open sides."""
+        nv, ns = self.nv, NS * self.n
+        arg = qp.named_args
+        arg["g"][nv:] = VIOLATION_PENALTY
+        arg["lbx"][nv:] = 0.0
+        arg["ubx"][nv:] = FREE_BOUND
+        arg["uba"][:ns] = FREE_BOUND
+        arg["lba"][ns:] = -FREE_BOUND
+
+    def fill(self, qp: _Buffered, A, B, u_scale, X, x_ref, V, v_prev, lo, hi, qmax) -> None:
+        """The QP's arguments into the solver instance's arrays."""
+        nv, ns = self.nv, NS * self.n
+        G, Hu, g_state = self._G, self._Hu, self._g
+        condense(A, B, u_scale, self.W, (X - x_ref).reshape(-1), G, Hu, g_state)
+        H = self._H
+        H[:nv, :nv] = Hu + self._input_hessian
+        dv = _differences(V, v_prev)
+        dtd = dv.copy()  # D^T dv
+        dtd[:-NU] -= dv[NU:]
+        qa = X[:, 3:5].reshape(-1)
+        self._A[:ns, :nv] = G[self._arm_rows]
+        self._A[ns:, :nv] = G[self._arm_rows]
+        arg = qp.named_args
+        arg["h"][:] = H.reshape(-1)  # symmetric: its column-major order is its row-major one
+        arg["g"][:nv] = g_state + self.wu * V + self.wd * dtd
+        arg["a"][:] = self._A.T.reshape(-1)  # column-major
+        arg["lba"][:ns] = -qmax - qa
+        arg["uba"][ns:] = qmax - qa
+        arg["lbx"][:nv] = lo - V
+        arg["ubx"][:nv] = hi - V
+
+    def input_step(self, qp: _Buffered) -> np.ndarray:
+        return qp.named_res["x"][:self.nv].copy()
+
+    def slacks(self, qp: _Buffered) -> np.ndarray:
+        """The curvature slacks of the last solve, (N, 2) [rad]."""
+        return qp.named_res["x"][self.nv:].reshape(self.n, NS).copy()
+
+
+class _SparseQP:
+    """The same Gauss-Newton QP with the OCP's stage structure, for HPIPM (a Riccati-based interior point
+    method: work linear in N, against cubic for a dense QP in the 4N inputs).
+
+    Variables (the state steps of the rollout and the input steps, in stage order): u_0, then for
+    k = 1 .. N-1 (x_k, u_k), then x_N, where u_k = (dv_k (4), w_k (2)) and x_k = (dx_k (10), p_k (4),
+    s_k (2)): p_k = dv_{k-1} carries the previous stage's input step, so that the input-rate cost
+    |v_k + dv_k - v_{k-1} - p_k|^2 is a cost of stage k alone (HPIPM's stage costs cannot couple two
+    stages), and s_k = w_{k-1} >= 0 is node k's curvature slack, chosen one stage ahead as an input (stage
+    N has no inputs) and carried into the stage whose curvatures it relaxes. x_0 = 0 is not a variable (the
+    measured state: no step). Constraints: the linearised dynamics, dx_{k+1} = A_k dx_k + B_k S dv_k,
+    p_{k+1} = dv_k, s_{k+1} = w_k (S = diag(u_scale)), as the equality rows HPIPM eliminates by its
+    Riccati recursion; the actuator limits as bounds on dv_k; and at each node k = 1 .. N four rows of
+    stage k, dq_k + s_k >= -q_max - q_k and dq_k - s_k <= q_max - q_k (q = (q_l, q_r) of the rollout).
+    The rollout is the model's (single shooting): the dynamics rows have no residual. CasADi's HPIPM
+    interface takes the rows in the order (dynamics of interval 0, rows of stage 0, dynamics of interval 1,
+    rows of stage 1, ..., rows of stage N).
+    """
+
+    def __init__(self, n: int, state_weights: np.ndarray, weight_input: float, weight_input_rate: float):
+        ca = import_casadi()
+        nxa = NX + NU + NS  # augmented state (dx, p, s)
+        nua = NU + NS  # augmented input (dv, w)
+        ng = 2 * NS  # curvature rows per stage k >= 1
+        self.n, self.wu, self.wd = n, weight_input, weight_input_rate
+        self.W = state_weights.reshape(n, NX)
+        # column offsets: u_k's first column, x_k's first column (k >= 1)
+        ucol = np.array([0] + [nua + (nxa + nua) * (k - 1) + nxa for k in range(1, n)])
+        xcol = np.array([-1] + [nua + (nxa + nua) * (k - 1) for k in range(1, n + 1)])
+        self.nvar = int(xcol[n] + nxa)
+        self.ucols = (ucol[:, None] + np.arange(NU)).reshape(-1)
+        self.wcols = (ucol[:, None] + NU + np.arange(NS)).reshape(-1)
+        self.xcols = xcol[1:, None] + np.arange(nxa)  # (N, 16): x_k, k = 1 .. N
+        self.scols = self.xcols[:, NX + NU:]  # (N, 2): s_k
+        self.solver_options = {"N": n, "nx": [0] + [nxa] * n, "nu": [nua] * n + [0], "ng": [0] + [ng] * n}
+        # row offsets: dynamics of interval k, then the rows of stage k (none at stage 0)
+        dyn_row = np.array([k * nxa + ng * max(k - 1, 0) for k in range(n)])
+        stage_row = np.array([-1] + [dyn_row[k] + nxa for k in range(1, n)] + [n * nxa + ng * (n - 1)])
+        self.nrow = n * nxa + ng * n
+        #: rows q + s >= lo and q - s <= hi of stages 1 .. N, (N, 2) each
+        self.lower_rows = stage_row[1:, None] + np.arange(NS)
+        self.upper_rows = stage_row[1:, None] + NS + np.arange(NS)
+        self.dynamics_rows = (dyn_row[:, None] + np.arange(nxa)).reshape(-1)
+
+        rows, cols, consts = [], [], []
+        i10, j10 = np.meshgrid(np.arange(NX), np.arange(NX), indexing="ij")
+        for k in range(1, n):  # A_k (interval 0 starts at x_0, not a variable)
+            rows.append(dyn_row[k] + i10)
+            cols.append(xcol[k] + j10)
+        i4, j4 = np.meshgrid(np.arange(NX), np.arange(NU), indexing="ij")
+        for k in range(n):  # B_k S
+            rows.append(dyn_row[k] + i4)
+            cols.append(ucol[k] + j4)
+        for k in range(n):  # p_{k+1} = dv_k, s_{k+1} = w_k
+            rows.append(dyn_row[k] + NX + np.arange(NU + NS))
+            cols.append(ucol[k] + np.arange(NU + NS))
+            consts.append(np.ones(NU + NS))
+        for k in range(n):  # - x_{k+1}
+            rows.append(dyn_row[k] + np.arange(nxa))
+            cols.append(xcol[k + 1] + np.arange(nxa))
+            consts.append(-np.ones(nxa))
+        for k in range(1, n + 1):  # stage k's curvature rows: dq + s (lower bound), dq - s (upper bound)
+            for j in range(NS):
+                for row, sign in ((stage_row[k] + j, 1.0), (stage_row[k] + NS + j, -1.0)):
+                    rows.append(np.array([row, row]))
+                    cols.append(np.array([xcol[k] + 3 + j, xcol[k] + NX + NU + j]))
+                    consts.append(np.array([1.0, sign]))
+        rows = np.concatenate([r.ravel() for r in rows])
+        cols = np.concatenate([c.ravel() for c in cols])
+        self._n_a, self._n_b = NX * NX * (n - 1), NX * NU * n
+        a_sp, self._a_order = _sparsity_and_order(ca, rows, cols, self.nrow, self.nvar)
+        self._a_values = np.zeros(rows.size)
+        self._a_values[self._n_a + self._n_b:] = np.concatenate(consts)
+
+        # Hessian (constant): W on dx_k, wu + wd on dv_k, wd on p_k and -wd between dv_k and p_k (k >= 1),
+        # SLACK_WEIGHT on s_k
+        diag = np.zeros(self.nvar)
+        diag[self.ucols] = weight_input + weight_input_rate
+        diag[self.xcols[:, :NX]] = self.W
+        diag[self.xcols[:-1, NX:NX + NU]] = weight_input_rate
+        diag[self.scols] = SLACK_WEIGHT
+        off_r = self.xcols[:-1, NX:NX + NU].reshape(-1)
+        off_c = self.ucols[NU:]
+        hr = np.concatenate([np.arange(self.nvar), off_r, off_c])
+        hc = np.concatenate([np.arange(self.nvar), off_c, off_r])
+        hv = np.concatenate([diag, np.full(off_r.size, -weight_input_rate), np.full(off_c.size, -weight_input_rate)])
+        keep = hv != 0.0
+        h_sp, order = _sparsity_and_order(ca, hr[keep], hc[keep], self.nvar, self.nvar)
+        self._h_values = hv[keep][order]
+        self.sparsity = {"h": h_sp, "a": a_sp}
+
+    def prepare(self, qp: _Buffered) -> None:
+        """The constant Hessian, dynamics residuals, slack costs and bounds, and unbounded entries into the
+        instance's arrays."""
+        arg = qp.named_args
+        arg["h"][:] = self._h_values
+        arg["lba"][self.dynamics_rows] = 0.0
+        arg["uba"][self.dynamics_rows] = 0.0
+        arg["uba"][self.lower_rows] = FREE_BOUND
+        arg["lba"][self.upper_rows] = -FREE_BOUND
+        # the unbounded entries (all state steps) get wide finite bounds: HPIPM bounds every variable, and
+        # at its default replacement of an infinite bound (1e8) its interior point iterations stall (100
+        # iterations without convergence); the ``inf`` option did not keep its calls independent (a call's
+        # result depended on the call before it)
+        arg["lbx"][:] = -FREE_BOUND
+        arg["ubx"][:] = FREE_BOUND
+        arg["lbx"][self.scols] = 0.0
+        arg["lbx"][self.wcols] = 0.0
+        arg["g"][self.scols] = VIOLATION_PENALTY
+
+    def fill(self, qp: _Buffered, A, B, u_scale, X, x_ref, V, v_prev, lo, hi, qmax) -> None:
+        """The QP's arguments into the solver instance's arrays."""
+        n = self.n
+        vals = self._a_values
+        vals[:self._n_a] = A[:, NX:].reshape(NX, n - 1, NX).transpose(1, 0, 2).reshape(-1)
+        vals[self._n_a:self._n_a + self._n_b] = (B.reshape(NX, n, NU) * u_scale).transpose(1, 0, 2).reshape(-1)
+        arg = qp.named_args
+        np.take(vals, self._a_order, out=arg["a"])
+        Vk = V.reshape(n, NU)
+        change = Vk.copy()  # c_k = v_k - v_{k-1}
+        change[1:] -= Vk[:-1]
+        change[0] -= v_prev
+        g = arg["g"]
+        g[self.ucols] = (self.wu * Vk + self.wd * change).reshape(-1)
+        g[self.xcols[:, :NX]] = self.W * (X - x_ref)
+        g[self.xcols[:-1, NX:NX + NU]] = -self.wd * change[1:]
+        arg["lbx"][self.ucols] = lo - V
+        arg["ubx"][self.ucols] = hi - V
+        arg["lba"][self.lower_rows] = -qmax - X[:, 3:5]
+        arg["uba"][self.upper_rows] = qmax - X[:, 3:5]
+
+    def input_step(self, qp: _Buffered) -> np.ndarray:
+        return qp.named_res["x"][self.ucols]
+
+    def slacks(self, qp: _Buffered) -> np.ndarray:
+        """The curvature slacks of the last solve, (N, 2) [rad]."""
+        return qp.named_res["x"][self.scols].copy()
+
+
+def _sparsity_and_order(ca, rows: np.ndarray, cols: np.ndarray, nrow: int, ncol: int):
+    """(CasADi Sparsity of the entries (rows, cols), the permutation that puts values given in the
+    order of (rows, cols) into CasADi's column-major order of nonzeros)."""
+    template = ca.DM.triplet(rows.tolist(), cols.tolist(), ca.DM(np.arange(1.0, rows.size + 1)), nrow, ncol)
+    order = np.asarray(template.nonzeros(), dtype=np.int64) - 1
+    if template.nnz() != rows.size or sorted(order.tolist()) != list(range(rows.size)):
+        raise RuntimeError("the QP's structure has repeated entries")
+    return template.sparsity(), order
+
+
+class _Buffered:
+    """A CasADi Function called on NumPy arrays it reads and writes in place (``Function.buffer``):
+    CasADi's conversions of NumPy arrays to and from its matrices cost ~1 ms for a 100 x 100 matrix,
+    more than the QP's solve. ``args[i]`` / ``res[i]``: the nonzeros of input / output i in CasADi's
+    column-major order (a dense (r, c) matrix M is ``array.reshape(c, r)`` = M.T), also by name in
+    ``named_args`` / ``named_res``.
+
+    ``fresh_work``: every call gets a new buffer, i.e. zeroed work memory. CasADi's HPIPM interface
+    (3.8) leaves state in its work memory from one call to the next (the second of two different QPs
+    solved through one buffer came out wrong, by up to the whole thrust range; a plain Function call,
+    which allocates its work anew, did not), so HPIPM is called this way (~15 us more per call)."""
+
+    def __init__(self, fn, fresh_work: bool = False):
+        self.fn = fn
+        self.fresh_work = fresh_work
+        self.args = [np.zeros(fn.nnz_in(i)) for i in range(fn.n_in())]
+        self.res = [np.zeros(fn.nnz_out(i)) for i in range(fn.n_out())]
+        self.named_args = {fn.name_in(i): a for i, a in enumerate(self.args)}
+        self.named_res = {fn.name_out(i): r for i, r in enumerate(self.res)}
+        self._bind()
+
+    def _bind(self) -> None:
+        self._buffer, self._eval = self.fn.buffer()
+        for i, a in enumerate(self.args):
+            self._buffer.set_arg(i, memoryview(a))
+        for i, r in enumerate(self.res):
+            self._buffer.set_res(i, memoryview(r))
+
+    def __call__(self) -> int:
+        """Evaluate; CasADi's return flag (0: no error raised by the Function)."""
+        if self.fresh_work:
+            self._bind()
+        self._eval()
+        return self._buffer.ret()
+
+    def success(self) -> bool:
+        """Whether the last call of a solver succeeded (its ``stats()["success"]``)."""
+        return bool(self._buffer.stats().get("success", False))

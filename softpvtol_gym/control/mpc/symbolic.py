@@ -15,12 +15,16 @@ over a step (zero-order hold, B(q) evaluated at every RK4 stage as in the env's 
 
 from __future__ import annotations
 
+import math
+
 from ...model.series import A_COEFFS, C1_COEFFS, D1P_COEFFS, D2_COEFFS, D2PQ_COEFFS, S0_COEFFS
 from ...params import P_EPS, P_G, P_I, P_IL, P_IR, P_LL, P_LR, P_M, P_ML, P_MR
 from ._casadi import import_casadi
 
 #: the input maps written here (:data:`softpvtol_gym.dynamics.INPUT_MAPS`)
 INPUT_MAPS = ("paper", "exact")
+#: |q_l|, |q_r| [rad] beyond which ``continuous_dynamics`` holds the curvature terms constant
+CURVATURE_RANGE = 2.0 * math.pi
 
 
 def horner(c, s):
@@ -101,30 +105,45 @@ def generalized_forces(q, a, p, input_map: str):
     return [t0, t1, t2, a[2] + Tl * ll * horner(C1_COEFFS, ql * ql), a[3] + Tr * lr * horner(C1_COEFFS, qr * qr)]
 
 
-def continuous_dynamics(p, input_map: str):
-    """CasADi Function ``f(x[10], u[4]) -> xdot[10]`` of the paper's model with parameters p."""
+def continuous_dynamics(p, input_map: str, disturbance: bool = False):
+    """CasADi Function ``f(x[10], u[4]) -> xdot[10]`` of the paper's model with parameters p; with
+    ``disturbance``, ``f(x[10], u[4], d[5])``: d is added to the generalized forces B(q) u (the MPC's
+    estimate of the forces its model lacks)."""
     ca = import_casadi()
     x = ca.SX.sym("x", 10)
     u = ca.SX.sym("u", 4)
     q, qd = [x[i] for i in range(5)], [x[5 + i] for i in range(5)]
+    # the curvature terms are polynomials accurate to |q| = 2 pi (twice the env's limit) that grow without
+    # bound beyond: there they are held at their values at +-2 pi, so that a rollout of the model that
+    # leaves that range (an open-loop plan over the horizon) stays finite
+    q[3], q[4] = (ca.fmin(ca.fmax(qi, -CURVATURE_RANGE), CURVATURE_RANGE) for qi in (q[3], q[4]))
     tau = generalized_forces(q, [u[i] for i in range(4)], p, input_map)
+    inputs, names = [x, u], ["x", "u"]
+    if disturbance:
+        d = ca.SX.sym("d", 5)
+        tau = [tau[i] + d[i] for i in range(5)]
+        inputs.append(d)
+        names.append("d")
     acc = qddot(q, qd, tau, p)
-    return ca.Function("softpvtol_dynamics", [x, u], [ca.vertcat(*qd, *acc)], ["x", "u"], ["xdot"])
+    return ca.Function("softpvtol_dynamics", inputs, [ca.vertcat(*qd, *acc)], names, ["xdot"])
 
 
 def rk4_step(f, substeps: int = 1):
     """CasADi Function ``F(x[10], u[4], h) -> x_next[10]``: ``substeps`` classical RK4 steps of the
-    continuous dynamics ``f`` over h seconds in all, u held."""
+    continuous dynamics ``f`` over h seconds in all, u held. For an ``f`` with a disturbance input
+    (``continuous_dynamics(..., disturbance=True)``): ``F(x, u, h, d[5])``, d held too."""
     ca = import_casadi()
     x = ca.SX.sym("x", 10)
     u = ca.SX.sym("u", 4)
     h = ca.SX.sym("h")
+    extra = [ca.SX.sym("d", 5)] if f.n_in() == 3 else []
     dt = h / substeps
     xn = x
     for _ in range(substeps):
-        k1 = f(xn, u)
-        k2 = f(xn + 0.5 * dt * k1, u)
-        k3 = f(xn + 0.5 * dt * k2, u)
-        k4 = f(xn + dt * k3, u)
+        k1 = f(xn, u, *extra)
+        k2 = f(xn + 0.5 * dt * k1, u, *extra)
+        k3 = f(xn + 0.5 * dt * k2, u, *extra)
+        k4 = f(xn + dt * k3, u, *extra)
         xn = xn + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-    return ca.Function("softpvtol_rk4", [x, u, h], [xn], ["x", "u", "h"], ["x_next"])
+    names = ["x", "u", "h"] + (["d"] if extra else [])
+    return ca.Function("softpvtol_rk4", [x, u, h, *extra], [xn], names, ["x_next"])
