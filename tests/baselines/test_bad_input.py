@@ -856,11 +856,23 @@ def _children(pid: int) -> list[int]:
     return out
 
 
-def _handles_sigterm(pid: int) -> bool:
+def _catches(pid: int, sig: int) -> bool:
+    """Whether process ``pid`` has a handler installed for ``sig`` (its SigCgt mask)."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("SigCgt:"):
-            return bool(int(line.split()[1], 16) & (1 << (signal.SIGTERM - 1)))
+            return bool(int(line.split()[1], 16) & (1 << (sig - 1)))
     return False
+
+
+def _handles_sigterm(pid: int) -> bool:
+    return _catches(pid, signal.SIGTERM)
+
+
+def _as_from_a_terminal() -> None:
+    """Run in a child before it starts: Ctrl-C at its default disposition, as in a shell. An ignored SIGINT is
+    inherited, and Python then installs no KeyboardInterrupt handler; the worker processes of a parallel test run
+    may ignore it."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 DRIVER = textwrap.dedent("""
@@ -893,14 +905,14 @@ def test_run_jobs_interrupted_stops_its_workers_and_says_what_was_kept(sig, code
     driver = tmp_path / "driver.py"
     driver.write_text(DRIVER.format(tests=str(Path(__file__).parent)))
     proc = subprocess.Popen([sys.executable, str(driver), "3", str(root)], env=ENV, cwd=tmp_path,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_as_from_a_terminal)
     try:
         deadline = time.monotonic() + 120
         while len(list(root.glob("*.pid"))) < 2:  # both workers are running their job
             assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
             time.sleep(0.2)
         workers = [int(p.read_text()) for p in root.glob("*.pid")]
-        assert _handles_sigterm(proc.pid)
+        assert _catches(proc.pid, sig), f"the driver has no handler for {signal.Signals(sig).name}"
         proc.send_signal(sig)  # to the driver only: its workers must be stopped by it
         _, err = proc.communicate(timeout=60)
     finally:
@@ -985,7 +997,7 @@ def _signal_command(argv: list[str], cwd: Path, ready: str, sig: int, delay: flo
     out = cwd / "stdout.txt"
     with open(out, "w") as fh:
         proc = subprocess.Popen([sys.executable, "-m", "softpvtol_gym.baselines", *argv], env=ENV, cwd=cwd,
-                                stdout=fh, stderr=subprocess.PIPE, text=True)
+                                stdout=fh, stderr=subprocess.PIPE, text=True, preexec_fn=_as_from_a_terminal)
         try:
             deadline = time.monotonic() + 240
             while not _handles_sigterm(proc.pid) or ready not in out.read_text():
