@@ -50,20 +50,20 @@ from ...params import SoftPVTOLParams
 from . import symbolic
 from ._casadi import import_casadi
 from ._codegen import compile_functions, find_compiler
-from ._kernels import condense
+from .qp import (
+    NU,
+    NX,
+    VIOLATION_PENALTY,
+    _Buffered,
+    _CondensedQP,
+    _differences,
+    _SparseQP,
+)
 
-NX, NU = 10, 4
 #: the generalized-force disturbance's size (one per generalized coordinate x, z, theta, q_l, q_r)
 ND = 5
 #: the line search's step lengths (fractions of the Gauss-Newton step)
 LINE_SEARCH_STEPS = (1.0, 0.5, 0.25, 0.125)
-#: price of a curvature bound violation [cost units per rad]: the QP's L1 penalty on its slacks and the
-#: line search's merit (far above the curvature limit's multipliers in the QPs met: an exact penalty)
-VIOLATION_PENALTY = 1e4
-#: the QP's quadratic weight on the curvature slacks (keeps the QP strictly convex in them)
-SLACK_WEIGHT = 1.0
-#: slacks per node (one per arm: q_l, q_r)
-NS = 2
 #: CasADi QP solvers the MPC accepts (ones that CasADi's wheels bundle) and their options; none of them
 #: starts from an earlier call's solution (qpOASES hot-starts from its last active set: the policy gives
 #: each batch entry its own instance, see ``TrackingOCP.new_qp``)
@@ -78,8 +78,6 @@ QP_SOLVERS: dict[str, dict] = {
 #: the solvers that take the QP with its OCP structure (states and inputs as variables); the others
 #: take it condensed (inputs only)
 SPARSE_QP_SOLVERS = ("hpipm",)
-#: the bound of the sparse QP's unbounded variables (state steps) for HPIPM
-FREE_BOUND = 1e4
 #: the solvers that print to stdout (silenced around each call)
 CHATTY_QP_SOLVERS = ("qpoases",)
 
@@ -259,14 +257,6 @@ def _flush_c_stdio() -> None:
         ctypes.CDLL(None).fflush(None)
     except (OSError, AttributeError, TypeError):  # no C library to reach (e.g. Windows): nothing buffered there
         pass
-
-
-def _differences(V: np.ndarray, v_prev: np.ndarray) -> np.ndarray:
-    """D V - (v_prev, 0, ..): the changes v_k - v_{k-1} of the stacked inputs V (4 N), v_{-1} = v_prev."""
-    dv = V.copy()
-    dv[NU:] -= V[:-NU]
-    dv[:NU] -= v_prev
-    return dv
 
 
 def hover_input(params: SoftPVTOLParams, input_map: str) -> np.ndarray:
@@ -483,257 +473,3 @@ class TrackingOCP:
         starts = self.node_times[:-1] + period + 1e-9  # (a start on a node takes that node's input)
         idx = np.searchsorted(self.node_times, starts, side="right") - 1
         return U[np.minimum(idx, U.shape[0] - 1)]
-
-
-class _CondensedQP:
-    """The Gauss-Newton QP in the input steps alone (states eliminated by the compiled condensing): a
-    dense 4N x 4N Hessian, and the N x 2 curvature slacks s >= 0 as variables after the input steps, with
-    the 4N rows G dv + s >= -q_max - q, G dv - s <= q_max - q. For the dense solvers."""
-
-    def __init__(self, n: int, state_weights: np.ndarray, weight_input: float, weight_input_rate: float):
-        ca = import_casadi()
-        nv = NU * n
-        ns = NS * n
-        self.n, self.nv, self.W, self.wu, self.wd = n, nv, state_weights, weight_input, weight_input_rate
-        self.sparsity = {"h": ca.Sparsity.dense(nv + ns, nv + ns), "a": ca.Sparsity.dense(2 * ns, nv + ns)}
-        self.solver_options = {}
-        # input cost: R on v_k, R_d on v_k - v_{k-1}: H_u = R I + R_d D^T D (D the difference operator)
-        D = np.eye(nv) - np.eye(nv, k=-NU)
-        self._input_hessian = weight_input * np.eye(nv) + weight_input_rate * D.T @ D
-        self._G = np.zeros((NX * n, nv))
-        self._Hu = np.zeros((nv, nv))
-        self._H = np.zeros((nv + ns, nv + ns))
-        self._H[nv:, nv:] = SLACK_WEIGHT * np.eye(ns)
-        self._A = np.zeros((2 * ns, nv + ns))
-        self._A[:ns, nv:] = np.eye(ns)
-        self._A[ns:, nv:] = -np.eye(ns)
-        self._g = np.zeros(nv)
-        self._arm_rows = np.concatenate([np.arange(NX * k + 3, NX * k + 5) for k in range(n)])
-
-    def prepare(self, qp: _Buffered) -> None:
-        """The slacks' constant entries: their linear cost, their bounds, the rows' open sides."""
-        nv, ns = self.nv, NS * self.n
-        arg = qp.named_args
-        arg["g"][nv:] = VIOLATION_PENALTY
-        arg["lbx"][nv:] = 0.0
-        arg["ubx"][nv:] = FREE_BOUND
-        arg["uba"][:ns] = FREE_BOUND
-        arg["lba"][ns:] = -FREE_BOUND
-
-    def fill(self, qp: _Buffered, A, B, u_scale, X, x_ref, V, v_prev, lo, hi, qmax) -> None:
-        """The QP's arguments into the solver instance's arrays."""
-        nv, ns = self.nv, NS * self.n
-        G, Hu, g_state = self._G, self._Hu, self._g
-        condense(A, B, u_scale, self.W, (X - x_ref).reshape(-1), G, Hu, g_state)
-        H = self._H
-        H[:nv, :nv] = Hu + self._input_hessian
-        dv = _differences(V, v_prev)
-        dtd = dv.copy()  # D^T dv
-        dtd[:-NU] -= dv[NU:]
-        qa = X[:, 3:5].reshape(-1)
-        self._A[:ns, :nv] = G[self._arm_rows]
-        self._A[ns:, :nv] = G[self._arm_rows]
-        arg = qp.named_args
-        arg["h"][:] = H.reshape(-1)  # symmetric: its column-major order is its row-major one
-        arg["g"][:nv] = g_state + self.wu * V + self.wd * dtd
-        arg["a"][:] = self._A.T.reshape(-1)  # column-major
-        arg["lba"][:ns] = -qmax - qa
-        arg["uba"][ns:] = qmax - qa
-        arg["lbx"][:nv] = lo - V
-        arg["ubx"][:nv] = hi - V
-
-    def input_step(self, qp: _Buffered) -> np.ndarray:
-        return qp.named_res["x"][:self.nv].copy()
-
-    def slacks(self, qp: _Buffered) -> np.ndarray:
-        """The curvature slacks of the last solve, (N, 2) [rad]."""
-        return qp.named_res["x"][self.nv:].reshape(self.n, NS).copy()
-
-
-class _SparseQP:
-    """The same Gauss-Newton QP with the OCP's stage structure, for HPIPM (a Riccati-based interior point
-    method: work linear in N, against cubic for a dense QP in the 4N inputs).
-
-    Variables (the state steps of the rollout and the input steps, in stage order): u_0, then for
-    k = 1 .. N-1 (x_k, u_k), then x_N, where u_k = (dv_k (4), w_k (2)) and x_k = (dx_k (10), p_k (4),
-    s_k (2)): p_k = dv_{k-1} carries the previous stage's input step, so that the input-rate cost
-    |v_k + dv_k - v_{k-1} - p_k|^2 is a cost of stage k alone (HPIPM's stage costs cannot couple two
-    stages), and s_k = w_{k-1} >= 0 is node k's curvature slack, chosen one stage ahead as an input (stage
-    N has no inputs) and carried into the stage whose curvatures it relaxes. x_0 = 0 is not a variable (the
-    measured state: no step). Constraints: the linearised dynamics, dx_{k+1} = A_k dx_k + B_k S dv_k,
-    p_{k+1} = dv_k, s_{k+1} = w_k (S = diag(u_scale)), as the equality rows HPIPM eliminates by its
-    Riccati recursion; the actuator limits as bounds on dv_k; and at each node k = 1 .. N four rows of
-    stage k, dq_k + s_k >= -q_max - q_k and dq_k - s_k <= q_max - q_k (q = (q_l, q_r) of the rollout).
-    The rollout is the model's (single shooting): the dynamics rows have no residual. CasADi's HPIPM
-    interface takes the rows in the order (dynamics of interval 0, rows of stage 0, dynamics of interval 1,
-    rows of stage 1, ..., rows of stage N).
-    """
-
-    def __init__(self, n: int, state_weights: np.ndarray, weight_input: float, weight_input_rate: float):
-        ca = import_casadi()
-        nxa = NX + NU + NS  # augmented state (dx, p, s)
-        nua = NU + NS  # augmented input (dv, w)
-        ng = 2 * NS  # curvature rows per stage k >= 1
-        self.n, self.wu, self.wd = n, weight_input, weight_input_rate
-        self.W = state_weights.reshape(n, NX)
-        # column offsets: u_k's first column, x_k's first column (k >= 1)
-        ucol = np.array([0] + [nua + (nxa + nua) * (k - 1) + nxa for k in range(1, n)])
-        xcol = np.array([-1] + [nua + (nxa + nua) * (k - 1) for k in range(1, n + 1)])
-        self.nvar = int(xcol[n] + nxa)
-        self.ucols = (ucol[:, None] + np.arange(NU)).reshape(-1)
-        self.wcols = (ucol[:, None] + NU + np.arange(NS)).reshape(-1)
-        self.xcols = xcol[1:, None] + np.arange(nxa)  # (N, 16): x_k, k = 1 .. N
-        self.scols = self.xcols[:, NX + NU:]  # (N, 2): s_k
-        self.solver_options = {"N": n, "nx": [0] + [nxa] * n, "nu": [nua] * n + [0], "ng": [0] + [ng] * n}
-        # row offsets: dynamics of interval k, then the rows of stage k (none at stage 0)
-        dyn_row = np.array([k * nxa + ng * max(k - 1, 0) for k in range(n)])
-        stage_row = np.array([-1] + [dyn_row[k] + nxa for k in range(1, n)] + [n * nxa + ng * (n - 1)])
-        self.nrow = n * nxa + ng * n
-        #: rows q + s >= lo and q - s <= hi of stages 1 .. N, (N, 2) each
-        self.lower_rows = stage_row[1:, None] + np.arange(NS)
-        self.upper_rows = stage_row[1:, None] + NS + np.arange(NS)
-        self.dynamics_rows = (dyn_row[:, None] + np.arange(nxa)).reshape(-1)
-
-        rows, cols, consts = [], [], []
-        i10, j10 = np.meshgrid(np.arange(NX), np.arange(NX), indexing="ij")
-        for k in range(1, n):  # A_k (interval 0 starts at x_0, not a variable)
-            rows.append(dyn_row[k] + i10)
-            cols.append(xcol[k] + j10)
-        i4, j4 = np.meshgrid(np.arange(NX), np.arange(NU), indexing="ij")
-        for k in range(n):  # B_k S
-            rows.append(dyn_row[k] + i4)
-            cols.append(ucol[k] + j4)
-        for k in range(n):  # p_{k+1} = dv_k, s_{k+1} = w_k
-            rows.append(dyn_row[k] + NX + np.arange(NU + NS))
-            cols.append(ucol[k] + np.arange(NU + NS))
-            consts.append(np.ones(NU + NS))
-        for k in range(n):  # - x_{k+1}
-            rows.append(dyn_row[k] + np.arange(nxa))
-            cols.append(xcol[k + 1] + np.arange(nxa))
-            consts.append(-np.ones(nxa))
-        for k in range(1, n + 1):  # stage k's curvature rows: dq + s (lower bound), dq - s (upper bound)
-            for j in range(NS):
-                for row, sign in ((stage_row[k] + j, 1.0), (stage_row[k] + NS + j, -1.0)):
-                    rows.append(np.array([row, row]))
-                    cols.append(np.array([xcol[k] + 3 + j, xcol[k] + NX + NU + j]))
-                    consts.append(np.array([1.0, sign]))
-        rows = np.concatenate([r.ravel() for r in rows])
-        cols = np.concatenate([c.ravel() for c in cols])
-        self._n_a, self._n_b = NX * NX * (n - 1), NX * NU * n
-        a_sp, self._a_order = _sparsity_and_order(ca, rows, cols, self.nrow, self.nvar)
-        self._a_values = np.zeros(rows.size)
-        self._a_values[self._n_a + self._n_b:] = np.concatenate(consts)
-
-        # Hessian (constant): W on dx_k, wu + wd on dv_k, wd on p_k and -wd between dv_k and p_k (k >= 1),
-        # SLACK_WEIGHT on s_k
-        diag = np.zeros(self.nvar)
-        diag[self.ucols] = weight_input + weight_input_rate
-        diag[self.xcols[:, :NX]] = self.W
-        diag[self.xcols[:-1, NX:NX + NU]] = weight_input_rate
-        diag[self.scols] = SLACK_WEIGHT
-        off_r = self.xcols[:-1, NX:NX + NU].reshape(-1)
-        off_c = self.ucols[NU:]
-        hr = np.concatenate([np.arange(self.nvar), off_r, off_c])
-        hc = np.concatenate([np.arange(self.nvar), off_c, off_r])
-        hv = np.concatenate([diag, np.full(off_r.size, -weight_input_rate), np.full(off_c.size, -weight_input_rate)])
-        keep = hv != 0.0
-        h_sp, order = _sparsity_and_order(ca, hr[keep], hc[keep], self.nvar, self.nvar)
-        self._h_values = hv[keep][order]
-        self.sparsity = {"h": h_sp, "a": a_sp}
-
-    def prepare(self, qp: _Buffered) -> None:
-        """The constant Hessian, dynamics residuals, slack costs and bounds, and unbounded entries into the
-        instance's arrays."""
-        arg = qp.named_args
-        arg["h"][:] = self._h_values
-        arg["lba"][self.dynamics_rows] = 0.0
-        arg["uba"][self.dynamics_rows] = 0.0
-        arg["uba"][self.lower_rows] = FREE_BOUND
-        arg["lba"][self.upper_rows] = -FREE_BOUND
-        # the unbounded entries (all state steps) get wide finite bounds: HPIPM bounds every variable, and
-        # at its default replacement of an infinite bound (1e8) its interior point iterations stall (100
-        # iterations without convergence); the ``inf`` option did not keep its calls independent (a call's
-        # result depended on the call before it)
-        arg["lbx"][:] = -FREE_BOUND
-        arg["ubx"][:] = FREE_BOUND
-        arg["lbx"][self.scols] = 0.0
-        arg["lbx"][self.wcols] = 0.0
-        arg["g"][self.scols] = VIOLATION_PENALTY
-
-    def fill(self, qp: _Buffered, A, B, u_scale, X, x_ref, V, v_prev, lo, hi, qmax) -> None:
-        """The QP's arguments into the solver instance's arrays."""
-        n = self.n
-        vals = self._a_values
-        vals[:self._n_a] = A[:, NX:].reshape(NX, n - 1, NX).transpose(1, 0, 2).reshape(-1)
-        vals[self._n_a:self._n_a + self._n_b] = (B.reshape(NX, n, NU) * u_scale).transpose(1, 0, 2).reshape(-1)
-        arg = qp.named_args
-        np.take(vals, self._a_order, out=arg["a"])
-        Vk = V.reshape(n, NU)
-        change = Vk.copy()  # c_k = v_k - v_{k-1}
-        change[1:] -= Vk[:-1]
-        change[0] -= v_prev
-        g = arg["g"]
-        g[self.ucols] = (self.wu * Vk + self.wd * change).reshape(-1)
-        g[self.xcols[:, :NX]] = self.W * (X - x_ref)
-        g[self.xcols[:-1, NX:NX + NU]] = -self.wd * change[1:]
-        arg["lbx"][self.ucols] = lo - V
-        arg["ubx"][self.ucols] = hi - V
-        arg["lba"][self.lower_rows] = -qmax - X[:, 3:5]
-        arg["uba"][self.upper_rows] = qmax - X[:, 3:5]
-
-    def input_step(self, qp: _Buffered) -> np.ndarray:
-        return qp.named_res["x"][self.ucols]
-
-    def slacks(self, qp: _Buffered) -> np.ndarray:
-        """The curvature slacks of the last solve, (N, 2) [rad]."""
-        return qp.named_res["x"][self.scols].copy()
-
-
-def _sparsity_and_order(ca, rows: np.ndarray, cols: np.ndarray, nrow: int, ncol: int):
-    """(CasADi Sparsity of the entries (rows, cols), the permutation that puts values given in the
-    order of (rows, cols) into CasADi's column-major order of nonzeros)."""
-    template = ca.DM.triplet(rows.tolist(), cols.tolist(), ca.DM(np.arange(1.0, rows.size + 1)), nrow, ncol)
-    order = np.asarray(template.nonzeros(), dtype=np.int64) - 1
-    if template.nnz() != rows.size or sorted(order.tolist()) != list(range(rows.size)):
-        raise RuntimeError("the QP's structure has repeated entries")
-    return template.sparsity(), order
-
-
-class _Buffered:
-    """A CasADi Function called on NumPy arrays it reads and writes in place (``Function.buffer``):
-    CasADi's conversions of NumPy arrays to and from its matrices cost ~1 ms for a 100 x 100 matrix,
-    more than the QP's solve. ``args[i]`` / ``res[i]``: the nonzeros of input / output i in CasADi's
-    column-major order (a dense (r, c) matrix M is ``array.reshape(c, r)`` = M.T), also by name in
-    ``named_args`` / ``named_res``.
-
-    ``fresh_work``: every call gets a new buffer, i.e. zeroed work memory. CasADi's HPIPM interface
-    (3.8) leaves state in its work memory from one call to the next (the second of two different QPs
-    solved through one buffer came out wrong, by up to the whole thrust range; a plain Function call,
-    which allocates its work anew, did not), so HPIPM is called this way (~15 us more per call)."""
-
-    def __init__(self, fn, fresh_work: bool = False):
-        self.fn = fn
-        self.fresh_work = fresh_work
-        self.args = [np.zeros(fn.nnz_in(i)) for i in range(fn.n_in())]
-        self.res = [np.zeros(fn.nnz_out(i)) for i in range(fn.n_out())]
-        self.named_args = {fn.name_in(i): a for i, a in enumerate(self.args)}
-        self.named_res = {fn.name_out(i): r for i, r in enumerate(self.res)}
-        self._bind()
-
-    def _bind(self) -> None:
-        self._buffer, self._eval = self.fn.buffer()
-        for i, a in enumerate(self.args):
-            self._buffer.set_arg(i, memoryview(a))
-        for i, r in enumerate(self.res):
-            self._buffer.set_res(i, memoryview(r))
-
-    def __call__(self) -> int:
-        """Evaluate; CasADi's return flag (0: no error raised by the Function)."""
-        if self.fresh_work:
-            self._bind()
-        self._eval()
-        return self._buffer.ret()
-
-    def success(self) -> bool:
-        """Whether the last call of a solver succeeded (its ``stats()["success"]``)."""
-        return bool(self._buffer.stats().get("success", False))
