@@ -25,6 +25,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import textwrap
 import time
 from pathlib import Path
@@ -976,8 +977,8 @@ def test_the_exit_codes_are_documented():
 
 
 # ------------------------------------------------------------------------------------------ Ray (slow)
-def _ray_leftovers() -> list[str]:
-    """Ray processes (raylet, GCS, workers) and local Ray temporary folders that exist now."""
+def _ray_processes() -> list[str]:
+    """Ray processes (raylet, GCS, workers) running on this machine now."""
     procs = []
     for d in Path("/proc").iterdir():
         if d.name.isdigit():
@@ -987,16 +988,31 @@ def _ray_leftovers() -> list[str]:
                 continue
             if any(k in cmd for k in ("raylet", "gcs_server", "default_worker.py", "ray::")):
                 procs.append(f"{d.name}: {cmd[:80]}")
-    temps = [*Path("/tmp").glob("ray-*"), *Path("/tmp").glob("softpvtol-tune-*")]
-    return procs + [str(p) for p in temps]
+    return procs
 
 
-def _signal_command(argv: list[str], cwd: Path, ready: str, sig: int, delay: float) -> tuple[int, str]:
-    """Run ``softpvtol argv`` in ``cwd``; once it handles SIGTERM (the command has started) and its stdout shows
-    ``ready``, wait ``delay`` s more and send ``sig``."""
+def _ray_leftovers(temp_dir: Path) -> list[str]:
+    """Ray processes and the folders the command left in its temporary directory (Ray's session folders, a
+    search's storage): the command runs with TMPDIR=temp_dir, so another test's folders are not counted."""
+    return _ray_processes() + [str(p) for pattern in ("ray-*", "softpvtol-tune-*") for p in temp_dir.glob(pattern)]
+
+
+@pytest.fixture
+def command_temp_dir():
+    """A short, empty TMPDIR for a command that starts Ray (its Unix sockets need a short path)."""
+    path = Path(tempfile.mkdtemp(prefix="t", dir="/tmp"))
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def _signal_command(argv: list[str], cwd: Path, ready: str, sig: int, delay: float,
+                    temp_dir: Path) -> tuple[int, str]:
+    """Run ``softpvtol argv`` in ``cwd`` with TMPDIR=temp_dir; once it handles SIGTERM (the command has started)
+    and its stdout shows ``ready``, wait ``delay`` s more and send ``sig``."""
     out = cwd / "stdout.txt"
     with open(out, "w") as fh:
-        proc = subprocess.Popen([sys.executable, "-m", "softpvtol_gym.baselines", *argv], env=ENV, cwd=cwd,
+        proc = subprocess.Popen([sys.executable, "-m", "softpvtol_gym.baselines", *argv],
+                                env={**ENV, "TMPDIR": str(temp_dir)}, cwd=cwd,
                                 stdout=fh, stderr=subprocess.PIPE, text=True, preexec_fn=_as_from_a_terminal)
         try:
             deadline = time.monotonic() + 240
@@ -1009,49 +1025,61 @@ def _signal_command(argv: list[str], cwd: Path, ready: str, sig: int, delay: flo
         finally:
             if proc.poll() is None:
                 proc.kill()
-    time.sleep(2.0)  # Ray's processes exit asynchronously after shutdown
+    _wait_for_ray_to_exit()
     assert not _children(proc.pid)
     return proc.returncode, err
+
+
+#: how long Ray's processes may take to exit after the command that stopped them (they exit asynchronously after
+#: ``ray.shutdown``: 2-10 s measured on the 2-core machine, longer while another job loads it)
+RAY_EXIT_SECONDS = 30.0
+
+
+def _wait_for_ray_to_exit() -> None:
+    deadline = time.monotonic() + RAY_EXIT_SECONDS
+    while _ray_processes() and time.monotonic() < deadline:
+        time.sleep(0.2)
 
 
 @pytest.mark.slow  # a local Ray instance, twice: ~40 s
 @pytest.mark.xdist_group("ray")
 @pytest.mark.parametrize("when", ["starting", "running"])
-def test_run_jobs_on_ray_terminated_leaves_no_ray_process_or_temp_folder(when, tmp_path):
+def test_run_jobs_on_ray_terminated_leaves_no_ray_process_or_temp_folder(when, tmp_path, command_temp_dir):
     pytest.importorskip("ray")
-    if _ray_leftovers():
-        pytest.skip(f"another Ray is running here: {_ray_leftovers()[:2]}")
+    if _ray_processes():
+        pytest.skip(f"another Ray is running here: {_ray_processes()[:2]}")
     # 4 jobs of 10,000 episodes: still running 8 s after Ray's start on a fast machine (one job of 5,000 took 5 s
     # on an AMX Xeon, and the SIGTERM then reached a process that had finished); SIGTERM ends them long before
     spec = _write_spec(tmp_path, episodes=10000, passivity=4)
     ready = "Ray:" if when == "running" else ""
     code, err = _signal_command(["run-jobs", "--executor", "ray", "--workers", "1", "--spec", str(spec), "--root",
-                                 "runs"], tmp_path, ready, signal.SIGTERM, 8.0 if when == "running" else 4.0)
+                                 "runs"], tmp_path, ready, signal.SIGTERM, 8.0 if when == "running" else 4.0,
+                                command_temp_dir)
     assert code == EXIT_SIGTERM, err
     line = err.strip().splitlines()[-1]
     assert line.startswith("softpvtol run-jobs: error: terminated (SIGTERM): "), err
     assert "rerun: softpvtol run-jobs --executor ray" in line, line
-    assert "Traceback" not in err and not _ray_leftovers()
+    assert "Traceback" not in err and not _ray_leftovers(command_temp_dir)
     assert not (tmp_path / "runs" / ".run_jobs.token").exists()
 
 
 @pytest.mark.slow  # a local Ray Tune search, interrupted: ~30 s
 @pytest.mark.xdist_group("ray")
-def test_tune_interrupted_writes_no_best_configuration(tmp_path):
+def test_tune_interrupted_writes_no_best_configuration(tmp_path, command_temp_dir):
     pytest.importorskip("ray")
-    if _ray_leftovers():
-        pytest.skip(f"another Ray is running here: {_ray_leftovers()[:2]}")
+    if _ray_processes():
+        pytest.skip(f"another Ray is running here: {_ray_processes()[:2]}")
     space = tmp_path / "space.yml"
     space.write_text("ppo:\n  learning_rate: {loguniform: [1.0e-4, 1.0e-3]}\n  n_epochs: {randint: [1, 2]}\n")
     code, err = _signal_command(["tune", "--trials", "4", "--workers", "1", "--space", str(space), "--out", "best.yml",
                                  "--hp", "n_envs=4", "--hp", "n_steps=32", "--hp", "batch_size=64", "--timesteps",
                                  "100000", "--reports", "4", "--eval-episodes", "2"], tmp_path, "Ray Tune:",
-                                signal.SIGINT, 10.0)
+                                signal.SIGINT, 10.0, command_temp_dir)
     assert code == EXIT_SIGINT, err
     line = err.strip().splitlines()[-1]
     assert "interrupted (Ctrl-C): the search was stopped before its end, so no best configuration was written" in line
     assert "restore" not in err.lower() and "Traceback" not in err
-    assert not (tmp_path / "best.yml").exists() and not _ray_leftovers()
+    assert not (tmp_path / "best.yml").exists() and not _ray_leftovers(command_temp_dir)
 
 
 @pytest.mark.slow  # a real (tiny) training run in a subprocess: torch and SB3 imports, ~60 s on a busy machine

@@ -91,8 +91,15 @@ def test_skipped_blocks_are_few_and_known():
     assert len(skipped) <= len(KNOWN_SKIPS)
 
 
+def _runnable(block: Block):
+    """A block as a test parameter; the Ray examples join the tests that start Ray, which run one at a time
+    (each checks that no other Ray runs beside it)."""
+    marks = [pytest.mark.xdist_group("ray")] if block.path == "docs/rllib.md" else []
+    return pytest.param(block, marks=marks, id=block.id)
+
+
 @pytest.mark.slow  # about 2.5 min in all on 2 cores (a fresh interpreter per block; a custom task compiles)
-@pytest.mark.parametrize("block", [b for b in PYTHON if not b.skip], ids=lambda b: b.id)
+@pytest.mark.parametrize("block", [_runnable(b) for b in PYTHON if not b.skip])
 def test_python_block_runs(block, tmp_path):
     script = tmp_path / "block.py"
     script.write_text(block.code)
