@@ -288,7 +288,7 @@ def _closed_loop_on_the_model(pol: MPCPolicy, force: np.ndarray, steps: int) -> 
 def test_the_disturbance_estimate_removes_a_constant_force_offset():
     """A constant force (3 N sideways, -2 N vertical) on the MPC's own model: without the estimate the
     robot settles away from the reference; with it the offset goes to zero and the estimate to the force."""
-    force = np.array([3.0, -2.0, 0.0, 0.0, 0.0])
+    force = np.array([3.0, -2.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # (no thrust share bending the arms: the last two)
     cfg = EnvConfig(task="hover")
     options = {"horizon": 10, "step": 0.1}
     without = _closed_loop_on_the_model(MPCPolicy(cfg, disturbance_gain=0.0, **options), force, 300)
@@ -298,6 +298,23 @@ def test_the_disturbance_estimate_removes_a_constant_force_offset():
     assert offset > 0.01
     assert np.abs(with_estimate[-20:]).max() < 0.05 * offset
     np.testing.assert_allclose(pol.disturbance[0], force, atol=0.05)
+
+
+def test_the_estimate_learns_that_the_thrusts_bend_the_arms():
+    """A plant whose thrusts bend their arms (the MPC's model with the thrust-bending shares at 1: the exact
+    input map's arm rows, as model_gap's consistent plant): the estimated shares rise towards 1 and stay in
+    [0, 1]; on the model itself (shares 0) they stay 0."""
+    cfg = EnvConfig(task="hover")
+    options = {"horizon": 10, "step": 0.1}
+    bending = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0])
+    pol = MPCPolicy(cfg, **options)
+    errors = _closed_loop_on_the_model(pol, bending, 300)
+    shares = pol.disturbance[0, 5:]
+    assert np.all(shares > 0.5) and np.all(shares <= 1.0), pol.disturbance[0]
+    assert np.abs(errors[-20:]).max() < 0.01
+    unbent = MPCPolicy(cfg, **options)
+    _closed_loop_on_the_model(unbent, np.zeros(7), 100)
+    np.testing.assert_array_equal(unbent.disturbance[0, 5:], 0.0)
 
 
 @pytest.mark.slow  # a 40 s episode of the MPC and one of the passivity loop (~1.5 min on 2 cores)

@@ -60,15 +60,20 @@ from .qp import (
     _SparseQP,
 )
 
-#: the generalized-force disturbance's size (one per generalized coordinate x, z, theta, q_l, q_r)
-ND = 5
+#: the disturbance estimate's size: a generalized force on each of x, z, theta, q_l, q_r, and the share of each
+#: rotor's thrust that bends its arm (see :func:`.symbolic.continuous_dynamics`)
+ND = 7
 #: the line search's step lengths (fractions of the Gauss-Newton step)
 LINE_SEARCH_STEPS = (1.0, 0.5, 0.25, 0.125)
 #: CasADi QP solvers the MPC accepts (ones that CasADi's wheels bundle) and their options; none of them
 #: starts from an earlier call's solution (qpOASES hot-starts from its last active set: the policy gives
 #: each batch entry its own instance, see ``TrackingOCP.new_qp``)
 QP_SOLVERS: dict[str, dict] = {
-    "hpipm": {"hpipm": {"mode": "balance", "iter_max": 50, "warm_start": 0}, "error_on_fail": False},
+    # HPIPM's "speed" mode with its stationarity and complementarity exits at 1e-6 instead of 1e-8: a median
+    # 4 interior-point iterations per QP instead of 6 ("balance"), the same plan to the tracking's precision
+    # (benchmarks/mpc_solvers.py)
+    "hpipm": {"hpipm": {"mode": "speed", "iter_max": 50, "warm_start": 0, "res_g_max": 1e-6, "res_m_max": 1e-6},
+              "error_on_fail": False},
     "qpoases": {"printLevel": "none", "sparse": False, "error_on_fail": False},
     "daqp": {"error_on_fail": False},
     "qrqp": {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False},
@@ -382,7 +387,7 @@ class TrackingOCP:
         return qp
 
     def predict_step(self, x: np.ndarray, u: np.ndarray, disturbance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(x_next (10), dx_next/dd (10, 5)): the model's state one control period after x under the
+        """(x_next (10), dx_next/dd (10, ND)): the model's state one control period after x under the
         input u and the generalized-force disturbance d (the estimator's prediction)."""
         fn = self._step_disturbance
         fn.args[0][:] = x
@@ -405,7 +410,7 @@ class TrackingOCP:
               disturbance: np.ndarray | None = None, qp=None) -> tuple[np.ndarray, bool]:
         """(U (N, 4), success) from the state x0 (10), the reference x_ref (N, 10) at nodes 1 .. N, the
         initial guess U_guess (N, 4), the previously applied input u_prev (4) and the estimated
-        generalized-force disturbance (5; None: zero), held over the horizon. ``qp``: the QP solver
+        disturbance (ND; None: zero), held over the horizon. ``qp``: the QP solver
         instance to use (:meth:`new_qp`; None: :attr:`qp`). On failure (a QP solver failure or a
         non-finite linearisation) U is the guess as given, and :attr:`last_failure` says which ("qp" or
         "rollout"; None after a success). When the model's rollout under the guess is not finite, the

@@ -107,8 +107,9 @@ def generalized_forces(q, a, p, input_map: str):
 
 def continuous_dynamics(p, input_map: str, disturbance: bool = False):
     """CasADi Function ``f(x[10], u[4]) -> xdot[10]`` of the paper's model with parameters p; with
-    ``disturbance``, ``f(x[10], u[4], d[5])``: d is added to the generalized forces B(q) u (the MPC's
-    estimate of the forces its model lacks)."""
+    ``disturbance``, ``f(x[10], u[4], d[7])``: the MPC's estimate of the forces its model lacks, d[0:5] added
+    to the generalized forces B(q) u, and d[5], d[6] the share of each rotor's thrust that bends its own arm
+    (0: the paper's map, 1: the exact map's arm rows)."""
     ca = import_casadi()
     x = ca.SX.sym("x", 10)
     u = ca.SX.sym("u", 4)
@@ -120,8 +121,12 @@ def continuous_dynamics(p, input_map: str, disturbance: bool = False):
     tau = generalized_forces(q, [u[i] for i in range(4)], p, input_map)
     inputs, names = [x, u], ["x", "u"]
     if disturbance:
-        d = ca.SX.sym("d", 5)
+        d = ca.SX.sym("d", 7)
         tau = [tau[i] + d[i] for i in range(5)]
+        # d[5], d[6]: the share of each rotor's thrust that bends its own arm (the thrust's work on the curvature,
+        # l T C1(q^2): the exact input map's arm rows less the paper's; 0 for the paper's map, 1 for the exact one)
+        tau[3] = tau[3] + d[5] * u[0] * p[P_LL] * horner(C1_COEFFS, q[3] * q[3])
+        tau[4] = tau[4] + d[6] * u[1] * p[P_LR] * horner(C1_COEFFS, q[4] * q[4])
         inputs.append(d)
         names.append("d")
     acc = qddot(q, qd, tau, p)
@@ -136,7 +141,7 @@ def rk4_step(f, substeps: int = 1):
     x = ca.SX.sym("x", 10)
     u = ca.SX.sym("u", 4)
     h = ca.SX.sym("h")
-    extra = [ca.SX.sym("d", 5)] if f.n_in() == 3 else []
+    extra = [ca.SX.sym("d", f.nnz_in(2))] if f.n_in() == 3 else []
     dt = h / substeps
     xn = x
     for _ in range(substeps):
