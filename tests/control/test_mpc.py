@@ -448,9 +448,9 @@ class _Recorder:
 
 @pytest.mark.parametrize("solver", ["hpipm", "qpoases"])
 def test_an_episode_acts_the_same_alone_and_in_a_batch(solver):
-    """3 hover episodes of the model_gap tier, where many QPs cannot meet the curvature limits (the MPC's
-    model lacks the plant's thrust bending of the arms): each episode's actions, step by step, are the
-    same run alone and in a batch of 3, with the disturbance estimate on."""
+    """3 hover episodes of the model_gap tier, where QPs meet the curvature limits (with a short horizon, and
+    while the estimate learns the plant's thrust bending of the arms): each episode's actions, step by step,
+    are the same run alone and in a batch of 3, with the disturbance estimate on."""
     from softpvtol_gym.baselines.evaluation import run_episodes
 
     cfg = EnvConfig(task="hover", tier="model_gap", action_mode="actuators")
