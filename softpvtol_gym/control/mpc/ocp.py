@@ -60,9 +60,8 @@ from .qp import (
     _SparseQP,
 )
 
-#: the disturbance estimate's size: a generalized force on each of x, z, theta, q_l, q_r, and the share of each
-#: rotor's thrust that bends its arm (see :func:`.symbolic.continuous_dynamics`)
-ND = 7
+#: the disturbance estimate's size (:data:`.symbolic.DISTURBANCE_SIZE`)
+ND = symbolic.DISTURBANCE_SIZE
 #: the line search's step lengths (fractions of the Gauss-Newton step)
 LINE_SEARCH_STEPS = (1.0, 0.5, 0.25, 0.125)
 #: CasADi QP solvers the MPC accepts (ones that CasADi's wheels bundle) and their options; none of them

@@ -83,6 +83,17 @@ def qddot(q, qd, tau, p):
     return [(r0 - a0 * qdd_l - b0 * qdd_r) / M, (r1 - a1 * qdd_l - b1 * qdd_r) / M, tau[2] / inertia, qdd_l, qdd_r]
 
 
+#: the size of the disturbance input d of :func:`continuous_dynamics`: a generalized force on each of x, z, theta,
+#: q_l, q_r, and the share of each rotor's thrust that bends its arm (left, right)
+DISTURBANCE_SIZE = 7
+
+
+def thrust_bending(q, a, p):
+    """The thrusts' work on the curvatures, (l_l T_l C1(q_l^2), l_r T_r C1(q_r^2)): the exact input map's arm
+    rows less the paper's."""
+    return (a[0] * p[P_LL] * horner(C1_COEFFS, q[3] * q[3]), a[1] * p[P_LR] * horner(C1_COEFFS, q[4] * q[4]))
+
+
 def generalized_forces(q, a, p, input_map: str):
     """tau = B(q) a for a = (T_l, T_r, tau_l, tau_r), a list of 5 expressions (model.input_map)."""
     ca = import_casadi()
@@ -102,14 +113,15 @@ def generalized_forces(q, a, p, input_map: str):
     if input_map != "exact":
         raise ValueError(f"input_map must be one of {list(INPUT_MAPS)}, got {input_map!r}")
     t2 = Tr * (eps * cr + lr * sinc_r) - Tl * (eps * cl + ll * sinc_l)
-    return [t0, t1, t2, a[2] + Tl * ll * horner(C1_COEFFS, ql * ql), a[3] + Tr * lr * horner(C1_COEFFS, qr * qr)]
+    bend_l, bend_r = thrust_bending(q, a, p)
+    return [t0, t1, t2, a[2] + bend_l, a[3] + bend_r]
 
 
 def continuous_dynamics(p, input_map: str, disturbance: bool = False):
     """CasADi Function ``f(x[10], u[4]) -> xdot[10]`` of the paper's model with parameters p; with
-    ``disturbance``, ``f(x[10], u[4], d[7])``: the MPC's estimate of the forces its model lacks, d[0:5] added
-    to the generalized forces B(q) u, and d[5], d[6] the share of each rotor's thrust that bends its own arm
-    (0: the paper's map, 1: the exact map's arm rows)."""
+    ``disturbance``, ``f(x[10], u[4], d[DISTURBANCE_SIZE])``: the MPC's estimate of the forces its model lacks,
+    d[0:5] added to the generalized forces B(q) u, and d[5], d[6] the share of each rotor's thrust that bends its
+    own arm (times :func:`thrust_bending`; 0: the paper's map, 1: the exact map's arm rows)."""
     ca = import_casadi()
     x = ca.SX.sym("x", 10)
     u = ca.SX.sym("u", 4)
@@ -121,12 +133,11 @@ def continuous_dynamics(p, input_map: str, disturbance: bool = False):
     tau = generalized_forces(q, [u[i] for i in range(4)], p, input_map)
     inputs, names = [x, u], ["x", "u"]
     if disturbance:
-        d = ca.SX.sym("d", 7)
+        d = ca.SX.sym("d", DISTURBANCE_SIZE)
         tau = [tau[i] + d[i] for i in range(5)]
-        # d[5], d[6]: the share of each rotor's thrust that bends its own arm (the thrust's work on the curvature,
-        # l T C1(q^2): the exact input map's arm rows less the paper's; 0 for the paper's map, 1 for the exact one)
-        tau[3] = tau[3] + d[5] * u[0] * p[P_LL] * horner(C1_COEFFS, q[3] * q[3])
-        tau[4] = tau[4] + d[6] * u[1] * p[P_LR] * horner(C1_COEFFS, q[4] * q[4])
+        bend_l, bend_r = thrust_bending(q, u, p)
+        tau[3] = tau[3] + d[5] * bend_l
+        tau[4] = tau[4] + d[6] * bend_r
         inputs.append(d)
         names.append("d")
     acc = qddot(q, qd, tau, p)
