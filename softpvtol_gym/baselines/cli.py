@@ -33,6 +33,7 @@ PROG = "softpvtol"
 COMMANDS: dict[str, tuple[str, str, str]] = {
     "train": ("train", "train.py", "train an agent (PPO/SAC) and compare it with the passivity controller"),
     "evaluate": ("evaluate", "evaluate.py", "evaluate a policy (passivity or a checkpoint) on a task and tier"),
+    "distill": ("distill", "distill.py", "learn a student network from a controller (behaviour cloning + DAgger)"),
     "export": ("export", "export.py", "convert checkpoints between the safe format and SB3's files"),
     "run-jobs": ("run_jobs", "run_jobs.py", "run the leaderboard's job list (local processes or Ray)"),
     "leaderboard": ("leaderboard", "leaderboard.py", "build the leaderboard (statistics, JSON, Markdown, chart)"),

@@ -227,6 +227,22 @@ def test_a_non_finite_linearisation_is_a_failure():
     assert not ok and plan is guess
 
 
+@pytest.mark.parametrize("solver", ["hpipm", "daqp"])
+def test_a_rollout_that_bends_an_arm_past_any_limit_is_a_failure_not_an_exception(solver):
+    """A finite rollout with an arm curvature of 2e4 rad (a diverging plant) would give the QP curvature rows
+    whose lower bound exceeds their open upper side, which CasADi refuses with an exception: it is a failed
+    solve like a non-finite one, and the plan is the guess."""
+    ocp = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, 9.8, 0.01, MPCOptions(horizon=8, qp_solver=solver))
+    x0 = np.zeros(10)
+    x0[3] = -2e4
+    guess = np.tile(ocp.u_hover, (8, 1))
+    plan, ok = ocp.solve(x0, np.zeros((8, 10)), guess, ocp.u_hover)
+    assert not ok and plan is guess and ocp.last_failure == "rollout"
+    x0[3] = 0.1  # and the same instance solves the next, sane problem
+    plan, ok = ocp.solve(x0, np.zeros((8, 10)), guess, ocp.u_hover)
+    assert ok and np.isfinite(plan).all()
+
+
 def test_shift_moves_the_plan_by_one_control_period():
     ocp = TrackingOCP(SoftPVTOLParams(), "paper", 102.9, 9.8, 0.01, MPCOptions(horizon=4, step=0.03))
     assert np.allclose(ocp.node_times, [0, 0.01, 0.04, 0.07, 0.10])

@@ -19,6 +19,7 @@ _LEARNED = ("stable_baselines3", "torch", "yaml", "filelock", "safetensors")
 NEEDS = {
     "train.py": (*_LEARNED, "tensorboard", "tqdm", "rich"),
     "evaluate.py": _LEARNED,
+    "distill.py": (*_LEARNED, "tqdm"),
     "export.py": _LEARNED,
     "run_jobs.py": (*_LEARNED, "tensorboard", "tqdm"),
     "leaderboard.py": ("yaml", "filelock", "rliable", "matplotlib"),

@@ -51,6 +51,7 @@ from . import symbolic
 from ._casadi import import_casadi
 from ._codegen import compile_functions, find_compiler
 from .qp import (
+    FREE_BOUND,
     NU,
     NX,
     VIOLATION_PENALTY,
@@ -62,6 +63,9 @@ from .qp import (
 
 #: the disturbance estimate's size (:data:`.symbolic.DISTURBANCE_SIZE`)
 ND = symbolic.DISTURBANCE_SIZE
+#: a rollout whose arm curvature reaches this [rad] has diverged: its QP's curvature rows (bounds -qmax - q and
+#: qmax - q against the open sides' +-FREE_BOUND) would be ill-posed, which CasADi refuses with an exception
+DIVERGED_CURVATURE = 0.5 * FREE_BOUND
 #: the line search's step lengths (fractions of the Gauss-Newton step)
 LINE_SEARCH_STEPS = (1.0, 0.5, 0.25, 0.125)
 #: CasADi QP solvers the MPC accepts (ones that CasADi's wheels bundle) and their options; none of them
@@ -439,7 +443,7 @@ class TrackingOCP:
         for _ in range(o.sqp_iterations):
             lin.args[1][:] = (self.u_hover + V.reshape(n, NU) * self.u_scale).reshape(-1)
             lin()
-            if not np.isfinite(lin.res[0]).all() and not self.restarted and V.any():
+            if _diverged(lin.res[0]) and not self.restarted and V.any():
                 # the model's rollout under the guess diverged (e.g. full thrust held over the horizon by a
                 # model whose thrusts bend the arms beyond the torques' reach): linearise at hover instead
                 self.restarted = True
@@ -449,7 +453,7 @@ class TrackingOCP:
             X = lin.res[0].reshape(n + 1, NX)[1:]  # (N, 10), nodes 1 .. N
             A = lin.res[1].reshape(NX * n, NX).T  # (10, 10 N)
             B = lin.res[2].reshape(NU * n, NX).T  # (10, 4 N)
-            if not (np.isfinite(X).all() and np.isfinite(A).all() and np.isfinite(B).all()):
+            if _diverged(X) or not (np.isfinite(A).all() and np.isfinite(B).all()):
                 self.last_failure = "rollout"
                 return U_guess, False
             self._qp_data.fill(qp, A, B, self.u_scale, X, x_ref, V, v_prev, lo, hi, o.curvature_limit)
@@ -477,3 +481,10 @@ class TrackingOCP:
         starts = self.node_times[:-1] + period + 1e-9  # (a start on a node takes that node's input)
         idx = np.searchsorted(self.node_times, starts, side="right") - 1
         return U[np.minimum(idx, U.shape[0] - 1)]
+
+
+def _diverged(states: np.ndarray) -> bool:
+    """Whether a rollout (states of NX entries, flat or (N, NX)) is not finite or bends an arm past
+    :data:`DIVERGED_CURVATURE`."""
+    arms = np.reshape(states, (-1, NX))[:, 3:5]
+    return not (np.isfinite(states).all() and np.abs(arms).max() < DIVERGED_CURVATURE)

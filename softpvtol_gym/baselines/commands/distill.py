@@ -1,0 +1,100 @@
+"""Distil a controller into a student network by behaviour cloning and DAgger (``softpvtol distill``; from a
+source checkout ``python baselines/distill.py``, with the same options).
+
+    softpvtol distill --teacher integral --task track_random                 # 3 rounds, 16 episodes each
+    softpvtol distill --teacher mpc --tier nominal --tier wind --rounds 4 --episodes 32
+    softpvtol distill --teacher integral --net-arch 128,128 --out runs/student --resume
+    softpvtol evaluate --policy runs/student --tier wind                      # like any trained run
+
+Round 0 clones the teacher's actions on its own episodes; each further round lets the student fly and the
+teacher label what it visits (DAgger); the student is refitted to all rounds' data after each. The student
+is a PPO MlpPolicy on the actuators mode with the error integrals observed, saved in the safe checkpoint
+format: ``softpvtol evaluate``, the leaderboard and PPO fine-tuning load it like any run. Datasets are cached
+under ``<out>/datasets/`` (``--resume`` continues a stopped run with the same options); ``<out>/distill.json``
+records the losses and each round's evaluation of the student and the teacher on the same episodes.
+Exit codes: 0 done, 2 bad input or a run directory in use, 74 an I/O error, 130 / 143 interrupted (the
+datasets collected so far are kept; ``--resume`` continues).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.training.distill import TEACHERS, DistillConfig, distill
+from softpvtol_gym.baselines.util.args import Parser, check_output_dir, command_main, float_arg, int_arg
+from softpvtol_gym.baselines.util.paths import Layout
+from softpvtol_gym.envs.tiers import registered_tiers
+from softpvtol_gym.tasks import registered_tasks
+
+DEFAULTS = DistillConfig()
+
+
+def build_parser(prog: str = "distill.py") -> Parser:
+    ap = Parser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--teacher", default=DEFAULTS.teacher, choices=TEACHERS,
+                    help=f"the controller to imitate (default {DEFAULTS.teacher}; mpc needs the 'mpc' extra)")
+    ap.add_argument("--task", default=DEFAULTS.task, choices=registered_tasks(), help=f"default {DEFAULTS.task}")
+    ap.add_argument("--tier", action="append", default=None, choices=registered_tiers(), dest="tiers",
+                    help="a tier the episodes fly (repeat for several; default nominal)")
+    ap.add_argument("--seed", type=int_arg(0), default=DEFAULTS.seed, help="default 0")
+    ap.add_argument("--net-arch", default=",".join(map(str, DEFAULTS.net_arch)), metavar="N,N,...",
+                    help="the student's hidden layers (default 256,256)")
+    ap.add_argument("--rounds", type=int_arg(1), default=DEFAULTS.rounds,
+                    help=f"1: behaviour cloning only; each further round is a DAgger round (default {DEFAULTS.rounds})")
+    ap.add_argument("--episodes", type=int_arg(1), default=DEFAULTS.episodes,
+                    help=f"episodes per tier and round (default {DEFAULTS.episodes})")
+    ap.add_argument("--epochs", type=int_arg(1), default=DEFAULTS.epochs, help=f"default {DEFAULTS.epochs}")
+    ap.add_argument("--batch-size", type=int_arg(1), default=DEFAULTS.batch_size, help=f"default {DEFAULTS.batch_size}")
+    ap.add_argument("--learning-rate", type=float_arg(0.0, 1.0, lo_open=True), default=DEFAULTS.learning_rate,
+                    help=f"Adam's initial learning rate, decayed linearly to 0 (default {DEFAULTS.learning_rate:g})")
+    ap.add_argument("--eval-episodes", type=int_arg(0), default=DEFAULTS.eval_episodes,
+                    help=f"student and teacher episodes per tier after each round (default {DEFAULTS.eval_episodes})")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="run directory (default runs/distilled_<teacher>_<task>_s<seed>)")
+    ap.add_argument("--resume", action="store_true", help="continue the run in --out (same options)")
+    ap.add_argument("--no-progress-bar", action="store_true")
+    return ap
+
+
+def _net_arch(text: str, ap: Parser) -> tuple:
+    try:
+        sizes = tuple(int(part, 10) for part in text.split(","))
+    except ValueError:
+        ap.error(f"--net-arch must be comma-separated layer sizes such as 256,256, got {text!r}")
+    return sizes
+
+
+def _main(argv, layout: Layout, prog: str) -> int:
+    ap = build_parser(prog)
+    args = ap.parse_args(argv)
+    tiers = args.tiers or ["nominal"]
+    if len(set(tiers)) != len(tiers):
+        ap.error(f"--tier repeats a tier ({', '.join(tiers)}); give each once")
+    try:
+        config = DistillConfig(teacher=args.teacher, task=args.task, tiers=tuple(tiers), seed=args.seed,
+                               net_arch=_net_arch(args.net_arch, ap), rounds=args.rounds, episodes=args.episodes,
+                               epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
+                               eval_episodes=args.eval_episodes)
+    except ConfigError as exc:
+        ap.error(str(exc))
+    out = args.out or Path("runs") / f"distilled_{config.teacher}_{config.task}_s{config.seed}"
+    if args.resume and not out.is_dir():
+        ap.error(f"--resume: run directory {out} does not exist")
+    check_output_dir(out, "--out")
+    result = distill(config, out, resume=args.resume, progress_bar=not args.no_progress_bar)
+    last = result["record"]["rounds"][-1]
+    print(f"distilled {config.teacher} into {out} ({last['aggregate']:,} samples, {config.rounds} rounds); "
+          f"evaluate it with: softpvtol evaluate --policy {out} --task {config.task}")
+    for tier, row in last["evaluation"].items():
+        first = result["record"]["rounds"][0]["evaluation"][tier]["teacher"]
+        for who, s in (("student", row["student"]), ("teacher", first)):
+            steady = s.get("mean_rms_position_error_steady")
+            print(f"  {tier:<9} {who:<7} rms position {s['mean_rms_position_error']:.4f} m  last half "
+                  f"{'crashed' if steady is None else f'{steady:.4f} m'}  crash rate {s['crash_rate']:.2f}")
+    return 0
+
+
+main = command_main("distill.py", _main,
+                    "``softpvtol distill``: a student network learned from a controller (behaviour cloning, DAgger).")

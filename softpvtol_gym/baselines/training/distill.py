@@ -1,0 +1,414 @@
+"""Distillation: a student MLP learned from a teacher controller by behaviour cloning and DAgger.
+
+The student is the actor of a stable-baselines3 PPO ``MlpPolicy`` on the actuators mode with the error
+integrals observed (``observe_error_integral``: what makes an offset-free controller possible is part of the
+observation, not a hidden state), so a distilled run is a run like any other: the same safe checkpoint
+format, ``softpvtol evaluate RUN``, the lean inference path, the leaderboard, and PPO fine-tuning from it.
+
+Rounds (Ross et al., "A reduction of imitation learning to no-regret online learning", 2011):
+
+* round 0 (behaviour cloning): the teacher flies ``episodes`` seeded episodes per tier; every step's
+  observation is stored with the teacher's action;
+* round k >= 1 (DAgger): the student of round k - 1 flies new episodes and the teacher labels every
+  observation the student visits (the teacher runs beside it on the same observations, so a teacher with
+  memory, such as the integral loop or the MPC's disturbance estimate, keeps it along the student's path);
+* after each round the student is fitted from the same initial weights to the aggregate of all rounds'
+  data: VecNormalize's statistics are the aggregate's mean and variance, the actor (policy net and action
+  net; the value net and log-std are left as built) minimises the mean squared error between its
+  Gaussian's mean and the teacher's action with Adam, the learning rate decayed linearly to 0.
+
+Every dataset is cached under ``<run>/datasets/`` (npz, loaded without pickle), so ``resume=True`` skips the
+rounds already collected and refits deterministically (one torch thread, seeded), giving the run an
+uninterrupted one gives. Seeds: collection episodes from ``seed * 10,000``, below the training seed limit;
+the per-round evaluation on ``DISTILL_EVAL_SEED + 1,000 * seed`` on, disjoint from the leaderboard's test
+and selection episodes. ``distill.json`` records the losses per epoch, the rounds' sample counts and the
+student's and teacher's metrics per round.
+
+Why not the ``imitation`` library: its BC and DAgger trainers wrap SB3 policies over gymnasium envs that
+reset one episode at a time, and it pins its own ranges of gymnasium and stable-baselines3; the fit here is
+a regression of a few dozen lines on arrays this package already produces in batches (the native vector
+env), and keeping it here keeps the dependency list to the four the package names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from softpvtol_gym.baselines.config.hyperparams import (
+    TRAIN_SEED_LIMIT,
+    apply_overrides,
+    load_hyperparams,
+)
+from softpvtol_gym.baselines.config.run_config import RunConfig
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.evaluation import run_episodes, summarize
+from softpvtol_gym.baselines.util.atomic import atomic_write_bytes, atomic_write_text
+from softpvtol_gym.baselines.util.locks import DirectoryLock
+from softpvtol_gym.envs.tiers import registered_tiers
+from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
+from softpvtol_gym.tasks import registered_tasks
+
+__all__ = ["DistillConfig", "distill", "teacher_policy", "collect", "TEACHERS", "DISTILL_FILE"]
+
+#: the record of a distilled run, next to its model files
+DISTILL_FILE = "distill.json"
+DATASET_DIR = "datasets"
+#: the first seed of the per-round evaluation episodes (test episodes start at 1,000,000, selection at 2,000,000)
+DISTILL_EVAL_SEED = 3_000_000
+#: collection episodes of run seed s start at s * SEED_STRIDE (below the training seed limit)
+SEED_STRIDE = 10_000
+#: the teachers by name: the passivity loops acting on the actuators, and the MPC (the ``mpc`` extra)
+TEACHERS = ("paper", "exact", "improved", "bounded", "integral", "extended", "mpc")
+#: the student's env options: the error integrals observed (3 more entries)
+STUDENT_ENV_OPTIONS = {"observe_error_integral": True}
+MAX_EPISODES_PER_ROUND = 1_000
+MAX_ROUNDS = 50
+
+
+@dataclasses.dataclass(frozen=True)
+class DistillConfig:
+    """A distillation run (saved in ``distill.json``).
+
+    Args:
+        teacher: a name of :data:`TEACHERS`.
+        task: the task the episodes fly (``registered_tasks()``).
+        tiers: the tiers the episodes fly, each with its randomisation; every round collects ``episodes``
+            episodes of each.
+        seed: the run's seed (< 500,000 / 10,000 episodes: collection seeds stay below the training limit).
+        net_arch: the student's hidden layers (the actor's; the value net is SB3's default 64, 64).
+        rounds: data-collection rounds: 1 is behaviour cloning only, each further one a DAgger round.
+        episodes: episodes per tier and round (they fly as one vector env).
+        epochs: passes over the aggregate dataset per fit.
+        batch_size: samples per gradient step.
+        learning_rate: Adam's initial learning rate (decayed linearly to 0 over the fit).
+        eval_episodes: student and teacher episodes per tier after each round (0: none).
+    """
+
+    teacher: str = "integral"
+    task: str = "track_random"
+    tiers: tuple = ("nominal",)
+    seed: int = 0
+    net_arch: tuple = (256, 256)
+    rounds: int = 3
+    episodes: int = 16
+    epochs: int = 30
+    batch_size: int = 1024
+    learning_rate: float = 1e-3
+    eval_episodes: int = 8
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "tiers", tuple(self.tiers))
+        object.__setattr__(self, "net_arch", tuple(self.net_arch))
+        if self.teacher not in TEACHERS:
+            raise ConfigError(f"teacher must be one of {list(TEACHERS)}, got {self.teacher!r}")
+        if self.task not in registered_tasks():
+            raise ConfigError(f"task must be one of {list(registered_tasks())}, got {self.task!r}")
+        bad = [t for t in self.tiers if t not in registered_tiers()]
+        if not self.tiers or bad or len(set(self.tiers)) != len(self.tiers):
+            raise ConfigError(f"tiers must be distinct names of {list(registered_tiers())}, got {list(self.tiers)}")
+        if not self.net_arch or not all(_is_int(n) and 1 <= n <= 4096 for n in self.net_arch):
+            raise ConfigError(f"net_arch must be hidden layer sizes in [1, 4096], got {list(self.net_arch)}")
+        for name, lo, hi in (("rounds", 1, MAX_ROUNDS), ("episodes", 1, MAX_EPISODES_PER_ROUND),
+                             ("epochs", 1, 10_000), ("batch_size", 1, 1 << 20), ("eval_episodes", 0, 1_000)):
+            v = getattr(self, name)
+            if not _is_int(v) or not lo <= v <= hi:
+                raise ConfigError(f"{name} must be an integer in [{lo}, {hi:,}], got {v!r}")
+        if not isinstance(self.learning_rate, (int, float)) or not 0 < self.learning_rate <= 1:
+            raise ConfigError(f"learning_rate must be in (0, 1], got {self.learning_rate!r}")
+        last = self.seed * SEED_STRIDE + self.collections * self.episodes if _is_int(self.seed) else -1
+        if not _is_int(self.seed) or self.seed < 0 or last > TRAIN_SEED_LIMIT or \
+                self.collections * self.episodes > SEED_STRIDE:
+            raise ConfigError(f"seed must be an integer >= 0 with rounds x tiers x episodes <= {SEED_STRIDE:,} and "
+                              f"the collection seeds (from seed x {SEED_STRIDE:,}) below {TRAIN_SEED_LIMIT:,}, got "
+                              f"seed {self.seed!r} with {self.collections} collections of {self.episodes} episodes")
+
+    @property
+    def collections(self) -> int:
+        """The number of collected datasets: one per round and tier."""
+        return self.rounds * len(self.tiers)
+
+    def collection_seed(self, round_index: int, tier_index: int) -> int:
+        """The first episode seed of round ``round_index``'s collection on tier ``tier_index``."""
+        return self.seed * SEED_STRIDE + (round_index * len(self.tiers) + tier_index) * self.episodes
+
+    def run_config(self, dataset_size: int = 1) -> RunConfig:
+        """The student's run config: PPO on the actuators mode with the error integrals observed, the
+        actuators entry's hyperparameters with the student's ``net_arch`` (``timesteps``: the samples)."""
+        hp = load_hyperparams("ppo", "actuators")
+        arch = ", ".join(str(n) for n in self.net_arch)
+        hp = apply_overrides(hp, [f"policy_kwargs=dict(log_std_init=-1.0, net_arch=dict(pi=[{arch}], vf=[64, 64]))"])
+        return RunConfig(algo="ppo", action_mode="actuators", task=self.task, tier=self.tiers[0],
+                         timesteps=max(1, int(dataset_size)), seed=self.seed, n_envs=int(hp.get("n_envs", 16)),
+                         hyperparams=hp, env_options=dict(STUDENT_ENV_OPTIONS))
+
+    def to_dict(self) -> dict:
+        return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
+                for f in dataclasses.fields(self)}
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
+def _say(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+# --------------------------------------------------------------------------------------------- teacher
+def teacher_policy(name: str, task: str, env_options: dict | None = None):
+    """A fresh teacher of :data:`TEACHERS` acting on the actuators of an env with ``env_options``
+    (a passivity loop with its own allocation, or ``MPCPolicy`` with its defaults)."""
+    import softpvtol_gym
+    from softpvtol_gym.control import LOOPS
+
+    opts = dict(STUDENT_ENV_OPTIONS if env_options is None else env_options)
+    if name == "mpc":
+        probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=task, **opts)
+        return softpvtol_gym.MPCPolicy.from_env(probe)
+    if name not in TEACHERS:
+        raise ConfigError(f"teacher must be one of {list(TEACHERS)}, got {name!r}")
+    allocation = "exact" if name == "extended" else LOOPS[name]["allocation"]
+    probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=task, allocation=allocation,
+                               controller_loop=name, **opts)
+    return softpvtol_gym.PassivityPolicy.from_env(probe)
+
+
+# --------------------------------------------------------------------------------------------- data
+def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=None,
+            env_options: dict | None = None, progress=None) -> tuple[np.ndarray, np.ndarray]:
+    """(observations (n, d), teacher actions (n, 4)) of ``episodes`` seeded episodes (seeds seed + i) on the
+    actuators mode: flown by the teacher (``student=None``) or by ``student`` with the teacher labelling
+    every observation the student visits. Each episode's steps until it ends (time limit or crash)."""
+    env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode="actuators", task=task, tier=tier,
+                             **(STUDENT_ENV_OPTIONS if env_options is None else env_options))
+    obs, _ = env.reset(seed=seed)
+    done, start = np.zeros(episodes, bool), np.ones(episodes, bool)
+    observations, labels = [], []
+    while not done.all():
+        label, _ = teacher.predict(obs, episode_start=start, deterministic=True)
+        action = label if student is None else student.predict(obs, episode_start=start, deterministic=True)[0]
+        live = ~done
+        observations.append(np.array(obs[live], dtype=np.float32))
+        labels.append(np.array(label[live], dtype=np.float32))
+        start[:] = False
+        previous = obs
+        obs, _, term, trunc, _ = env.step(action)
+        done |= term | trunc
+        if progress is not None:
+            progress(int(live.sum()))
+        if done.any() and not done.all():  # the policies act on the whole batch: a running row's last observation
+            obs = np.where(done[:, None], previous, obs)
+    env.close()
+    return np.concatenate(observations), np.concatenate(labels)
+
+
+def _dataset_path(run_dir: Path, round_index: int, tier: str) -> Path:
+    return run_dir / DATASET_DIR / f"round_{round_index:02d}_{tier}.npz"
+
+
+def _save_dataset(path: Path, obs: np.ndarray, labels: np.ndarray) -> None:
+    import io
+
+    buf = io.BytesIO()
+    np.savez(buf, observations=obs, actions=labels)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def _load_dataset(path: Path, obs_dim: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """A cached dataset, or None where there is none or it is unreadable (it is collected again)."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            obs, labels = data["observations"], data["actions"]
+    except (OSError, ValueError, KeyError) as exc:
+        _say(f"distill: {path} is unreadable ({exc}); collecting it again")
+        return None
+    if obs.ndim != 2 or obs.shape[1] != obs_dim or labels.shape != (obs.shape[0], 4) or \
+            not (np.isfinite(obs).all() and np.isfinite(labels).all()):
+        _say(f"distill: {path} does not hold ({obs_dim}-entry observations, 4 actions); collecting it again")
+        return None
+    return obs, labels
+
+
+# --------------------------------------------------------------------------------------------- fit
+def fit(model, vecnorm, observations: np.ndarray, actions: np.ndarray, epochs: int, batch_size: int,
+        learning_rate: float, seed: int) -> list[float]:
+    """Fit the actor of ``model`` (an SB3 PPO model) to ``actions`` (n, 4) at ``observations`` (n, d):
+    VecNormalize's statistics set to the data's, then Adam on the mean squared error of the Gaussian's mean.
+    Returns the mean loss of each epoch."""
+    import torch
+
+    rms = vecnorm.obs_rms
+    rms.mean = observations.mean(axis=0).astype(np.float64)
+    rms.var = observations.var(axis=0).astype(np.float64)
+    rms.count = float(len(observations))
+    x_all = torch.as_tensor(vecnorm.normalize_obs(observations).astype(np.float32))
+    y_all = torch.as_tensor(actions.astype(np.float32))
+    policy = model.policy
+    policy.set_training_mode(True)
+    params = [p for name, p in policy.named_parameters()
+              if not name.startswith(("value_net", "mlp_extractor.value_net")) and name != "log_std"]
+    optimizer = torch.optim.Adam(params, lr=learning_rate)
+    n = len(x_all)
+    steps_per_epoch = max(1, -(-n // batch_size))
+    total = epochs * steps_per_epoch
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda k: max(0.0, 1.0 - k / total))
+    generator = torch.Generator().manual_seed(int(seed))
+    losses = []
+    for _ in range(epochs):
+        order = torch.randperm(n, generator=generator)
+        running = 0.0
+        for b in range(steps_per_epoch):
+            idx = order[b * batch_size:(b + 1) * batch_size]
+            mean = policy.get_distribution(x_all[idx]).distribution.mean
+            loss = torch.mean((mean - y_all[idx]) ** 2)
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            schedule.step()
+            running += float(loss.detach()) * len(idx)
+        losses.append(running / n)
+    policy.set_training_mode(False)
+    return losses
+
+
+def _fresh_student(config: DistillConfig, run_dir: Path, dataset_size: int):
+    """(run config, vecnorm, model) of a student with its initial weights (the same for every round's fit)."""
+    from softpvtol_gym.baselines.training.loop import prepare
+
+    run_config = config.run_config(dataset_size)
+    _, vecnorm, model = prepare(run_config, run_dir)
+    vecnorm.training = False
+    return run_config, vecnorm, model
+
+
+# --------------------------------------------------------------------------------------------- run
+def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress_bar: bool = False,
+            teacher=None) -> dict:
+    """Distil ``config.teacher`` (or the policy ``teacher``: any object with ``predict`` on the student's
+    observations, 21 entries) into a student saved in ``run_dir`` as a finished run. Returns
+    ``{"policy": LearnedPolicy, "run_config", "record"}`` (``record``: what ``distill.json`` holds).
+
+    ``resume=False`` refuses a ``run_dir`` that holds a distilled run or datasets; ``resume=True`` loads the
+    datasets already collected (they must be of the same config) and continues."""
+    import torch
+
+    from softpvtol_gym.baselines.checkpoints.store import write_model_files
+    from softpvtol_gym.baselines.training.loop import torch_threads
+    from softpvtol_gym.baselines.training.policy import LearnedPolicy
+
+    run_dir = Path(run_dir)
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ConfigError(f"run directory {run_dir} is a file; choose a directory for --out")
+    torch.set_num_threads(torch_threads())
+    run_config = config.run_config()  # validated before anything is written
+    obs_dim = 18 + 3
+    teacher = teacher if teacher is not None else teacher_policy(config.teacher, config.task)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    with DirectoryLock(run_dir, "run directory"):
+        record_path = run_dir / DISTILL_FILE
+        if record_path.exists() or (run_dir / DATASET_DIR).exists():
+            if not resume:
+                raise ConfigError(f"{run_dir} already holds a distilled run; pass --resume to continue it or choose "
+                                  f"another --out (nothing was overwritten)")
+            _check_same_config(run_dir, config)
+        atomic_write_text(run_dir / "distill_config.json", json.dumps(config.to_dict(), indent=2))
+        bar = _progress(progress_bar, config)
+        data_obs, data_act, rounds = [], [], []
+        student = None
+        t0 = time.perf_counter()
+        for k in range(config.rounds):
+            for j, tier in enumerate(config.tiers):
+                path = _dataset_path(run_dir, k, tier)
+                cached = _load_dataset(path, obs_dim)
+                if cached is None:
+                    cached = collect(teacher, config.task, tier, config.episodes, config.collection_seed(k, j),
+                                     student=student, progress=bar)
+                    _save_dataset(path, *cached)
+                elif bar is not None:
+                    bar(len(cached[0]))
+                data_obs.append(cached[0])
+                data_act.append(cached[1])
+            obs, act = np.concatenate(data_obs), np.concatenate(data_act)
+            run_config, vecnorm, model = _fresh_student(config, run_dir, len(obs))
+            losses = fit(model, vecnorm, obs, act, config.epochs, config.batch_size, config.learning_rate,
+                         config.seed)
+            student = LearnedPolicy(model, vecnorm, inference="lean")
+            entry = {"round": k, "kind": "behaviour cloning" if k == 0 else "dagger",
+                     "samples": int(sum(len(o) for o in data_obs[-len(config.tiers):])), "aggregate": int(len(obs)),
+                     "loss_first_epoch": losses[0], "loss_last_epoch": losses[-1], "losses": losses,
+                     "evaluation": _evaluate_round(student, teacher, config, k)}
+            rounds.append(entry)
+            _say(f"distill round {k} ({entry['kind']}): {entry['aggregate']:,} samples, loss {losses[0]:.3g} -> "
+                 f"{losses[-1]:.3g}" + _eval_line(entry["evaluation"]))
+        model.num_timesteps = int(len(obs))
+        seconds = time.perf_counter() - t0
+        write_model_files(run_dir, model, vecnorm, run_config, "run")
+        record = {"config": config.to_dict(), "student": {"algo": "ppo", "action_mode": "actuators",
+                                                         "env_options": dict(STUDENT_ENV_OPTIONS),
+                                                         "net_arch": list(config.net_arch)},
+                  "rounds": rounds, "seconds": seconds}
+        atomic_write_text(record_path, json.dumps(record, indent=2))
+    return {"policy": student, "run_config": run_config, "record": record}
+
+
+def _check_same_config(run_dir: Path, config: DistillConfig) -> None:
+    path = run_dir / "distill_config.json"
+    try:
+        saved = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"--resume: {path} is unreadable ({exc}); start the run over in another --out") from None
+    if saved != config.to_dict():
+        diff = sorted(k for k in set(saved) | set(config.to_dict()) if saved.get(k) != config.to_dict().get(k))
+        raise ConfigError(f"--resume: the run in {run_dir} was made with other settings ({', '.join(diff)}); "
+                          f"pass the same options or choose another --out")
+
+
+def _evaluate_round(student, teacher, config: DistillConfig, round_index: int) -> dict:
+    """Per tier: the student's and the teacher's summaries on the same evaluation episodes."""
+    if config.eval_episodes == 0:
+        return {}
+    seed = DISTILL_EVAL_SEED + 1_000 * config.seed
+    out = {}
+    for tier in config.tiers:
+        row = {}
+        for who, policy in (("student", student), ("teacher", teacher)):
+            if who == "teacher" and round_index > 0:
+                continue  # the same episodes as round 0's
+            eps = run_episodes(policy, "actuators", config.task, tier, config.eval_episodes, seed,
+                               env_kwargs=dict(STUDENT_ENV_OPTIONS))
+            row[who] = summarize(eps)
+        out[tier] = row
+    return out
+
+
+def _eval_line(evaluation: dict) -> str:
+    parts = []
+    for tier, row in evaluation.items():
+        s = row["student"]
+        steady = s.get("mean_rms_position_error_steady")
+        parts.append(f"{tier}: student last half {'crashed' if steady is None else f'{steady:.4f} m'}, "
+                     f"crash rate {s['crash_rate']:.2f}")
+    return ("; " + "; ".join(parts)) if parts else ""
+
+
+def _progress(enabled: bool, config: DistillConfig):
+    """A callable counting collected samples on a tqdm bar (None when disabled or tqdm is missing)."""
+    if not enabled:
+        return None
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        return None
+    probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=config.task)
+    bar = tqdm(total=config.collections * config.episodes * int(probe.sim.max_steps), unit="sample",
+               desc="distill", file=sys.stderr)
+    return bar.update

@@ -1,0 +1,157 @@
+"""Distillation: behaviour cloning and DAgger rounds end to end on a tiny budget, labels from the teacher,
+the cached datasets and an exact resume, the student loaded like any run, bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.training.distill import (
+    DATASET_DIR,
+    DISTILL_FILE,
+    DistillConfig,
+    collect,
+    distill,
+    teacher_policy,
+)
+from softpvtol_gym.baselines.training.policy import LearnedPolicy
+
+#: hover (1,000 steps an episode): 2 rounds of 2 episodes, a few epochs: seconds
+TINY = dict(teacher="integral", task="hover", rounds=2, episodes=2, epochs=3, batch_size=256, eval_episodes=1,
+            net_arch=(16, 16))
+
+
+class LinearTeacher:
+    """A stateless teacher whose labels can be recomputed from the stored observations: a fixed linear map
+    clipped to the action box (hover needs about -0.35 on the thrusts' normalised scale)."""
+
+    def __init__(self):
+        self.gain = np.zeros((4, 21))
+        self.gain[0, 1] = self.gain[1, 1] = -0.3  # more thrust when below the reference
+        self.gain[2, 2] = self.gain[3, 2] = 0.1
+        self.calls = 0
+
+    def label(self, obs):
+        return np.clip(np.asarray(obs, float) @ self.gain.T - 0.35 * np.array([1, 1, 0, 0]), -1, 1)
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        self.calls += 1
+        return self.label(obs).astype(np.float32), None
+
+
+@pytest.fixture(scope="module")
+def distilled(tmp_path_factory):
+    out = tmp_path_factory.mktemp("distill") / "student"
+    return out, distill(DistillConfig(**TINY), out)
+
+
+def test_a_tiny_distillation_is_a_run_that_loads_and_acts(distilled):
+    out, result = distilled
+    record = json.loads((out / DISTILL_FILE).read_text())
+    assert [r["kind"] for r in record["rounds"]] == ["behaviour cloning", "dagger"]
+    assert record["rounds"][0]["samples"] == 2_000  # 2 teacher-flown hover episodes of 1,000 steps
+    assert record["rounds"][1]["aggregate"] == 2_000 + record["rounds"][1]["samples"]
+    assert all(len(r["losses"]) == TINY["epochs"] and np.isfinite(r["losses"]).all() for r in record["rounds"])
+    assert record["rounds"][0]["losses"][-1] < record["rounds"][0]["losses"][0]
+    assert set(record["rounds"][0]["evaluation"]["nominal"]) == {"student", "teacher"}
+    assert sorted(p.name for p in (out / DATASET_DIR).iterdir()) == ["round_00_nominal.npz", "round_01_nominal.npz"]
+    policy, config = LearnedPolicy.load(out)
+    assert (config.action_mode, config.env_options) == ("actuators", {"observe_error_integral": True})
+    obs = np.zeros((3, 21), np.float32)
+    action, _ = policy.predict(obs, episode_start=np.ones(3, bool))
+    assert action.shape == (3, 4) and np.all(np.abs(action) <= 1)
+    # the saved student is the one distill returned
+    np.testing.assert_array_equal(action, result["policy"].predict(obs, episode_start=np.ones(3, bool))[0])
+
+
+def test_the_fit_learns_a_smooth_map_with_the_datas_normalisation(distilled):
+    from softpvtol_gym.baselines.training.distill import _fresh_student, fit
+
+    out, _ = distilled
+    rng = np.random.default_rng(0)
+    obs = (rng.normal(size=(2048, 21)) * np.linspace(0.1, 10, 21) + np.arange(21)).astype(np.float32)
+    labels = np.tanh((obs - np.arange(21)) / np.linspace(0.1, 10, 21) @ rng.normal(size=(21, 4)) / 5).astype(np.float32)
+    _, vecnorm, model = _fresh_student(DistillConfig(**{**TINY, "net_arch": (64, 64)}), out.parent / "fit", len(obs))
+    losses = fit(model, vecnorm, obs, labels, epochs=60, batch_size=128, learning_rate=3e-3, seed=0)
+    np.testing.assert_allclose(vecnorm.obs_rms.mean, obs.mean(axis=0), rtol=1e-6)
+    np.testing.assert_allclose(vecnorm.obs_rms.var, obs.var(axis=0), rtol=1e-5)
+    assert losses[-1] < 0.02 * np.var(labels, axis=0).sum() / 4 and losses[-1] < losses[0]
+    policy = LearnedPolicy(model, vecnorm)
+    predicted, _ = policy.predict(obs[:64], episode_start=np.ones(64, bool))
+    assert np.sqrt(np.mean((predicted - labels[:64]) ** 2)) < 0.2 * labels.std()
+
+
+def test_dagger_rounds_are_flown_by_the_student_and_labelled_by_the_teacher(tmp_path):
+    teacher = LinearTeacher()
+    config = DistillConfig(**{**TINY, "teacher": "integral"})
+    distill(config, tmp_path / "run", teacher=teacher)
+    for name in ("round_00_nominal.npz", "round_01_nominal.npz"):
+        with np.load(tmp_path / "run" / DATASET_DIR / name, allow_pickle=False) as data:
+            np.testing.assert_allclose(data["actions"], teacher.label(data["observations"]).astype(np.float32),
+                                       rtol=0, atol=1e-6)
+    # round 1's episodes (seeds after round 0's) flown by the teacher itself would visit other states
+    with np.load(tmp_path / "run" / DATASET_DIR / "round_01_nominal.npz", allow_pickle=False) as data:
+        flown = data["observations"]
+    by_teacher, _ = collect(teacher, "hover", "nominal", TINY["episodes"], config.collection_seed(1, 0))
+    n = min(len(flown), len(by_teacher))
+    assert np.array_equal(flown[0], by_teacher[0])  # the same seeded start
+    assert not np.allclose(flown[:n], by_teacher[:n])
+
+
+def test_resume_loads_the_cached_datasets_and_gives_the_same_student(distilled, tmp_path):
+    out, _ = distilled
+    again = tmp_path / "again"
+    again.mkdir()
+    shutil.copytree(out / DATASET_DIR, again / DATASET_DIR)
+    shutil.copy(out / "distill_config.json", again / "distill_config.json")
+
+    class NoTeacher:
+        def predict(self, *args, **kwargs):
+            raise AssertionError("a cached round was collected again")
+
+    with pytest.raises(ConfigError, match="already holds a distilled run"):
+        distill(DistillConfig(**TINY), again, teacher=NoTeacher())
+    with pytest.raises(ConfigError, match="other settings.*epochs"):
+        distill(DistillConfig(**{**TINY, "epochs": 4}), again, resume=True, teacher=NoTeacher())
+    # the evaluations fly the teacher: only they may call it
+    distill(DistillConfig(**{**TINY}), again, resume=True, teacher=teacher_policy("integral", "hover"))
+    assert (again / "model.safetensors").read_bytes() == (out / "model.safetensors").read_bytes()
+
+
+@pytest.mark.parametrize("changes, words", [
+    ({"teacher": "pid"}, "teacher must be one of"),
+    ({"rounds": 0}, "rounds must be an integer in"),
+    ({"tiers": ()}, "tiers must be distinct names"),
+    ({"tiers": ("nominal", "nominal")}, "tiers must be distinct names"),
+    ({"tiers": ("calm",)}, "tiers must be distinct names"),
+    ({"net_arch": (0,)}, "net_arch must be hidden layer sizes"),
+    ({"learning_rate": float("nan")}, "learning_rate must be in"),
+    ({"seed": 50}, "collection seeds"),
+    ({"episodes": True}, "episodes must be an integer"),
+])
+def test_bad_settings_are_refused_with_what_was_given(changes, words):
+    with pytest.raises(ConfigError, match=words):
+        DistillConfig(**{**TINY, **changes})
+
+
+def test_the_command_distils_and_evaluate_loads_the_student(tmp_path, capsys):
+    from softpvtol_gym.baselines.cli import main
+
+    out = tmp_path / "cli"
+    args = ["distill", "--teacher", "integral", "--task", "hover", "--rounds", "1", "--episodes", "1", "--epochs", "1",
+            "--net-arch", "8", "--eval-episodes", "0", "--out", str(out), "--no-progress-bar"]
+    assert main(args) == 0
+    assert "softpvtol evaluate --policy" in capsys.readouterr().out
+    for argv, words in ((args, "already holds a distilled run"),  # the run exists: nothing overwritten
+                        (["distill", "--net-arch", "64,x", "--out", str(tmp_path / "bad")],
+                         "--net-arch must be comma-separated")):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and words in err and len(err.strip().splitlines()) == 1, err
+    assert main(["evaluate", "--policy", str(out), "--episodes", "1"]) == 0
+    assert "actuators / hover / nominal" in capsys.readouterr().out
