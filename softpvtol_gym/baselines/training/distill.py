@@ -33,6 +33,7 @@ env), and keeping it here keeps the dependency list to the four the package name
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import sys
 import time
@@ -40,6 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+import softpvtol_gym
+from softpvtol_gym.baselines.checkpoints.store import write_model_files
 from softpvtol_gym.baselines.config.hyperparams import (
     TRAIN_SEED_LIMIT,
     apply_overrides,
@@ -48,8 +51,11 @@ from softpvtol_gym.baselines.config.hyperparams import (
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import run_episodes, summarize
+from softpvtol_gym.baselines.training.loop import prepare, torch_threads
+from softpvtol_gym.baselines.training.policy import LearnedPolicy
 from softpvtol_gym.baselines.util.atomic import atomic_write_bytes, atomic_write_text
 from softpvtol_gym.baselines.util.locks import DirectoryLock
+from softpvtol_gym.control import LOOPS
 from softpvtol_gym.envs.tiers import registered_tiers
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 from softpvtol_gym.tasks import registered_tasks
@@ -88,6 +94,9 @@ class DistillConfig:
         batch_size: samples per gradient step.
         learning_rate: Adam's initial learning rate (decayed linearly to 0 over the fit).
         eval_episodes: student and teacher episodes per tier after each round (0: none).
+        precision_scale: None: every sample weighs the same; s > 0 [m]: a sample of position error e weighs
+            in proportion to 1 / (s + |e|) (normalised to a mean of 1), so that the fit spends its accuracy
+            where the errors are small, where the teacher's fine corrections decide the steady error.
     """
 
     teacher: str = "integral"
@@ -101,6 +110,7 @@ class DistillConfig:
     batch_size: int = 1024
     learning_rate: float = 1e-3
     eval_episodes: int = 8
+    precision_scale: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tiers", tuple(self.tiers))
@@ -121,6 +131,9 @@ class DistillConfig:
                 raise ConfigError(f"{name} must be an integer in [{lo}, {hi:,}], got {v!r}")
         if not isinstance(self.learning_rate, (int, float)) or not 0 < self.learning_rate <= 1:
             raise ConfigError(f"learning_rate must be in (0, 1], got {self.learning_rate!r}")
+        p = self.precision_scale
+        if p is not None and (isinstance(p, bool) or not isinstance(p, (int, float)) or not 0 < p <= 100):
+            raise ConfigError(f"precision_scale must be None or a length in (0, 100] m, got {p!r}")
         last = self.seed * SEED_STRIDE + self.collections * self.episodes if _is_int(self.seed) else -1
         if not _is_int(self.seed) or self.seed < 0 or last > TRAIN_SEED_LIMIT or \
                 self.collections * self.episodes > SEED_STRIDE:
@@ -164,9 +177,6 @@ def _say(message: str) -> None:
 def teacher_policy(name: str, task: str, env_options: dict | None = None):
     """A fresh teacher of :data:`TEACHERS` acting on the actuators of an env with ``env_options``
     (a passivity loop with its own allocation, or ``MPCPolicy`` with its defaults)."""
-    import softpvtol_gym
-    from softpvtol_gym.control import LOOPS
-
     opts = dict(STUDENT_ENV_OPTIONS if env_options is None else env_options)
     if name == "mpc":
         probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=task, **opts)
@@ -213,8 +223,6 @@ def _dataset_path(run_dir: Path, round_index: int, tier: str) -> Path:
 
 
 def _save_dataset(path: Path, obs: np.ndarray, labels: np.ndarray) -> None:
-    import io
-
     buf = io.BytesIO()
     np.savez(buf, observations=obs, actions=labels)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -239,11 +247,20 @@ def _load_dataset(path: Path, obs_dim: int) -> tuple[np.ndarray, np.ndarray] | N
 
 
 # --------------------------------------------------------------------------------------------- fit
+def sample_weights(observations: np.ndarray, precision_scale: float | None) -> np.ndarray | None:
+    """The weights (n,) of :class:`DistillConfig`'s ``precision_scale`` (None: none): 1 / (s + |(e_x, e_z)|),
+    the errors of observation entries 0 and 1, normalised to a mean of 1."""
+    if precision_scale is None:
+        return None
+    w = 1.0 / (precision_scale + np.hypot(observations[:, 0], observations[:, 1]).astype(np.float64))
+    return w / w.mean()
+
+
 def fit(model, vecnorm, observations: np.ndarray, actions: np.ndarray, epochs: int, batch_size: int,
-        learning_rate: float, seed: int) -> list[float]:
+        learning_rate: float, seed: int, weights: np.ndarray | None = None) -> list[float]:
     """Fit the actor of ``model`` (an SB3 PPO model) to ``actions`` (n, 4) at ``observations`` (n, d):
-    VecNormalize's statistics set to the data's, then Adam on the mean squared error of the Gaussian's mean.
-    Returns the mean loss of each epoch."""
+    VecNormalize's statistics set to the data's, then Adam on the mean squared error of the Gaussian's mean
+    (each sample's weighted by ``weights`` (n,), default 1). Returns the mean loss of each epoch."""
     import torch
 
     rms = vecnorm.obs_rms
@@ -252,6 +269,7 @@ def fit(model, vecnorm, observations: np.ndarray, actions: np.ndarray, epochs: i
     rms.count = float(len(observations))
     x_all = torch.as_tensor(vecnorm.normalize_obs(observations).astype(np.float32))
     y_all = torch.as_tensor(actions.astype(np.float32))
+    w_all = torch.as_tensor((np.ones(len(actions)) if weights is None else weights).astype(np.float32))
     policy = model.policy
     policy.set_training_mode(True)
     params = [p for name, p in policy.named_parameters()
@@ -269,7 +287,7 @@ def fit(model, vecnorm, observations: np.ndarray, actions: np.ndarray, epochs: i
         for b in range(steps_per_epoch):
             idx = order[b * batch_size:(b + 1) * batch_size]
             mean = policy.get_distribution(x_all[idx]).distribution.mean
-            loss = torch.mean((mean - y_all[idx]) ** 2)
+            loss = torch.mean(w_all[idx, None] * (mean - y_all[idx]) ** 2)
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
@@ -282,8 +300,6 @@ def fit(model, vecnorm, observations: np.ndarray, actions: np.ndarray, epochs: i
 
 def _fresh_student(config: DistillConfig, run_dir: Path, dataset_size: int):
     """(run config, vecnorm, model) of a student with its initial weights (the same for every round's fit)."""
-    from softpvtol_gym.baselines.training.loop import prepare
-
     run_config = config.run_config(dataset_size)
     _, vecnorm, model = prepare(run_config, run_dir)
     vecnorm.training = False
@@ -300,10 +316,6 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
     ``resume=False`` refuses a ``run_dir`` that holds a distilled run or datasets; ``resume=True`` loads the
     datasets already collected (they must be of the same config) and continues."""
     import torch
-
-    from softpvtol_gym.baselines.checkpoints.store import write_model_files
-    from softpvtol_gym.baselines.training.loop import torch_threads
-    from softpvtol_gym.baselines.training.policy import LearnedPolicy
 
     run_dir = Path(run_dir)
     if run_dir.exists() and not run_dir.is_dir():
@@ -340,7 +352,7 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
             obs, act = np.concatenate(data_obs), np.concatenate(data_act)
             run_config, vecnorm, model = _fresh_student(config, run_dir, len(obs))
             losses = fit(model, vecnorm, obs, act, config.epochs, config.batch_size, config.learning_rate,
-                         config.seed)
+                         config.seed, weights=sample_weights(obs, config.precision_scale))
             student = LearnedPolicy(model, vecnorm, inference="lean")
             entry = {"round": k, "kind": "behaviour cloning" if k == 0 else "dagger",
                      "samples": int(sum(len(o) for o in data_obs[-len(config.tiers):])), "aggregate": int(len(obs)),
