@@ -3,6 +3,7 @@ the cached datasets and an exact resume, the student loaded like any run, bad in
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 
@@ -85,6 +86,18 @@ def test_the_fit_learns_a_smooth_map_with_the_datas_normalisation(distilled):
     assert np.sqrt(np.mean((predicted - labels[:64]) ** 2)) < 0.2 * labels.std()
 
 
+def test_precision_weights_favour_small_errors_and_average_one():
+    from softpvtol_gym.baselines.training.distill import sample_weights
+
+    obs = np.zeros((3, 21), np.float32)
+    obs[:, 0] = [0.0, 0.03, 0.0]
+    obs[:, 1] = [0.0, 0.04, 1.0]  # |e| = 0, 0.05, 1 m
+    w = sample_weights(obs, 0.01)
+    assert w.mean() == pytest.approx(1.0) and w[0] / w[1] == pytest.approx(6.0) and w[1] / w[2] == pytest.approx(
+        1.01 / 0.06)
+    assert sample_weights(obs, None) is None
+
+
 def test_dagger_rounds_are_flown_by_the_student_and_labelled_by_the_teacher(tmp_path):
     teacher = LinearTeacher()
     config = DistillConfig(**{**TINY, "teacher": "integral"})
@@ -132,6 +145,7 @@ def test_resume_loads_the_cached_datasets_and_gives_the_same_student(distilled, 
     ({"learning_rate": float("nan")}, "learning_rate must be in"),
     ({"seed": 50}, "collection seeds"),
     ({"episodes": True}, "episodes must be an integer"),
+    ({"precision_scale": 0.0}, "precision_scale must be None or a length"),
 ])
 def test_bad_settings_are_refused_with_what_was_given(changes, words):
     with pytest.raises(ConfigError, match=words):
@@ -155,3 +169,93 @@ def test_the_command_distils_and_evaluate_loads_the_student(tmp_path, capsys):
         assert exc.value.code == 2 and words in err and len(err.strip().splitlines()) == 1, err
     assert main(["evaluate", "--policy", str(out), "--episodes", "1"]) == 0
     assert "actuators / hover / nominal" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------------------------- fine-tuning a student
+def test_a_fine_tuned_run_starts_from_the_students_weights_and_statistics(distilled, tmp_path):
+    import torch
+
+    from softpvtol_gym.baselines.training.imitation import FROZEN_COUNT
+    from softpvtol_gym.baselines.training.loop import prepare
+
+    out, result = distilled
+    student = result["run_config"]
+    config = dataclasses.replace(student, tier="wind", timesteps=256, init_from=str(out))
+    _, vecnorm, model = prepare(config, tmp_path / "ft")
+    theirs = result["policy"].model.policy.state_dict()
+    for key, value in model.policy.state_dict().items():
+        assert torch.equal(value, theirs[key]), key
+    np.testing.assert_array_equal(vecnorm.obs_rms.mean, result["policy"].vecnorm.obs_rms.mean)
+    assert vecnorm.obs_rms.count == FROZEN_COUNT
+    with pytest.raises(ConfigError, match="does not have this run's shape"):
+        prepare(dataclasses.replace(config, hyperparams={**config.hyperparams, "policy_kwargs": "dict(net_arch=[8])"}),
+                tmp_path / "other")
+
+
+def test_the_imitation_weight_decays_linearly_to_zero():
+    from softpvtol_gym.baselines.training.imitation import imitation_weight
+
+    spec = {"teacher": "integral", "weight": 2.0, "decay_steps": 1000, "epochs": 1}
+    assert [imitation_weight(spec, t) for t in (0, 250, 1000, 5000)] == [2.0, 1.5, 0.0, 0.0]
+
+
+def test_train_init_from_fine_tunes_the_student_with_the_imitation_term(distilled, tmp_path, capsys):
+    import yaml
+
+    from softpvtol_gym.baselines.cli import main
+    out, result = distilled
+    run = tmp_path / "ft"
+    tiny = ["--n-envs", "2", "--hp", "n_steps=64", "--hp", "batch_size=64", "--hp", "n_epochs=1",
+            "--eval-episodes", "0", "--no-progress-bar"]
+    assert main(["train", "--init-from", str(out), "--timesteps", "256", "--bc-teacher", "integral", "--bc-weight",
+                 "5", "--bc-decay-steps", "100000", *tiny, "--out", str(run)]) == 0
+    saved = yaml.safe_load((run / "config.yaml").read_text())
+    assert (saved["action_mode"], saved["task"], saved["init_from"]) == ("actuators", "hover", str(out))
+    assert saved["imitation"] == {"teacher": "integral", "weight": 5.0, "decay_steps": 100000, "epochs": 1}
+    assert saved["env_options"] == {"observe_error_integral": True}
+    policy, _ = LearnedPolicy.load(run)
+    obs = np.zeros((2, 21), np.float32)
+    moved = policy.predict(obs, episode_start=np.ones(2, bool))[0]
+    assert not np.array_equal(moved, result["policy"].predict(obs, episode_start=np.ones(2, bool))[0])
+    capsys.readouterr()
+    for argv, words in ((["train", "--bc-teacher", "integral", "--out", str(tmp_path / "x")], "--bc-teacher needs"),
+                        (["train", "--init-from", str(out), "--action-mode", "residual", "--out", str(tmp_path / "y")],
+                         "differs from the --init-from run's actuators"),
+                        (["train", "--init-from", str(tmp_path / "none"), "--out", str(tmp_path / "z")],
+                         "--init-from")):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and words in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_the_imitation_term_fits_the_teachers_labels_of_the_observations_acted_on(distilled, tmp_path,
+                                                                                     monkeypatch):
+    from softpvtol_gym.baselines.training import imitation
+    from softpvtol_gym.baselines.training.loop import prepare
+
+    out, result = distilled
+    teacher = LinearTeacher()
+    monkeypatch.setattr(imitation, "teacher_policy", lambda name, task, env_options: teacher)
+    spec = {"teacher": "integral", "weight": 1.0, "decay_steps": 100_000, "epochs": 5}
+    config = dataclasses.replace(result["run_config"], n_envs=2, timesteps=256, init_from=str(out), imitation=spec,
+                                 hyperparams={**result["run_config"].hyperparams, "n_steps": 64, "batch_size": 64})
+    _, vecnorm, model = prepare(config, tmp_path / "ft")
+    term = imitation.imitation_callback(config, vecnorm)
+    seen = []
+    original = term._imitate
+
+    def check():
+        obs, labels = np.concatenate(term.obs), np.concatenate(term.labels)
+        assert len(obs) == 64 * 2  # one label per env step of the rollout
+        raw = vecnorm.unnormalize_obs(obs.astype(np.float64))
+        whole = np.all(np.abs(obs) < vecnorm.clip_obs, axis=1)  # rows the normalisation's clip left as they were
+        assert whole.mean() > 0.5
+        np.testing.assert_allclose(labels[whole], teacher.label(raw[whole]), atol=1e-4)
+        seen.append(len(obs))
+        original()
+
+    term._imitate = check
+    model.learn(total_timesteps=256, callback=term)
+    assert seen == [128, 128]  # after each of the two updates (the last at the end of training)
+    assert all(h["gap_after"] < h["gap_before"] for h in term.history) and len(term.history) == 2

@@ -4,6 +4,7 @@ source checkout ``python baselines/distill.py``, with the same options).
     softpvtol distill --teacher integral --task track_random                 # 3 rounds, 16 episodes each
     softpvtol distill --teacher mpc --tier nominal --tier wind --rounds 4 --episodes 32
     softpvtol distill --teacher integral --net-arch 128,128 --out runs/student --resume
+    softpvtol distill --teacher integral --precision-scale 0.01     # the fit weighs small errors more
     softpvtol evaluate --policy runs/student --tier wind                      # like any trained run
 
 Round 0 clones the teacher's actions on its own episodes; each further round lets the student fly and the
@@ -22,9 +23,10 @@ import argparse
 from pathlib import Path
 
 from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.baselines.training.distill import TEACHERS, DistillConfig, distill
+from softpvtol_gym.baselines.training.distill import DISTILL_FILE, TEACHERS, DistillConfig, distill, distill_table
 from softpvtol_gym.baselines.util.args import Parser, check_output_dir, command_main, float_arg, int_arg
-from softpvtol_gym.baselines.util.paths import Layout
+from softpvtol_gym.baselines.util.blocks import write_block
+from softpvtol_gym.baselines.util.paths import Layout, relative_to_root
 from softpvtol_gym.envs.tiers import registered_tiers
 from softpvtol_gym.tasks import registered_tasks
 
@@ -51,6 +53,9 @@ def build_parser(prog: str = "distill.py") -> Parser:
                     help=f"Adam's initial learning rate, decayed linearly to 0 (default {DEFAULTS.learning_rate:g})")
     ap.add_argument("--eval-episodes", type=int_arg(0), default=DEFAULTS.eval_episodes,
                     help=f"student and teacher episodes per tier after each round (default {DEFAULTS.eval_episodes})")
+    ap.add_argument("--precision-scale", type=float_arg(0.0, 100.0, lo_open=True), default=None, metavar="S",
+                    help="weigh each sample by 1 / (S + |position error|) (S in m, e.g. 0.01): the fit spends its "
+                         "accuracy where the errors are small (default: every sample the same)")
     ap.add_argument("--out", type=Path, default=None,
                     help="run directory (default runs/distilled_<teacher>_<task>_s<seed>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out (same options)")
@@ -76,7 +81,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
         config = DistillConfig(teacher=args.teacher, task=args.task, tiers=tuple(tiers), seed=args.seed,
                                net_arch=_net_arch(args.net_arch, ap), rounds=args.rounds, episodes=args.episodes,
                                epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
-                               eval_episodes=args.eval_episodes)
+                               eval_episodes=args.eval_episodes, precision_scale=args.precision_scale)
     except ConfigError as exc:
         ap.error(str(exc))
     out = args.out or Path("runs") / f"distilled_{config.teacher}_{config.task}_s{config.seed}"
@@ -93,6 +98,10 @@ def _main(argv, layout: Layout, prog: str) -> int:
             steady = s.get("mean_rms_position_error_steady")
             print(f"  {tier:<9} {who:<7} rms position {s['mean_rms_position_error']:.4f} m  last half "
                   f"{'crashed' if steady is None else f'{steady:.4f} m'}  crash rate {s['crash_rate']:.2f}")
+    page = layout.doc("baselines.md")
+    source = f"{relative_to_root(out.resolve(), layout.root.resolve())}/{DISTILL_FILE}"
+    if page is not None and write_block(f"distill.py {out.name}", source, distill_table(result["record"]), page):
+        print(f"wrote the table in {page}")
     return 0
 
 

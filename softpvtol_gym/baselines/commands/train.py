@@ -10,6 +10,7 @@ source checkout ``python train.py``, with the same options).
     python train.py --env residual_scale=0.4 # an env option, for training and evaluation (docs/baselines.md)
     python train.py --train-env precision_reward_weight=1   # a training-only env option (reward terms, starts)
     python train.py --recipe residual-gated-integral --task track_random   # a named recipe (recipes.yml)
+    python train.py --init-from runs/student --tier wind --bc-teacher integral   # fine-tune a distilled student
 
 Hyperparameters come from ``softpvtol_gym/baselines/data/hyperparams/<algo>.yml`` (the entry of the mode's env id:
 ``SoftPVTOLResidual-v0``, ``SoftPVTOLVirtual-v0``, ``SoftPVTOLActuators-v0``; rl-baselines3-zoo's format);
@@ -35,7 +36,7 @@ import json
 from pathlib import Path
 
 from softpvtol_gym import PassivityPolicy
-from softpvtol_gym.baselines.checkpoints.store import checkpoint_candidates
+from softpvtol_gym.baselines.checkpoints.store import checkpoint_candidates, find_checkpoint
 from softpvtol_gym.baselines.config.hyperparams import (
     ALGOS,
     CONFIG_FILE_NAME,
@@ -51,12 +52,20 @@ from softpvtol_gym.baselines.config.hyperparams import (
 )
 from softpvtol_gym.baselines.config.recipes import RECIPES_FILE, load_recipe, recipe_config_fields
 from softpvtol_gym.baselines.config.run_config import RunConfig
-from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.errors import CheckpointError, ConfigError
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, evaluate
 from softpvtol_gym.baselines.training.loop import prepare, train
 from softpvtol_gym.baselines.training.models import DEVICES
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
-from softpvtol_gym.baselines.util.args import Parser, check_output_dir, command_main, int_arg, interrupted
+from softpvtol_gym.baselines.training.teachers import TEACHERS
+from softpvtol_gym.baselines.util.args import (
+    Parser,
+    check_output_dir,
+    command_main,
+    float_arg,
+    int_arg,
+    interrupted,
+)
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.locks import DirectoryLock
 from softpvtol_gym.baselines.util.paths import Layout
@@ -104,6 +113,19 @@ def build_parser(prog: str = "train.py") -> Parser:
     ap.add_argument("--recipe", default=None, metavar="NAME",
                     help=f"a training recipe of {RECIPES_FILE.name} (algo, action mode, base loop, env and training "
                          f"options, hyperparameter overrides); the other options change it")
+    ap.add_argument("--init-from", type=Path, default=None, metavar="RUN",
+                    help="start from the policy of this run (e.g. a `softpvtol distill` student): its weights and "
+                         "observation statistics, its action mode, env options and network; task and tier default "
+                         "to its own")
+    ap.add_argument("--bc-teacher", default=None, choices=TEACHERS,
+                    help="with --init-from: an imitation term toward this teacher after each PPO update, its weight "
+                         "decaying linearly to 0 (docs/baselines.md, 'Fine-tuning a student')")
+    ap.add_argument("--bc-weight", type=float_arg(0.0, 1e6, lo_open=True), default=1.0,
+                    help="the imitation term's initial weight (default 1)")
+    ap.add_argument("--bc-decay-steps", type=int_arg(1), default=None,
+                    help="steps over which the weight decays to 0 (default: half of --timesteps)")
+    ap.add_argument("--bc-epochs", type=int_arg(1, 100), default=1,
+                    help="passes of the imitation term over each rollout (default 1)")
     ap.add_argument("--checkpoint-freq", type=int_arg(), default=None, help="env steps between checkpoints (100,000)")
     ap.add_argument("--eval-freq", type=int_arg(), default=None,
                     help="env steps between periodic evaluations (50,000, or the recipe's eval_freq)")
@@ -140,6 +162,13 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
     given = {k: getattr(args, k) for k in DEFAULTS if getattr(args, k) is not None}
     recipe = load_recipe(args.recipe) if args.recipe is not None else None
     base = dict(DEFAULTS)
+    source = _source_config(args, ap)
+    if source is not None:
+        base.update(algo=source.algo, action_mode=source.action_mode, task=source.task, tier=source.tier)
+        for key in ("algo", "action_mode"):
+            if key in given and given[key] != getattr(source, key):
+                ap.error(f"--{key.replace('_', '-')} {given[key]} differs from the --init-from run's "
+                         f"{getattr(source, key)}; a fine-tuned run keeps its policy's interface (leave it out)")
     if recipe is not None:
         base.update(algo=recipe["algo"], action_mode=recipe["action_mode"])
         if recipe["eval_freq"] is not None:  # the recipe's evaluation period (--eval-freq overrides it)
@@ -192,13 +221,21 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
                               f"{args.recipe!r}; resume with the run's own recipe (or leave --recipe out)")
         recipe_name = saved.recipe
     else:
+        start = _policy_overrides(source)  # the source run's network and normalisation, for --init-from
         hp = apply_overrides(load_hyperparams(pick["algo"], pick["action_mode"], args.hyperparams),
-                             recipe_hp + args.hp)
-        overrides = recipe_hp + list(args.hp)
+                             start + recipe_hp + args.hp)
+        overrides = start + recipe_hp + list(args.hp)
+        if source is not None:
+            for key, value in source.env_options.items():
+                if env_options.get(key, value) != value:
+                    ap.error(f"--env {key}={env_options[key]} differs from the --init-from run's {key}={value}; "
+                             f"a fine-tuned run keeps its policy's interface (leave it out)")
+            env_options = {**source.env_options, **env_options}
         env_options = {**fields["env_options"], **env_options}
         train_env_options = {**fields["train_env_options"], **train_env_options}
         curriculum = fields["start_error_curriculum"] if curriculum is None else curriculum
-        controller_loop = args.controller_loop or fields["controller_loop"]
+        controller_loop = args.controller_loop or fields["controller_loop"] or (
+            source.controller_loop if source is not None else None)
         recipe_name = args.recipe
         if args.n_envs is not None:
             overrides.append(f"n_envs={args.n_envs}")
@@ -212,11 +249,44 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
                        checkpoint_freq=pick["checkpoint_freq"], eval_freq=pick["eval_freq"],
                        eval_episodes=pick["eval_episodes"], env_options=env_options,
                        train_env_options=train_env_options, start_error_curriculum=curriculum,
-                       controller_loop=controller_loop, recipe=recipe_name)
+                       controller_loop=controller_loop, recipe=recipe_name,
+                       init_from=saved.init_from if saved is not None else (
+                           None if args.init_from is None else str(args.init_from)),
+                       imitation=saved.imitation if saved is not None else _imitation(args, timesteps, ap))
     if saved is not None and config.controller_loop != saved.controller_loop:
         raise ConfigError(f"--resume: controller_loop of the run in {out} is {saved.controller_loop!r}, the command "
                           f"asks for {config.controller_loop!r}; resume with the run's own settings")
     return config, out
+
+
+def _source_config(args, ap: Parser) -> RunConfig | None:
+    """The config of the ``--init-from`` run (None without it; with --resume the saved run's own is used)."""
+    if args.init_from is None:
+        if args.bc_teacher is not None:
+            ap.error("--bc-teacher needs --init-from RUN (the imitation term fine-tunes a run's policy)")
+        return None
+    try:
+        return RunConfig.load(find_checkpoint(args.init_from) / CONFIG_FILE_NAME)
+    except (ConfigError, CheckpointError) as exc:
+        ap.error(f"--init-from {args.init_from}: {exc}")
+
+
+def _policy_overrides(source: RunConfig | None) -> list[str]:
+    """The hyperparameter overrides that give a run the network and normalisation of ``source``."""
+    if source is None:
+        return []
+    hp = source.hyperparams
+    out = [f"normalize={json.dumps(hp.get('normalize', False))}"]
+    if "policy_kwargs" in hp:
+        out.append(f"policy_kwargs={hp['policy_kwargs']}")
+    return out
+
+
+def _imitation(args, timesteps: int, ap: Parser) -> dict | None:
+    if args.bc_teacher is None:
+        return None
+    return {"teacher": args.bc_teacher, "weight": float(args.bc_weight),
+            "decay_steps": args.bc_decay_steps or max(1, timesteps // 2), "epochs": args.bc_epochs}
 
 
 def _parse_curriculum(raw: str | None, ap: Parser) -> list | None:

@@ -70,6 +70,12 @@ class RunConfig:
     #: the training recipe the run was made from (train.py ``--recipe``; its settings are in the fields above),
     #: for the record and for ``--resume``; None: no recipe (or a run saved before the field existed)
     recipe: str | None = None
+    #: the run whose policy (and observation statistics) this run started from (train.py ``--init-from``), as
+    #: given; None: a fresh policy
+    init_from: str | None = None
+    #: the imitation term toward a teacher while fine-tuning (train.py ``--bc-weight``): ``{"teacher": NAME,
+    #: "weight": w0, "decay_steps": N, "epochs": k}`` (:mod:`~softpvtol_gym.baselines.training.imitation`); None: none
+    imitation: dict | None = None
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -108,6 +114,29 @@ class RunConfig:
         self._check_curriculum()
         if self.recipe is not None and (not isinstance(self.recipe, str) or not self.recipe):
             raise ConfigError(f"recipe must be a recipe's name or None, got {self.recipe!r}")
+        if self.init_from is not None and (not isinstance(self.init_from, str) or not self.init_from):
+            raise ConfigError(f"init_from must be a run directory's path or None, got {self.init_from!r}")
+        self._check_imitation()
+
+    def _check_imitation(self) -> None:
+        spec = self.imitation
+        if spec is None:
+            return
+        keys = {"teacher", "weight", "decay_steps", "epochs"}
+        ok = (isinstance(spec, dict) and set(spec) == keys and isinstance(spec["teacher"], str) and spec["teacher"]
+              and isinstance(spec["weight"], (int, float)) and not isinstance(spec["weight"], bool)
+              and 0 < spec["weight"] <= 1e6
+              and is_int(spec["decay_steps"]) and 1 <= spec["decay_steps"] <= MAX_TIMESTEPS
+              and is_int(spec["epochs"]) and 1 <= spec["epochs"] <= 100)
+        if not ok:
+            raise ConfigError(f"imitation must be None or {{teacher: a teacher's name, weight: in (0, 1e6], "
+                              f"decay_steps: an integer in [1, {MAX_TIMESTEPS:,}], epochs: an integer in [1, 100]}}, "
+                              f"got {spec!r}")
+        if self.algo != "ppo":
+            raise ConfigError(f"the imitation term fine-tunes PPO runs, got algo {self.algo!r}")
+        if self.action_mode != "actuators":
+            raise ConfigError(f"the imitation term imitates a teacher's actuator commands: it needs action_mode "
+                              f"'actuators', got {self.action_mode!r}")
 
     def _check_env_options(self, env_config_class, field: str, valid: tuple) -> None:
         """``field``: a mapping of ``valid`` keys that the env accepts (each value checked by EnvConfig; a
@@ -173,6 +202,8 @@ class RunConfig:
             data = {"train_env_options": {}, "start_error_curriculum": None, **data}
         if strict:  # saved before the recipe was recorded: none recorded
             data = {"recipe": None, **data}
+        if strict:  # saved before fine-tuning existed: a fresh policy, no imitation term
+            data = {"init_from": None, "imitation": None, **data}
         if strict:
             lost = [n for n in names if n not in data]
             if lost:

@@ -41,7 +41,6 @@ from pathlib import Path
 
 import numpy as np
 
-import softpvtol_gym
 from softpvtol_gym.baselines.checkpoints.store import write_model_files
 from softpvtol_gym.baselines.config.hyperparams import (
     TRAIN_SEED_LIMIT,
@@ -53,14 +52,14 @@ from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import run_episodes, summarize
 from softpvtol_gym.baselines.training.loop import prepare, torch_threads
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
+from softpvtol_gym.baselines.training.teachers import STUDENT_ENV_OPTIONS, TEACHERS, collect, teacher_policy
 from softpvtol_gym.baselines.util.atomic import atomic_write_bytes, atomic_write_text
 from softpvtol_gym.baselines.util.locks import DirectoryLock
-from softpvtol_gym.control import LOOPS
 from softpvtol_gym.envs.tiers import registered_tiers
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 from softpvtol_gym.tasks import registered_tasks
 
-__all__ = ["DistillConfig", "distill", "teacher_policy", "collect", "TEACHERS", "DISTILL_FILE"]
+__all__ = ["DistillConfig", "distill", "teacher_policy", "collect", "distill_table", "TEACHERS", "DISTILL_FILE"]
 
 #: the record of a distilled run, next to its model files
 DISTILL_FILE = "distill.json"
@@ -69,10 +68,6 @@ DATASET_DIR = "datasets"
 DISTILL_EVAL_SEED = 3_000_000
 #: collection episodes of run seed s start at s * SEED_STRIDE (below the training seed limit)
 SEED_STRIDE = 10_000
-#: the teachers by name: the passivity loops acting on the actuators, and the MPC (the ``mpc`` extra)
-TEACHERS = ("paper", "exact", "improved", "bounded", "integral", "extended", "mpc")
-#: the student's env options: the error integrals observed (3 more entries)
-STUDENT_ENV_OPTIONS = {"observe_error_integral": True}
 MAX_EPISODES_PER_ROUND = 1_000
 MAX_ROUNDS = 50
 
@@ -171,51 +166,6 @@ def _is_int(v) -> bool:
 
 def _say(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
-
-
-# --------------------------------------------------------------------------------------------- teacher
-def teacher_policy(name: str, task: str, env_options: dict | None = None):
-    """A fresh teacher of :data:`TEACHERS` acting on the actuators of an env with ``env_options``
-    (a passivity loop with its own allocation, or ``MPCPolicy`` with its defaults)."""
-    opts = dict(STUDENT_ENV_OPTIONS if env_options is None else env_options)
-    if name == "mpc":
-        probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=task, **opts)
-        return softpvtol_gym.MPCPolicy.from_env(probe)
-    if name not in TEACHERS:
-        raise ConfigError(f"teacher must be one of {list(TEACHERS)}, got {name!r}")
-    allocation = "exact" if name == "extended" else LOOPS[name]["allocation"]
-    probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=task, allocation=allocation,
-                               controller_loop=name, **opts)
-    return softpvtol_gym.PassivityPolicy.from_env(probe)
-
-
-# --------------------------------------------------------------------------------------------- data
-def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=None,
-            env_options: dict | None = None, progress=None) -> tuple[np.ndarray, np.ndarray]:
-    """(observations (n, d), teacher actions (n, 4)) of ``episodes`` seeded episodes (seeds seed + i) on the
-    actuators mode: flown by the teacher (``student=None``) or by ``student`` with the teacher labelling
-    every observation the student visits. Each episode's steps until it ends (time limit or crash)."""
-    env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode="actuators", task=task, tier=tier,
-                             **(STUDENT_ENV_OPTIONS if env_options is None else env_options))
-    obs, _ = env.reset(seed=seed)
-    done, start = np.zeros(episodes, bool), np.ones(episodes, bool)
-    observations, labels = [], []
-    while not done.all():
-        label, _ = teacher.predict(obs, episode_start=start, deterministic=True)
-        action = label if student is None else student.predict(obs, episode_start=start, deterministic=True)[0]
-        live = ~done
-        observations.append(np.array(obs[live], dtype=np.float32))
-        labels.append(np.array(label[live], dtype=np.float32))
-        start[:] = False
-        previous = obs
-        obs, _, term, trunc, _ = env.step(action)
-        done |= term | trunc
-        if progress is not None:
-            progress(int(live.sum()))
-        if done.any() and not done.all():  # the policies act on the whole batch: a running row's last observation
-            obs = np.where(done[:, None], previous, obs)
-    env.close()
-    return np.concatenate(observations), np.concatenate(labels)
 
 
 def _dataset_path(run_dir: Path, round_index: int, tier: str) -> Path:
@@ -424,3 +374,27 @@ def _progress(enabled: bool, config: DistillConfig):
     bar = tqdm(total=config.collections * config.episodes * int(probe.sim.max_steps), unit="sample",
                desc="distill", file=sys.stderr)
     return bar.update
+
+
+def distill_table(record: dict) -> str:
+    """A Markdown table of a distilled run's record (``distill.json``): per round and tier, the student's mean
+    position errors per window and crashes on the evaluation episodes, below them the teacher's on the same."""
+    windows = ("rms_position_error_transient", "rms_position_error_steady", "max_position_error_final_5s")
+
+    def cells(s: dict) -> str:
+        vals = [s.get(f"mean_{w}") for w in windows]
+        text = ["crashed" if v is None else f"{v:.2e}" for v in vals]
+        return " | ".join(text) + f" | {round(s['crash_rate'] * s['episodes'])}/{s['episodes']}"
+
+    lines = ["| round | samples (all rounds) | tier | policy | first quarter [m] | last half [m] | max last 5 s [m] "
+             "| crashes |", "|---|---|---|---|---|---|---|---|"]
+    teachers = {}
+    for r in record["rounds"]:
+        for tier, row in r["evaluation"].items():
+            teachers.setdefault(tier, row.get("teacher"))
+            lines.append(f"| {r['round']} ({r['kind']}) | {r['aggregate']:,} | {tier} | student | "
+                         f"{cells(row['student'])} |")
+    for tier, s in teachers.items():
+        if s is not None:
+            lines.append(f"| | | {tier} | teacher ({record['config']['teacher']}) | {cells(s)} |")
+    return "\n".join(lines)

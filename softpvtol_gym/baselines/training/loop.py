@@ -34,6 +34,7 @@ from softpvtol_gym.baselines.checkpoints.store import (
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import CheckpointError, ConfigError
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes, summarize
+from softpvtol_gym.baselines.training.imitation import imitation_callback, init_from_run
 from softpvtol_gym.baselines.training.models import (
     algo_class,
     build_model,
@@ -231,8 +232,11 @@ def prepare(config: RunConfig, run_dir: Path, verbose: int = 0, device: str = "c
     device = resolve_device(device)
     env = make_env(config)
     vecnorm = make_vecnorm(config, env)
-    return env, vecnorm, build_model(config, stack_frames(config, vecnorm or env), tensorboard_log=str(run_dir / "tb"),
-                                     verbose=verbose, device=device)
+    model = build_model(config, stack_frames(config, vecnorm or env), tensorboard_log=str(run_dir / "tb"),
+                        verbose=verbose, device=device)
+    if config.init_from is not None:  # a fine-tuning run starts from another run's policy (a resume then loads its own)
+        init_from_run(model, vecnorm, Path(config.init_from))
+    return env, vecnorm, model
 
 
 def train(config: RunConfig, run_dir: Path, resume: bool = False, progress_bar: bool = False,
@@ -320,6 +324,8 @@ def train(config: RunConfig, run_dir: Path, resume: bool = False, progress_bar: 
         t0 = time.perf_counter()
         if remaining > 0:
             callbacks = [_callbacks(run_dir, config, vecnorm, start)]
+            if config.imitation is not None:  # first: its step after an update comes before a checkpoint of it
+                callbacks.insert(0, imitation_callback(config, vecnorm))
             if config.start_error_curriculum is not None:
                 # the first rollout's starts too (SB3 resets the env before the callbacks run)
                 _set_start_error_scale(model.get_env(), config.start_error_scale_at(start))

@@ -1,0 +1,61 @@
+"""Teachers: the controllers a learned policy imitates (distillation, the imitation term of fine-tuning), and
+the collection of their labelled episodes."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import softpvtol_gym
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.control import LOOPS
+from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
+
+__all__ = ["TEACHERS", "STUDENT_ENV_OPTIONS", "teacher_policy", "collect"]
+
+#: the teachers by name: the passivity loops acting on the actuators, and the MPC (the ``mpc`` extra)
+TEACHERS = ("paper", "exact", "improved", "bounded", "integral", "extended", "mpc")
+#: the student's env options: the error integrals observed (3 more entries)
+STUDENT_ENV_OPTIONS = {"observe_error_integral": True}
+
+
+def teacher_policy(name: str, task: str, env_options: dict | None = None):
+    """A fresh teacher of :data:`TEACHERS` acting on the actuators of an env with ``env_options``
+    (a passivity loop with its own allocation, or ``MPCPolicy`` with its defaults)."""
+    opts = dict(STUDENT_ENV_OPTIONS if env_options is None else env_options)
+    if name == "mpc":
+        probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=task, **opts)
+        return softpvtol_gym.MPCPolicy.from_env(probe)
+    if name not in TEACHERS:
+        raise ConfigError(f"teacher must be one of {list(TEACHERS)}, got {name!r}")
+    allocation = "exact" if name == "extended" else LOOPS[name]["allocation"]
+    probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=task, allocation=allocation,
+                               controller_loop=name, **opts)
+    return softpvtol_gym.PassivityPolicy.from_env(probe)
+
+
+def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=None,
+            env_options: dict | None = None, progress=None) -> tuple[np.ndarray, np.ndarray]:
+    """(observations (n, d), teacher actions (n, 4)) of ``episodes`` seeded episodes (seeds seed + i) on the
+    actuators mode: flown by the teacher (``student=None``) or by ``student`` with the teacher labelling
+    every observation the student visits. Each episode's steps until it ends (time limit or crash)."""
+    env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode="actuators", task=task, tier=tier,
+                             **(STUDENT_ENV_OPTIONS if env_options is None else env_options))
+    obs, _ = env.reset(seed=seed)
+    done, start = np.zeros(episodes, bool), np.ones(episodes, bool)
+    observations, labels = [], []
+    while not done.all():
+        label, _ = teacher.predict(obs, episode_start=start, deterministic=True)
+        action = label if student is None else student.predict(obs, episode_start=start, deterministic=True)[0]
+        live = ~done
+        observations.append(np.array(obs[live], dtype=np.float32))
+        labels.append(np.array(label[live], dtype=np.float32))
+        start[:] = False
+        previous = obs
+        obs, _, term, trunc, _ = env.step(action)
+        done |= term | trunc
+        if progress is not None:
+            progress(int(live.sum()))
+        if done.any() and not done.all():  # the policies act on the whole batch: a running row's last observation
+            obs = np.where(done[:, None], previous, obs)
+    env.close()
+    return np.concatenate(observations), np.concatenate(labels)
