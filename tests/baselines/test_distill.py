@@ -259,3 +259,18 @@ def test_the_imitation_term_fits_the_teachers_labels_of_the_observations_acted_o
     model.learn(total_timesteps=256, callback=term)
     assert seen == [128, 128]  # after each of the two updates (the last at the end of training)
     assert all(h["gap_after"] < h["gap_before"] for h in term.history) and len(term.history) == 2
+
+
+def test_the_docs_table_is_generated_from_the_committed_distilled_run():
+    from conftest import ROOT, RESULTS
+
+    from softpvtol_gym.baselines.training.distill import distill_table
+    from softpvtol_gym.baselines.util.blocks import read_block
+
+    run = RESULTS / "distill_runs" / "integral_track_random"
+    record = json.loads((run / DISTILL_FILE).read_text())
+    source = f"results/distill_runs/integral_track_random/{DISTILL_FILE}"
+    assert read_block("distill.py integral_track_random", source, ROOT / "docs" / "baselines.md") == \
+        distill_table(record).strip()
+    policy, config = LearnedPolicy.load(run)  # the committed student loads (its manifest verifies)
+    assert config.env_options == {"observe_error_integral": True} and record["config"]["teacher"] == "integral"
