@@ -262,10 +262,9 @@ def test_the_imitation_term_fits_the_teachers_labels_of_the_observations_acted_o
 
 
 def test_the_docs_table_is_generated_from_the_committed_distilled_run():
-    from conftest import ROOT, RESULTS
-
     from softpvtol_gym.baselines.training.distill import distill_table
     from softpvtol_gym.baselines.util.blocks import read_block
+    from tests.conftest import RESULTS, ROOT
 
     run = RESULTS / "distill_runs" / "integral_track_random"
     record = json.loads((run / DISTILL_FILE).read_text())
