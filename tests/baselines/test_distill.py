@@ -273,3 +273,17 @@ def test_the_docs_table_is_generated_from_the_committed_distilled_run():
         distill_table(record).strip()
     policy, config = LearnedPolicy.load(run)  # the committed student loads (its manifest verifies)
     assert config.env_options == {"observe_error_integral": True} and record["config"]["teacher"] == "integral"
+
+
+@pytest.mark.parametrize("fields, words", [
+    ({"imitation": {"teacher": "integral", "weight": 0.0, "decay_steps": 10, "epochs": 1}}, "imitation must be None"),
+    ({"imitation": {"teacher": "integral", "weight": 1.0, "decay_steps": 10}}, "imitation must be None"),
+    ({"imitation": {"teacher": "integral", "weight": 1.0, "decay_steps": 10, "epochs": 1}, "action_mode": "residual"},
+     "needs action_mode 'actuators'"),
+    ({"init_from": ""}, "init_from must be a run directory's path"),
+])
+def test_bad_fine_tuning_settings_are_refused(fields, words):
+    from softpvtol_gym.baselines.config.run_config import RunConfig
+
+    with pytest.raises(ConfigError, match=words):
+        RunConfig(**{"action_mode": "actuators", **fields})
