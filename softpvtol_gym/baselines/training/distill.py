@@ -50,11 +50,13 @@ from softpvtol_gym.baselines.config.hyperparams import (
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import run_episodes, summarize
+from softpvtol_gym.baselines.training.imitation import action_gap, actor_parameters
 from softpvtol_gym.baselines.training.loop import prepare, torch_threads
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
 from softpvtol_gym.baselines.training.teachers import STUDENT_ENV_OPTIONS, TEACHERS, collect, teacher_policy
 from softpvtol_gym.baselines.util.atomic import atomic_write_bytes, atomic_write_text
 from softpvtol_gym.baselines.util.locks import DirectoryLock
+from softpvtol_gym.envs.observation import N_ERROR_INTEGRALS, OBS_DIM
 from softpvtol_gym.envs.tiers import registered_tiers
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 from softpvtol_gym.tasks import registered_tasks
@@ -219,12 +221,10 @@ def fit(model, vecnorm, observations: np.ndarray, actions: np.ndarray, epochs: i
     rms.count = float(len(observations))
     x_all = torch.as_tensor(vecnorm.normalize_obs(observations).astype(np.float32))
     y_all = torch.as_tensor(actions.astype(np.float32))
-    w_all = torch.as_tensor((np.ones(len(actions)) if weights is None else weights).astype(np.float32))
+    w_all = None if weights is None else torch.as_tensor(weights.astype(np.float32))
     policy = model.policy
     policy.set_training_mode(True)
-    params = [p for name, p in policy.named_parameters()
-              if not name.startswith(("value_net", "mlp_extractor.value_net")) and name != "log_std"]
-    optimizer = torch.optim.Adam(params, lr=learning_rate)
+    optimizer = torch.optim.Adam(actor_parameters(policy), lr=learning_rate)
     n = len(x_all)
     steps_per_epoch = max(1, -(-n // batch_size))
     total = epochs * steps_per_epoch
@@ -236,8 +236,7 @@ def fit(model, vecnorm, observations: np.ndarray, actions: np.ndarray, epochs: i
         running = 0.0
         for b in range(steps_per_epoch):
             idx = order[b * batch_size:(b + 1) * batch_size]
-            mean = policy.get_distribution(x_all[idx]).distribution.mean
-            loss = torch.mean(w_all[idx, None] * (mean - y_all[idx]) ** 2)
+            loss = action_gap(policy, x_all[idx], y_all[idx], None if w_all is None else w_all[idx])
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
@@ -272,7 +271,7 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
         raise ConfigError(f"run directory {run_dir} is a file; choose a directory for --out")
     torch.set_num_threads(torch_threads())
     run_config = config.run_config()  # validated before anything is written
-    obs_dim = 18 + 3
+    obs_dim = OBS_DIM + N_ERROR_INTEGRALS  # the student's observation (STUDENT_ENV_OPTIONS)
     teacher = teacher if teacher is not None else teacher_policy(config.teacher, config.task)
     run_dir.mkdir(parents=True, exist_ok=True)
     with DirectoryLock(run_dir, "run directory"):

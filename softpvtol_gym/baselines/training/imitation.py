@@ -34,7 +34,8 @@ from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.training.teachers import teacher_policy
 
-__all__ = ["FROZEN_COUNT", "init_from_run", "imitation_callback", "imitation_weight"]
+__all__ = ["FROZEN_COUNT", "init_from_run", "imitation_callback", "imitation_weight", "actor_parameters",
+           "action_gap"]
 
 #: the sample count given to the source run's observation statistics (they barely move during fine-tuning)
 FROZEN_COUNT = 1e12
@@ -63,6 +64,20 @@ def init_from_run(model, vecnorm, source: Path) -> RunConfig:
         vecnorm.obs_rms.var = np.array(src_vecnorm.obs_rms.var, dtype=np.float64)
         vecnorm.obs_rms.count = FROZEN_COUNT
     return src_config
+
+
+def actor_parameters(policy) -> list:
+    """The parameters of an SB3 actor-critic policy that make its mean action (the value net and the
+    log-std left out): what imitation fits."""
+    return [p for name, p in policy.named_parameters()
+            if not name.startswith(("value_net", "mlp_extractor.value_net")) and name != "log_std"]
+
+
+def action_gap(policy, obs, actions, weights=None):
+    """The (weighted) mean squared error between ``policy``'s mean actions at the normalised observations
+    ``obs`` (n, d) and ``actions`` (n, 4), torch tensors; ``weights`` (n,) or None."""
+    err = (policy.get_distribution(obs).distribution.mean - actions) ** 2
+    return (err if weights is None else weights[:, None] * err).mean()
 
 
 def _describe(shapes: dict) -> str:
@@ -133,16 +148,14 @@ def imitation_callback(config: RunConfig, vecnorm):
             policy = self.model.policy
             x = torch.as_tensor(np.concatenate(self.obs), device=policy.device)
             y = torch.as_tensor(np.concatenate(self.labels), device=policy.device)
-            params = [p for name, p in policy.named_parameters()
-                      if not name.startswith(("value_net", "mlp_extractor.value_net")) and name != "log_std"]
-            optimizer = torch.optim.Adam(params, lr=w * float(self.model.lr_schedule(1.0)))
+            optimizer = torch.optim.Adam(actor_parameters(policy), lr=w * float(self.model.lr_schedule(1.0)))
             batch = int(self.model.batch_size)
             before = self._gap(x, y)
             for _ in range(int(spec["epochs"])):
                 order = torch.randperm(len(x))
                 for b in range(0, len(x), batch):
                     idx = order[b:b + batch]
-                    loss = torch.mean((policy.get_distribution(x[idx]).distribution.mean - y[idx]) ** 2)
+                    loss = action_gap(policy, x[idx], y[idx])
                     optimizer.zero_grad()
                     loss.backward()
                     optimizer.step()
@@ -155,6 +168,6 @@ def imitation_callback(config: RunConfig, vecnorm):
         def _gap(self, x, y) -> float:
             """The mean squared error between the policy's mean actions and the teacher's."""
             with torch.no_grad():
-                return float(torch.mean((self.model.policy.get_distribution(x).distribution.mean - y) ** 2))
+                return float(action_gap(self.model.policy, x, y))
 
     return ImitationTerm()
