@@ -1,13 +1,14 @@
 """How far the committed checkpoints' replays drift from the leaderboard's episodes on this machine.
 
-    python benchmarks/replay_drift.py [--out drift.json]
+    python benchmarks/replay_drift.py [--inference torch] [--out drift.json]
 
-The leaderboard's learned cells are replayed exactly as ``tests/baselines/test_leaderboard.py`` replays them (the
-same batch of episodes, the base loop each model was trained on). On the machine the leaderboard was computed on
-every value is equal to the last bit; on a CPU whose float32 GEMM sums in another order (torch's MKL/oneDNN kernels
-differ by CPU model) the closed loops drift. Per replay it prints the episodes whose crash or length changed, the
+The leaderboard's learned cells are replayed on their whole batch of episodes, on the base loop each model was
+trained on. With the lean inference the leaderboard is scored with (float64, one row at a time) every value is
+equal to the last bit on any machine; with ``--inference torch`` (SB3's float32 forward) the closed loops drift,
+by how much depends on the CPU (torch's MKL/oneDNN kernels sum a matrix product in an order that differs by CPU
+model and batch size). Per replay it prints the episodes whose crash or length changed, the
 largest relative change of an episode's return, RMS position and attitude error and control effort, and the
-relative change of the cell's mean RMS position error: the figures behind the test's ``REPLAY_TOLERANCE``.
+relative change of the cell's mean RMS position error.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ KEYS = ("return", "rms_position_error", "rms_attitude_error", "control_effort")
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--inference", choices=("lean", "torch"), default="lean",
+                    help="the policies' inference path (default: lean, the leaderboard's)")
     ap.add_argument("--out", type=Path, help="also write the rows as JSON")
     args = ap.parse_args(argv)
     from softpvtol_gym.baselines.evaluation import run_episodes
@@ -35,7 +38,7 @@ def main(argv=None) -> int:
     learned = sorted({(c["checkpoint"], c["train_tier"], c["task"]) for c in data["cells"] if c["checkpoint"]})
     rows = []
     for checkpoint, tier, task in learned:
-        policy, config = LearnedPolicy.load(ROOT / checkpoint)
+        policy, config = LearnedPolicy.load(ROOT / checkpoint, inference=args.inference)
         cell = next(c for c in data["cells"]
                     if c["checkpoint"] == checkpoint and c["tier"] == tier and c["task"] == task)
         want = cell["episodes"]

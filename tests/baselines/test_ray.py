@@ -272,19 +272,15 @@ def test_the_default_search_space_is_valid_for_every_algorithm_and_mode():
 @pytest.mark.parametrize("argv", [["--executor", "ray"], None])
 def test_without_the_distributed_extra_the_ray_paths_name_it(argv, tmp_path, capsys, monkeypatch):
     """run_jobs.py --executor ray and tune.py without Ray: exit 2 naming the extra, before anything runs."""
-    import importlib
-
     import softpvtol_gym.baselines.util.extras as extras
     from softpvtol_gym.baselines.commands.tune import main as tune_main
 
-    real = importlib.import_module
+    real = extras.installed
 
-    def no_ray(name, *args, **kwargs):
-        if name.split(".")[0] in ("ray", "optuna"):
-            raise ImportError(f"No module named {name!r}")
-        return real(name, *args, **kwargs)
+    def no_ray(name):
+        return name.split(".")[0] not in ("ray", "optuna") and real(name)
 
-    monkeypatch.setattr(extras.importlib, "import_module", no_ray)
+    monkeypatch.setattr(extras, "installed", no_ray)
     with pytest.raises(SystemExit) as exc:
         if argv is None:
             tune_main(["--out", str(tmp_path / "best.yml")])

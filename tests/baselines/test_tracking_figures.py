@@ -248,18 +248,14 @@ def test_episode_summary():
 
 
 def test_without_matplotlib_it_names_the_extra(tmp_path, capsys, monkeypatch):
-    import importlib
-
     import softpvtol_gym.baselines.util.extras as extras
 
-    real = importlib.import_module
+    real = extras.installed
 
-    def no_matplotlib(name, *args, **kwargs):
-        if name.split(".")[0] == "matplotlib":
-            raise ImportError(f"No module named {name!r}")
-        return real(name, *args, **kwargs)
+    def no_matplotlib(name):
+        return name.split(".")[0] not in ("matplotlib",) and real(name)
 
-    monkeypatch.setattr(extras.importlib, "import_module", no_matplotlib)
+    monkeypatch.setattr(extras, "installed", no_matplotlib)
     with pytest.raises(SystemExit) as exc:
         main(["--only", "curves", "--curves-out", str(tmp_path / "c.png")])
     err = capsys.readouterr().err

@@ -129,16 +129,16 @@ def _measured(sim, i: int, ref: ReferenceEnv, mode: str, what: str):
 
 
 def _actions(rng, bias, dim: int, k: int, n: int | None = None) -> np.ndarray:
-    """Modest random actions around the bias; step 7 of every 50 has entries out of [-1, 1] (clipped)."""
+    """Modest random actions around the bias; step 7 of every 30 has entries out of [-1, 1] (clipped)."""
     shape = (dim,) if n is None else (n, dim)
     a = bias + rng.uniform(-0.25, 0.25, shape)
-    if k % 50 == 7:
+    if k % 30 == 7:
         a[..., 0], a[..., -1] = 1.5, -1.0 - rng.uniform(0.1, 2.0)
     return a.astype(np.float32)
 
 
 # ------------------------------------------------------------------------------------ single env
-def run_single(mode: str, env_kwargs: dict, steps: int = 210, seed: int = 0, actions=None) -> dict:
+def run_single(mode: str, env_kwargs: dict, steps: int = 140, seed: int = 0, actions=None) -> dict:
     """Step the env and the reference side by side; returns counts of what happened."""
     env = SoftPVTOLEnv(**env_kwargs)
     ref = ReferenceEnv(env.config)

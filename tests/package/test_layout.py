@@ -18,9 +18,10 @@ from softpvtol_gym.baselines import cli
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = ROOT / "softpvtol_gym" / "baselines"
 PREFIX = "softpvtol_gym.baselines"
-#: imported inside functions on purpose: heavy or optional, named by the extras check when missing
+#: imported inside functions on purpose: heavy or optional, named by the extras check when missing (the SB3
+#: adapter imports stable-baselines3 and torch)
 LAZY = ("torch", "stable_baselines3", "matplotlib", "ray", "rliable", "optuna", "PIL", "tqdm", "safetensors",
-        "importlib.metadata")
+        "importlib.metadata", "softpvtol_gym.envs.sb3")
 
 
 def _modules() -> dict[str, Path]:

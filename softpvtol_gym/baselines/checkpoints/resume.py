@@ -27,13 +27,14 @@ from softpvtol_gym.baselines.util.atomic import (
 )
 from softpvtol_gym.control import kernels as CK
 from softpvtol_gym.envs.packed_state import ISTATE, STATE, S
-from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
 from softpvtol_gym.envs.termination import REASONS
 from softpvtol_gym.params import SoftPVTOLParams
 
 
 def innermost(venv):
     """The SoftPVTOLSB3VecEnv below any SB3 VecEnv wrappers."""
+    from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv  # stable-baselines3: imported when a run is resumed
+
     while not isinstance(venv, SoftPVTOLSB3VecEnv):
         venv = venv.venv  # SB3 VecEnvWrapper
     return venv

@@ -10,7 +10,6 @@ import warnings
 from softpvtol_gym.baselines.config.hyperparams import algo_kwargs, frame_stack, normalize_kwargs
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
 
 
 def algo_class(algo: str):
@@ -26,6 +25,7 @@ def make_env(config: RunConfig, n_envs: int | None = None):
     """The SB3 adapter over a native vector env of the run's cell (``n_envs`` sub-envs, default the run's); its
     info dicts are empty while an episode goes on (``step_infos=False``: SB3's PPO and SAC read only a finished
     episode's)."""
+    from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv  # stable-baselines3: imported when a run starts
 
     return SoftPVTOLSB3VecEnv(num_envs=config.n_envs if n_envs is None else n_envs, step_infos=False,
                               **config.env_kwargs())

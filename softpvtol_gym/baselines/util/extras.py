@@ -9,7 +9,7 @@ package is reported in one line, never as an ImportError traceback. Standard lib
 
 from __future__ import annotations
 
-import importlib
+import importlib.util
 import sys
 
 EXTRA = "baselines"
@@ -38,14 +38,18 @@ DISTRIBUTED = ("ray", "optuna")
 _DIST = {"yaml": "pyyaml", "PIL": "pillow", "stable_baselines3": "stable-baselines3"}
 
 
+def installed(module: str) -> bool:
+    """Whether ``module`` is importable, found without importing it (a command's ``--help`` does not wait for
+    torch)."""
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):  # a parent package that cannot be imported, or a module set to None
+        return False
+
+
 def missing(modules) -> list[str]:
-    out = []
-    for m in modules:
-        try:
-            importlib.import_module(m)
-        except ImportError:
-            out.append(_DIST.get(m, m))
-    return out
+    """The distribution names of ``modules`` that are not installed."""
+    return [_DIST.get(m, m) for m in modules if not installed(m)]
 
 
 def require(script: str, modules=None, prog: str | None = None) -> None:
