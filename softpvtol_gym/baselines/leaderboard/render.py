@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from softpvtol_gym.baselines.evaluation import COMPUTE_SINGLE, WINDOW_METRICS
+from softpvtol_gym.baselines.leaderboard.base_loops import WORSE, WORSE_NOTE, base_loop_comparisons, worse_windows
 from softpvtol_gym.baselines.leaderboard.headline import headline, window_headline
 from softpvtol_gym.baselines.leaderboard.stats import MIN_CI_VALUES, REFERENCE, WINDOWS
 from softpvtol_gym.baselines.util.atomic import atomic_path
@@ -162,6 +163,34 @@ def policy_headline_markdown(data: dict) -> list[str]:
     return lines + [""]
 
 
+def base_loop_markdown(data: dict) -> list[str]:
+    """The residual entries beside their own base loops (:mod:`~.base_loops`): per task, tier and window, the
+    residual's IQM and its base loop's, marked where the residual is worse."""
+    rows = base_loop_comparisons(data)
+    if not rows:
+        return []
+    hurt = [r for r in rows if any(r["worse"].values())]
+    cells = sum(len(r["worse"]) for r in rows)
+    worse_cells = sum(sum(r["worse"].values()) for r in rows)
+    lines = ["## Residual entries beside their base loops", "",
+             "A residual policy corrects an analytic loop (its `controller_loop`); the loop alone is scored on the "
+             "same episodes. Each cell: the residual's IQM error, then its base loop's. "
+             f"{WORSE_NOTE} The residual is worse than its base loop in {worse_cells} of {cells} (task, tier, entry, "
+             f"window) cells, and in at least one window in {len(hurt)} of {len(rows)} (task, tier, entry) rows.", "",
+             "| task | tier | residual entry | base loop | " + " | ".join(what for _, _, what in WINDOWS) + " |",
+             "|---" * (4 + len(WINDOWS)) + "|"]
+    for r in rows:
+        values = []
+        for name, metric, _ in WINDOWS:
+            if name not in r["worse"]:
+                values.append("—")
+                continue
+            mark = f" {WORSE}" if r["worse"][name] else ""
+            values.append(f"{num(r['row'][f'{metric}_iqm'])}{mark} vs {num(r['base_row'][f'{metric}_iqm'])}")
+        lines.append(f"| {r['task']} | {r['tier']} | {r['entry']} | {r['base']} | " + " | ".join(values) + " |")
+    return lines + [""]
+
+
 # ------------------------------------------------------------------------------------- render
 def fmt_ci(v: float, ci: list[float], digits: int) -> str:
     return f"{v:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
@@ -246,6 +275,8 @@ def render_markdown(data: dict, chart: str = "../results/leaderboard.png") -> st
         start, end = markers(*HEADLINE_BLOCK)
         lines += headline_markdown(data)[:2] + [start] + body[:-1] + [end, ""]
     lines += policy_headline_markdown(data)
+    lines += base_loop_markdown(data)
+    bad = worse_windows(data)
     by_task: dict[str, list[dict]] = {}
     for r in data["aggregates"]:
         by_task.setdefault(r["task"], []).append(r)
@@ -258,8 +289,14 @@ def render_markdown(data: dict, chart: str = "../results/leaderboard.png") -> st
                   f"{REFERENCE}) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in sorted(rows, key=lambda r: (tier_order.index(r["tier"]), _entry_order(r["entry"]))):
             p = fmt_ci(r["prob_improvement"], r["prob_improvement_ci"], 2) if "prob_improvement" in r else "—"
-            err = fmt_ci(r["rms_position_error_iqm"], r["rms_position_error_ci"], 3) + marks(r)
-            windows = " | ".join(fmt_window(r, m) for m in WINDOW_METRICS)
+            hurt = bad.get((r["task"], r["tier"], r["entry"]), set())
+
+            def flag(metric: str, hurt=hurt) -> str:
+                return f" {WORSE}" if metric in hurt else ""
+
+            err = fmt_ci(r["rms_position_error_iqm"], r["rms_position_error_ci"], 3) + marks(r) \
+                + flag("rms_position_error")
+            windows = " | ".join(fmt_window(r, m) + flag(m) for m in WINDOW_METRICS)
             crash = fmt_ci(r["crash_rate"], r["crash_rate_ci"], 2) + marks(r).replace(" ‡", "")
             ret = fmt_ci(r["return_iqm"], r["return_ci"], 0) + marks(r).replace(" ‡", "")
             lines.append(f"| {r['tier']} | {r['entry']} | {r['runs']} x {r.get('episodes', '?')} | {err} | {windows} | "
