@@ -50,6 +50,7 @@ def distilled(tmp_path_factory):
     return out, distill(DistillConfig(**TINY), out)
 
 
+@pytest.mark.xdist_group("distilled")  # one worker computes the module fixture once
 def test_a_tiny_distillation_is_a_run_that_loads_and_acts(distilled):
     out, result = distilled
     record = json.loads((out / DISTILL_FILE).read_text())
@@ -69,6 +70,7 @@ def test_a_tiny_distillation_is_a_run_that_loads_and_acts(distilled):
     np.testing.assert_array_equal(action, result["policy"].predict(obs, episode_start=np.ones(3, bool))[0])
 
 
+@pytest.mark.xdist_group("distilled")  # one worker computes the module fixture once
 def test_the_fit_learns_a_smooth_map_with_the_datas_normalisation(distilled):
     from softpvtol_gym.baselines.training.distill import _fresh_student, fit
 
@@ -115,6 +117,7 @@ def test_dagger_rounds_are_flown_by_the_student_and_labelled_by_the_teacher(tmp_
     assert not np.allclose(flown[:n], by_teacher[:n])
 
 
+@pytest.mark.xdist_group("distilled")  # one worker computes the module fixture once
 def test_resume_loads_the_cached_datasets_and_gives_the_same_student(distilled, tmp_path):
     out, _ = distilled
     again = tmp_path / "again"
@@ -172,6 +175,7 @@ def test_the_command_distils_and_evaluate_loads_the_student(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------------------------- fine-tuning a student
+@pytest.mark.xdist_group("distilled")  # one worker computes the module fixture once
 def test_a_fine_tuned_run_starts_from_the_students_weights_and_statistics(distilled, tmp_path):
     import torch
 
@@ -199,6 +203,7 @@ def test_the_imitation_weight_decays_linearly_to_zero():
     assert [imitation_weight(spec, t) for t in (0, 250, 1000, 5000)] == [2.0, 1.5, 0.0, 0.0]
 
 
+@pytest.mark.xdist_group("distilled")  # one worker computes the module fixture once
 def test_train_init_from_fine_tunes_the_student_with_the_imitation_term(distilled, tmp_path, capsys):
     import yaml
 
@@ -229,6 +234,7 @@ def test_train_init_from_fine_tunes_the_student_with_the_imitation_term(distille
         assert exc.value.code == 2 and words in err and len(err.strip().splitlines()) == 1, err
 
 
+@pytest.mark.xdist_group("distilled")  # one worker computes the module fixture once
 def test_the_imitation_term_fits_the_teachers_labels_of_the_observations_acted_on(distilled, tmp_path,
                                                                                      monkeypatch):
     from softpvtol_gym.baselines.training import imitation

@@ -28,6 +28,9 @@ import sympy as sp
 from softpvtol_gym import SoftPVTOLParams, dynamics
 from softpvtol_gym.control.extended import ExtendedController, sinc_derivatives, torque_arm
 
+# one worker derives the symbolic model once (cached) and runs every case against it
+pytestmark = pytest.mark.xdist_group("extended-derivation")
+
 x, z, th, ql, qr = sp.symbols("x z theta q_l q_r", real=True)
 xd, zd, thd, qld, qrd = sp.symbols("xd zd thd qld qrd", real=True)
 m, ma, I, Ia, l, g, eps = sp.symbols("m m_a I I_a l g epsilon", positive=True)

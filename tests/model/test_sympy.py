@@ -33,6 +33,9 @@ import sympy as sp
 from softpvtol_gym import SoftPVTOLParams, dynamics, integrators
 from softpvtol_gym.params import PARAM_MIN
 
+# one worker derives the symbolic model once (cached) and runs every case against it
+pytestmark = pytest.mark.xdist_group("sympy")
+
 _DPS = 110  # working precision of the reference: 1/q^5 at q = 1e-9 costs ~45 digits
 RTOL = 1e-12  # the worst entry over these tests is 8.2e-15 relative (either model)
 

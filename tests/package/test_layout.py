@@ -19,9 +19,9 @@ ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = ROOT / "softpvtol_gym" / "baselines"
 PREFIX = "softpvtol_gym.baselines"
 #: imported inside functions on purpose: heavy or optional, named by the extras check when missing (the SB3
-#: adapter imports stable-baselines3 and torch)
+#: adapter and the zero-at-zero policy import stable-baselines3 and torch)
 LAZY = ("torch", "stable_baselines3", "matplotlib", "ray", "rliable", "optuna", "PIL", "tqdm", "safetensors",
-        "importlib.metadata", "softpvtol_gym.envs.sb3")
+        "importlib.metadata", "softpvtol_gym.envs.sb3", "softpvtol_gym.baselines.training.zero_residual")
 
 
 def _modules() -> dict[str, Path]:

@@ -154,9 +154,14 @@ def _gradient_steps(v):
         return "an integer >= 1, or -1 (as many as env steps)"
 
 
+#: the policy classes a run's ``policy`` hyperparameter names (the zero-at-zero residual: PPO only)
+POLICY_CLASSES = ("MlpPolicy", "ZeroAtZeroPolicy")
+
+
 def _policy(v):
-    if v != "MlpPolicy":
-        return "'MlpPolicy' (the observation is a flat vector)"
+    if v not in POLICY_CLASSES:
+        return ("'MlpPolicy' (the observation is a flat vector) or 'ZeroAtZeroPolicy' (PPO: an action exactly 0 at "
+                "zero tracking error)")
 
 
 def _normalize(v):

@@ -21,7 +21,9 @@ step (``tests/baselines/test_lean.py`` compares the two on committed checkpoints
 3. the actor's layers in float64 (torch's float32 weights, exactly): PPO and A2C ``mlp_extractor.policy_net``
    then ``action_net`` (the Gaussian's mean, its mode; then tanh with gSDE's ``squash_output``); SAC
    ``actor.latent_pi``, ``actor.mu`` (with gSDE its Hardtanh to +-``clip_mean``), then tanh (the squashed
-   Gaussian's mode); TD3 and DDPG ``actor.mu`` (ending with its tanh);
+   Gaussian's mode); TD3 and DDPG ``actor.mu`` (ending with its tanh); for a zero-at-zero PPO policy
+   (:mod:`~softpvtol_gym.baselines.training.zero_residual`), minus the same on the observation with its
+   tracking errors at zero;
 4. SB3's handling of a Box action: a squashed output (SAC, TD3) mapped from [-1, 1] onto [low, high]
    (``unscale_action``), any other clipped to [low, high]; the action in the action space's dtype.
 
@@ -73,57 +75,74 @@ def normalize_rows(obs, mean, scale, clip, out):
 
 
 @_jit
-def act_rows(obs, mean, scale, clip, codes, sizes, params, weights, biases, squash, low, high, out):
+def _forward(h, g, codes, sizes, params, weights, biases):
+    """The operations ``codes`` (:data:`OPS`) in turn on the current vector ``h``, in place (``g``: scratch for a
+    linear layer's sums). Operation i maps a vector of ``sizes[i]`` entries to one of ``sizes[i + 1]``: a linear
+    layer sums over its inputs in order k = 0, 1, ... (one accumulator per output; its weights stored input-major:
+    entry (k, j) multiplies input k into output j), then adds the bias; hardtanh clips to ``params[i]``."""
+    w0 = 0
+    b0 = 0
+    for i in range(codes.shape[0]):
+        code = codes[i]
+        din = sizes[i]
+        dout = sizes[i + 1]
+        if code == _LINEAR:
+            for j in range(dout):
+                g[j] = 0.0
+            for k in range(din):
+                hk = h[k]
+                row = w0 + k * dout
+                for j in range(dout):
+                    g[j] += weights[row + j] * hk
+            for j in range(dout):
+                h[j] = g[j] + biases[b0 + j]
+            w0 += din * dout
+            b0 += dout
+        elif code == _TANH:
+            for j in range(dout):
+                h[j] = np.tanh(h[j])
+        elif code == _RELU:
+            for j in range(dout):
+                if h[j] < 0.0:  # (NaN stays NaN, as torch's relu)
+                    h[j] = 0.0
+        else:  # _HARDTANH
+            lo, hi = params[i, 0], params[i, 1]
+            for j in range(dout):
+                if h[j] < lo:
+                    h[j] = lo
+                elif h[j] > hi:
+                    h[j] = hi
+
+
+@_jit
+def act_rows(obs, mean, scale, clip, zero_index, codes, sizes, params, weights, biases, squash, low, high, out):
     """The actions ``out`` (n, sizes[-1]) of observations ``obs`` (n, sizes[0]), one row after the other.
 
-    Per row: the entries normalised (:func:`_normalized`), then the operations ``codes`` in turn (:data:`OPS`;
-    operation i maps a vector of ``sizes[i]`` entries to one of ``sizes[i + 1]``): a linear layer sums over its
-    inputs in order k = 0, 1, ... (one accumulator per output; its weights stored input-major: entry (k, j)
-    multiplies input k into output j), then adds the bias; hardtanh clips to ``params[i]``. Last SB3's Box
-    handling: ``squash``: low + (y + 1) / 2 (high - low), else y clipped to [low, high]."""
+    Per row: the entries normalised (:func:`_normalized`), then the operations (:func:`_forward`). With
+    ``zero_index`` not empty (a zero-at-zero policy): minus the output of the same operations on the row with
+    those entries at the normalised value of a raw 0, so that a row whose entries there are 0 gets exactly 0.
+    Last SB3's Box handling: ``squash``: low + (y + 1) / 2 (high - low), else y clipped to [low, high]."""
     width = 0
     for d in sizes:
         width = max(width, d)
     h = np.empty(width)  # the current vector
+    h0 = np.empty(width)  # the current vector of the row at zero error
     g = np.empty(width)  # a linear layer's sums
-    n_ops = codes.shape[0]
+    n_out = sizes[codes.shape[0]]
+    at_zero = zero_index.shape[0] > 0
     for r in range(obs.shape[0]):
         for k in range(sizes[0]):
             h[k] = _normalized(obs[r, k], mean[k], scale[k], clip)
-        w0 = 0
-        b0 = 0
-        for i in range(n_ops):
-            code = codes[i]
-            din = sizes[i]
-            dout = sizes[i + 1]
-            if code == _LINEAR:
-                for j in range(dout):
-                    g[j] = 0.0
-                for k in range(din):
-                    hk = h[k]
-                    row = w0 + k * dout
-                    for j in range(dout):
-                        g[j] += weights[row + j] * hk
-                for j in range(dout):
-                    h[j] = g[j] + biases[b0 + j]
-                w0 += din * dout
-                b0 += dout
-            elif code == _TANH:
-                for j in range(dout):
-                    h[j] = np.tanh(h[j])
-            elif code == _RELU:
-                for j in range(dout):
-                    if h[j] < 0.0:  # (NaN stays NaN, as torch's relu)
-                        h[j] = 0.0
-            else:  # _HARDTANH
-                lo, hi = params[i, 0], params[i, 1]
-                for j in range(dout):
-                    if h[j] < lo:
-                        h[j] = lo
-                    elif h[j] > hi:
-                        h[j] = hi
-        for j in range(sizes[n_ops]):
-            v = h[j]
+        if at_zero:
+            for k in range(sizes[0]):
+                h0[k] = h[k]
+            for i in range(zero_index.shape[0]):
+                k = zero_index[i]
+                h0[k] = _normalized(0.0, mean[k], scale[k], clip)
+            _forward(h0, g, codes, sizes, params, weights, biases)
+        _forward(h, g, codes, sizes, params, weights, biases)
+        for j in range(n_out):
+            v = h[j] - h0[j] if at_zero else h[j]
             if squash:
                 v = low[j] + 0.5 * (v + 1.0) * (high[j] - low[j])
             elif v < low[j]:
@@ -157,11 +176,15 @@ class LeanMLPPolicy:
     clipped to them (PPO, A2C). ``obs_mean``, ``obs_var``, ``epsilon``, ``clip_obs``: VecNormalize's
     observation statistics and settings for one observation (None: no normalisation); ``frame_stack``: K, the
     number of stacked observations the first layer takes (its input size is K times the observation's);
-    ``action_dtype``: the dtype of the actions returned (the action space's).
+    ``action_dtype``: the dtype of the actions returned (the action space's). ``zero_error_index``: the
+    observation's tracking-error entries of a zero-at-zero policy
+    (:class:`~softpvtol_gym.baselines.training.zero_residual.ZeroAtZeroPolicy`): the action is the actor's
+    output minus its output on the observation with those entries at 0 (None: the actor's output).
     """
 
     def __init__(self, ops, action_low, action_high, squash: bool, obs_mean=None, obs_var=None,
-                 epsilon: float = 1e-8, clip_obs: float = 10.0, frame_stack: int = 1, action_dtype=np.float32):
+                 epsilon: float = 1e-8, clip_obs: float = 10.0, frame_stack: int = 1, action_dtype=np.float32,
+                 zero_error_index=None):
         ops = list(ops)
         for i, op in enumerate(ops):
             if not isinstance(op, (tuple, list)) or not op:
@@ -227,6 +250,14 @@ class LeanMLPPolicy:
             self._norm = (_vector(obs_mean, "obs_mean", self.obs_dim), np.sqrt(var + float(epsilon)), float(clip_obs))
         else:  # the identity: (x - 0) / 1, unclipped, is x
             self._norm = (np.zeros(self.obs_dim), np.ones(self.obs_dim), np.inf)
+        zero = np.zeros(0, dtype=np.int64) if zero_error_index is None else np.asarray(zero_error_index)
+        if zero.ndim != 1 or zero.dtype.kind not in "iu" or ((zero < 0) | (zero >= self.obs_dim)).any():
+            raise ValueError(f"zero_error_index must be a vector of entries of the {self.obs_dim}-entry observation, "
+                             f"got {zero_error_index!r}")
+        if len(zero) and (frame_stack > 1 or self.squash):
+            raise ValueError("a zero-at-zero policy (zero_error_index) takes one observation (frame_stack=1) and "
+                             "an unsquashed action")
+        self._zero = zero.astype(np.int64)
         self._stack = ObservationStack(frame_stack, sizes[0]) if frame_stack > 1 else None
         # a stacked input is normalised already: act_rows gets the identity for it
         self._identity = (np.zeros(sizes[0]), np.ones(sizes[0]), np.inf)
@@ -238,6 +269,7 @@ class LeanMLPPolicy:
         VecFrameStack the model's env is wrapped in, 1 without one). ConfigError naming what is not supported."""
         policy = getattr(model, "policy", model)
         ops = sb3_actor(policy)
+        zero = getattr(policy, "error_index", None) if is_zero_at_zero(policy) else None
         if frame_stack is None:
             wrapper = frame_stack_wrapper(model.get_env()) if hasattr(model, "get_env") else None
             frame_stack = 1 if wrapper is None else int(wrapper.stacked_obs.n_stack)
@@ -251,7 +283,7 @@ class LeanMLPPolicy:
                      "clip_obs": float(vecnorm.clip_obs)}
         space = policy.action_space
         return cls(ops, space.low, space.high, bool(policy.squash_output), frame_stack=frame_stack,
-                   action_dtype=space.dtype, **stats)
+                   action_dtype=space.dtype, zero_error_index=zero, **stats)
 
     def reset_stack(self) -> None:
         """Forget the stacked observations (the next call starts every sub-env's stack afresh)."""
@@ -277,13 +309,20 @@ class LeanMLPPolicy:
             obs = np.ascontiguousarray(obs)
         out = np.empty((obs.shape[0], self.action_dim), dtype=self.action_dtype)
         if self._stack is None:
-            act_rows(obs, *self._norm, *self._net, self.squash, self.low, self.high, out)
+            act_rows(obs, *self._norm, self._zero, *self._net, self.squash, self.low, self.high, out)
         else:
             normed = np.empty(obs.shape, dtype=np.float32)
             normalize_rows(obs, *self._norm, normed)
-            act_rows(self._stack.push(normed, episode_start), *self._identity, *self._net, self.squash, self.low,
-                     self.high, out)
+            act_rows(self._stack.push(normed, episode_start), *self._identity, self._zero, *self._net, self.squash,
+                     self.low, self.high, out)
         return (out[0] if single else out), state
+
+
+def is_zero_at_zero(policy) -> bool:
+    """Whether an SB3 policy is a :class:`~softpvtol_gym.baselines.training.zero_residual.ZeroAtZeroPolicy`."""
+    from softpvtol_gym.baselines.training.zero_residual import ZeroAtZeroPolicy  # stable-baselines3
+
+    return isinstance(policy, ZeroAtZeroPolicy)
 
 
 def _torch_ops(modules, where: str) -> list[tuple]:

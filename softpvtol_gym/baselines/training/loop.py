@@ -35,6 +35,7 @@ from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import CheckpointError, ConfigError
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes, summarize
 from softpvtol_gym.baselines.training.imitation import imitation_callback, init_from_run
+from softpvtol_gym.baselines.training.lean import is_zero_at_zero
 from softpvtol_gym.baselines.training.models import (
     algo_class,
     build_model,
@@ -326,6 +327,10 @@ def train(config: RunConfig, run_dir: Path, resume: bool = False, progress_bar: 
             callbacks = [_callbacks(run_dir, config, vecnorm, start)]
             if config.imitation is not None:  # first: its step after an update comes before a checkpoint of it
                 callbacks.insert(0, imitation_callback(config, vecnorm))
+            if is_zero_at_zero(model.policy):  # the zero-error values of each rollout's statistics
+                from softpvtol_gym.baselines.training.zero_residual import zero_error_callback
+
+                callbacks.insert(0, zero_error_callback(vecnorm))
             if config.start_error_curriculum is not None:
                 # the first rollout's starts too (SB3 resets the env before the callbacks run)
                 _set_start_error_scale(model.get_env(), config.start_error_scale_at(start))

@@ -83,11 +83,18 @@ def build_model(config: RunConfig, env, tensorboard_log: str | None = None, verb
     ConfigError naming it."""
     cls = algo_class(config.algo)
     hp = config.hyperparams
+    policy = hp.get("policy", "MlpPolicy")
+    if policy == "ZeroAtZeroPolicy":
+        if config.algo != "ppo":
+            raise ConfigError(f"policy ZeroAtZeroPolicy is a PPO policy (an actor-critic), got algo {config.algo!r}")
+        from softpvtol_gym.baselines.training.zero_residual import ZeroAtZeroPolicy  # stable-baselines3, torch
+
+        policy = ZeroAtZeroPolicy
     try:
         with warnings.catch_warnings():
             # the mini-batch size not dividing the rollout is legal (SB3 warns; train.py says so itself)
             warnings.filterwarnings("ignore", message=".*mini-batch size.*")
-            return cls(hp.get("policy", "MlpPolicy"), env, seed=config.seed, device=device, verbose=verbose,
+            return cls(policy, env, seed=config.seed, device=device, verbose=verbose,
                        tensorboard_log=tensorboard_log, **algo_kwargs(hp))
     except (AssertionError, TypeError, ValueError, KeyError) as exc:
         raise ConfigError(f"stable-baselines3 refused the hyperparameters of this {config.algo.upper()} run: "

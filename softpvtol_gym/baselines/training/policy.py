@@ -15,7 +15,7 @@ from softpvtol_gym.baselines.checkpoints.store import (
 from softpvtol_gym.baselines.config.hyperparams import frame_stack
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import CheckpointError
-from softpvtol_gym.baselines.training.lean import LeanMLPPolicy
+from softpvtol_gym.baselines.training.lean import LeanMLPPolicy, is_zero_at_zero
 from softpvtol_gym.baselines.training.stacking import ObservationStack, frame_stack_wrapper
 
 #: how a LearnedPolicy computes its actions: ``lean`` (:class:`~.lean.LeanMLPPolicy`: a compiled float64 pass
@@ -56,6 +56,8 @@ class LearnedPolicy:
             raise ValueError(f"inference must be one of {list(INFERENCE)}, got {inference!r}")
         self.frame_stack = frame_stack
         self.inference = inference
+        if inference == "torch" and is_zero_at_zero(model.policy):
+            model.policy.set_zero_error(vecnorm)  # a zero error as these statistics normalise it
         space = model.observation_space
         self._stack = ObservationStack(frame_stack, int(space.shape[-1]), space.dtype)
         #: the lean path (None with inference="torch")
