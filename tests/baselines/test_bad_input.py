@@ -61,7 +61,7 @@ def a_file(tmp: Path) -> dict:
 
 
 def run_copy(tmp: Path) -> Path:
-    return copy_run(_TINY["run"], tmp / "run")
+    return copy_run(_TINY["request"].getfixturevalue("tiny_run"), tmp / "run")
 
 
 def a_run(tmp: Path) -> dict:
@@ -482,8 +482,9 @@ _TINY: dict = {}
 
 
 @pytest.fixture(autouse=True)
-def _shared(tiny_run, lock_holder):
-    _TINY["run"], _TINY["hold"] = tiny_run, lock_holder
+def _shared(request, lock_holder):
+    # the tiny run is trained (or waited for, under xdist) only by the cases that copy it
+    _TINY["request"], _TINY["hold"] = request, lock_holder
     yield
 
 
