@@ -77,9 +77,6 @@ class _ZeroAtZeroExtractor(MlpExtractor):
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
         return torch.cat([self.policy_net(features), self.policy_net(self.at_zero_error(features))], dim=-1)
 
-    def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.forward_actor(features), self.forward_critic(features)
-
 
 class ZeroAtZeroPolicy(ActorCriticPolicy):
     """SB3's ActorCriticPolicy (MlpPolicy) with the action mean g(s, e) - g(s, 0) (module docstring)."""
@@ -107,11 +104,6 @@ class ZeroAtZeroPolicy(ActorCriticPolicy):
     def error_index(self) -> np.ndarray:
         """The observation's error entries (:func:`error_entries`)."""
         return self.mlp_extractor.error_index.cpu().numpy()
-
-    @property
-    def zero_error(self) -> np.ndarray:
-        """The normalised observation's values at :attr:`error_index` for a zero error (float32)."""
-        return self.mlp_extractor.zero_error.cpu().numpy()
 
     def set_zero_error(self, vecnorm=None) -> None:
         """Set the normalised values of a zero error from the run's VecNormalize (None: no normalisation)."""
