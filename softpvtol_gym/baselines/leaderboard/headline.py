@@ -6,14 +6,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from softpvtol_gym.baselines.leaderboard.stats import WINDOWS
+from softpvtol_gym.baselines.leaderboard.spec import is_learned
+from softpvtol_gym.baselines.leaderboard.stats import WINDOWS, learned_name
 
 HEADLINE_TASKS = ("track_paper", "track_random")  # the tracking tasks: the headline
 
 
 def _policy_key(row: dict) -> tuple:
-    """A learned policy across the tasks it is evaluated on: (action mode, training task, training tier, recipe)."""
-    return (row["action_mode"], row.get("train_task", row["task"]), row["train_tier"], row.get("recipe") or "")
+    """A learned policy across the tasks it is evaluated on: (its short name, training task, training tier)."""
+    return (learned_name(row), row.get("train_task", row["task"]), row["train_tier"])
 
 
 def _disjoint_below(a: list[float], b: list[float]) -> bool:
@@ -33,12 +34,12 @@ def headline(data: dict) -> dict | None:
     pairs = [(t, tier) for t in tasks for tier in meta["tiers"]]
     analytic = {}
     for t, tier in pairs:
-        candidates = [r for r in rows if r["task"] == t and r["tier"] == tier and r["policy"] != "ppo"]
+        candidates = [r for r in rows if r["task"] == t and r["tier"] == tier and not is_learned(r["policy"])]
         if candidates:
             analytic[(t, tier)] = min(candidates, key=lambda r: r["rms_position_error_iqm"])
     learned: dict[tuple, dict] = {}
     for r in rows:
-        if r["policy"] == "ppo" and (r["task"], r["tier"]) in analytic:
+        if is_learned(r["policy"]) and (r["task"], r["tier"]) in analytic:
             learned.setdefault(_policy_key(r), {})[(r["task"], r["tier"])] = r
     complete = {k: v for k, v in learned.items() if len(v) == len(pairs)}
     if not pairs or len(analytic) < len(pairs) or not complete:
@@ -55,8 +56,7 @@ def headline(data: dict) -> dict | None:
                     "lower": b["rms_position_error_iqm"] < a["rms_position_error_iqm"],
                     "disjoint": _disjoint_below(b["rms_position_error_ci"], a["rms_position_error_ci"]),
                     "crash_no_higher": b["crash_rate"] <= a["crash_rate"]})
-    mode, train_task, train_tier, recipe = best
-    name = f"PPO {recipe}" if recipe else f"PPO-{mode}"
+    name, train_task, train_tier = best
     return {"policy": f"{name} trained on {train_task} ({train_tier} tier)", "rows": out}
 
 
@@ -66,15 +66,15 @@ def _key(v: float | None) -> float:
 
 
 def window_headline(data: dict) -> list[dict]:
-    """Learned against model-based control per (task, tier, window) of :data:`WINDOWS`: the strongest learned
-    entry (the PPO entry with the lowest IQM of the window's metric there) against the strongest model-based one
-    (the analytic entry, passivity or MPC, with the lowest), both chosen per (task, tier, window), so each side
+    """Learned against model-based control per (task, tier, window) of :data:`WINDOWS`: the strongest learned entry
+    (the PPO or distilled entry with the lowest IQM of the window's metric there) against the strongest model-based
+    one (the analytic entry, passivity or MPC, with the lowest), both chosen per (task, tier, window), so each side
     gets its best. Each side's strongest entry is chosen on the held-out selection episodes where every row there
     holds them (``selected_on: "selection"``), and reported, like the verdict, on the test episodes; rows without
-    them (results from before the selection episodes) are chosen on the test episodes (``"test"``).
-    ``winner``: "learned" or "model-based" where that side's 95 % CI lies entirely below the
-    other's and its crash rate is no higher; "neither" otherwise (overlapping CIs, or a lower error bought
-    with more crashes). Windows the rows do not hold (results scored before the windows existed) are left out."""
+    them (results from before the selection episodes) are chosen on the test episodes (``"test"``). ``winner``:
+    "learned" or "model-based" where that side's 95 % CI lies entirely below the other's and its crash rate is no
+    higher; "neither" otherwise (overlapping CIs, or a lower error bought with more crashes). Windows the rows do
+    not hold (results scored before the windows existed) are left out."""
     meta, rows = data["meta"], data["aggregates"]
     out = []
     for task in meta["tasks"]:
@@ -83,8 +83,8 @@ def window_headline(data: dict) -> list[dict]:
             for window, metric, what in WINDOWS:
                 have = [r for r in here if f"{metric}_iqm" in r or (metric == "rms_position_error" and
                                                                       "rms_position_error_iqm" in r)]
-                learned = [r for r in have if r["policy"] == "ppo"]
-                model = [r for r in have if r["policy"] != "ppo"]
+                learned = [r for r in have if is_learned(r["policy"])]
+                model = [r for r in have if not is_learned(r["policy"])]
                 if not learned or not model:
                     continue
                 held_out = all("selection" in r for r in have)

@@ -78,11 +78,13 @@ from softpvtol_gym.baselines.evaluation import (
     per_robot_compute_us,
     run_episodes,
 )
+from softpvtol_gym.baselines.leaderboard.distilled import RECORD_FILES, recorded_seconds, train_distilled
 from softpvtol_gym.baselines.leaderboard.spec import (
     ANALYTIC_KINDS,
     INFERENCE,
     SPEC_FILE,
     analytic_entries,
+    is_learned,
     load_spec,
     selection_seed,
 )
@@ -104,7 +106,8 @@ ROOT_TOKEN_FILE = ".run_jobs.token"
 
 @dataclasses.dataclass(frozen=True)
 class Job:
-    """One leaderboard job. ``policy``: "ppo" or an analytic entry's name ("passivity-paper", "mpc", ...)."""
+    """One leaderboard job. ``policy``: "ppo", "distilled" or an analytic entry's name ("passivity-paper", "mpc",
+    ...)."""
 
     policy: str
     action_mode: str
@@ -125,6 +128,9 @@ class Job:
     selection_episodes: int = 0     # held-out episodes to choose the headline's entries on (0: none)
     selection_seed: int = 0         # their first seed (disjoint from the test episodes')
     inference: str = "lean"         # learned cells: the forward pass they are scored with (spec.INFERENCE)
+    teacher: str | None = None      # distilled cells: the teacher controller (training.teachers.TEACHERS)
+    variant: str | None = None      # distilled cells: the name that tells two cells of one teacher apart, or None
+    distill_options: tuple = ()     # distilled cells: (name, value) pairs of DistillConfig settings
 
     @property
     def eval_tasks(self) -> tuple:
@@ -141,13 +147,19 @@ class Job:
                 check_slug(self.recipe, "the recipe of a job")
                 return f"ppo-{self.recipe}_{self.task}_{self.train_tier}/seed_{int(self.seed)}"
             return f"ppo_{self.action_mode}_{self.task}_{self.train_tier}/seed_{int(self.seed)}"
+        if self.policy == "distilled":
+            parts = [self.teacher, self.task, self.train_tier] + ([self.variant] if self.variant else [])
+            for v in parts:
+                check_slug(v, "the teacher, task, tier or variant of a distilled job")
+            student = self.teacher + (f"-{self.variant}" if self.variant else "")
+            return f"distilled-{student}_{self.task}_{self.train_tier}/seed_{int(self.seed)}"
         check_slug(self.policy, "a passivity entry's name")
         check_slug(self.task, "the task of a job")
         return f"{self.policy}_{self.task}"
 
     @property
     def learned(self) -> bool:
-        return self.policy == "ppo"
+        return is_learned(self.policy)
 
     def folder(self, root: Path) -> Path:
         """``<root>/<name>``, refused if it would leave ``root``."""
@@ -182,6 +194,14 @@ def load_jobs(spec_path: Path = SPEC_FILE, inference: str | None = None) -> list
                             seed=int(seed), timesteps=int(cell["timesteps"]),
                             other_eval_tasks=tuple(cell.get("also_evaluated_on", ())),
                             hp=tuple(cell.get("hp", ())), recipe=cell.get("recipe"), inference=inference, **common))
+    for cell in spec.get("distilled", []):
+        for seed in spec["seeds"]:
+            jobs.append(Job(policy="distilled", action_mode="actuators", task=cell["task"], train_tier=cell["tier"],
+                            seed=int(seed), other_eval_tasks=tuple(cell.get("also_evaluated_on", ())),
+                            teacher=cell["teacher"], variant=cell.get("variant"),
+                            distill_options=tuple(sorted((k, _hashable(v))
+                                                         for k, v in cell.get("options", {}).items())),
+                            inference=inference, **common))
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
@@ -233,7 +253,7 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
     t0 = time.perf_counter()
     train_seconds = None
     if job.learned and (out / MANIFEST_FILE).is_file():
-        train_seconds = None if previous is None else previous["train_seconds"]
+        train_seconds = recorded_seconds(out) if previous is None else previous["train_seconds"]
     elif job.learned:
         if not train_missing:
             raise ConfigError(f"{out} holds no trained model ({MANIFEST_FILE} is missing); re-scoring never trains: "
@@ -242,26 +262,14 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
             raise ConfigError(f"{out} holds a model in the earlier pickle-based format ({legacy_files(out)}); convert "
                               f"it once with python baselines/export.py from-sb3 --trust-pickle {out} if you trust it")
         run_dir = under(root, job.name + ".run", "job training folder")
-
-        if job.recipe is None:
-            hp = apply_overrides(load_hyperparams("ppo", job.action_mode), list(job.hp))
-            fields, recipe_hp = {"algo": "ppo", "action_mode": job.action_mode}, []
+        if job.policy == "distilled":
+            train_seconds, kept = train_distilled(job, run_dir), RECORD_FILES
         else:
-            recipe = load_recipe(job.recipe)
-            hp = apply_overrides(recipe_hyperparams(recipe), list(job.hp))
-            fields, recipe_hp = recipe_config_fields(recipe), list(recipe["hp"])
-        config = RunConfig(**fields, recipe=job.recipe, task=job.task, tier=job.train_tier,
-                           timesteps=job.timesteps, seed=job.seed, n_envs=int(hp.get("n_envs", 16)), hyperparams=hp,
-                           overrides=recipe_hp + list(job.hp),
-                           checkpoint_freq=max(job.timesteps // 4, 1), eval_episodes=5,
-                           eval_freq=max(job.timesteps // 10, 1))  # ten points of the learning curves
-        run = train(config, run_dir, resume=True)
-        train_seconds = run["seconds"] if run["status"] == "trained" else None
-
-        for fname in (*MODEL_FILES, EVALUATIONS_FILE, MANIFEST_FILE):  # the manifest last: it marks the copy done
+            train_seconds, kept = _train_ppo(job, run_dir), (EVALUATIONS_FILE,)
+        for fname in (*MODEL_FILES, *kept, MANIFEST_FILE):  # the manifest last: it marks the copy done
             if (run_dir / fname).is_file():
                 atomic_copy(run_dir / fname, out / fname)
-        shutil.rmtree(run_dir, ignore_errors=True)  # checkpoints and TensorBoard logs are not kept
+        shutil.rmtree(run_dir, ignore_errors=True)  # checkpoints, datasets and TensorBoard logs are not kept
     every = {pair: PARTS for pair in _pairs(job)}
     todo = every if previous is None or reevaluate else stale_parts(job, previous)
     kept_test = {} if previous is None else evaluations_of(previous)
@@ -293,6 +301,25 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
     atomic_write_text(out / EVAL_FILE, json.dumps(record, indent=1))
     record["wall_seconds"] = time.perf_counter() - t0
     return record
+
+
+def _train_ppo(job: Job, run_dir: Path) -> float | None:
+    """Train a PPO cell's job in ``run_dir`` (resumed if a run was interrupted); its seconds (None if it was
+    already trained)."""
+    if job.recipe is None:
+        hp = apply_overrides(load_hyperparams("ppo", job.action_mode), list(job.hp))
+        fields, recipe_hp = {"algo": "ppo", "action_mode": job.action_mode}, []
+    else:
+        recipe = load_recipe(job.recipe)
+        hp = apply_overrides(recipe_hyperparams(recipe), list(job.hp))
+        fields, recipe_hp = recipe_config_fields(recipe), list(recipe["hp"])
+    config = RunConfig(**fields, recipe=job.recipe, task=job.task, tier=job.train_tier,
+                       timesteps=job.timesteps, seed=job.seed, n_envs=int(hp.get("n_envs", 16)), hyperparams=hp,
+                       overrides=recipe_hp + list(job.hp),
+                       checkpoint_freq=max(job.timesteps // 4, 1), eval_episodes=5,
+                       eval_freq=max(job.timesteps // 10, 1))  # ten points of the learning curves
+    run = train(config, run_dir, resume=True)
+    return run["seconds"] if run["status"] == "trained" else None
 
 
 def _pairs(job: Job) -> list[tuple[str, str]]:

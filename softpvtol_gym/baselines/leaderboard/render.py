@@ -10,7 +10,8 @@ import numpy as np
 from softpvtol_gym.baselines.evaluation import COMPUTE_SINGLE, WINDOW_METRICS
 from softpvtol_gym.baselines.leaderboard.base_loops import WORSE, WORSE_NOTE, base_loop_comparisons, worse_windows
 from softpvtol_gym.baselines.leaderboard.headline import headline, window_headline
-from softpvtol_gym.baselines.leaderboard.stats import MIN_CI_VALUES, REFERENCE, WINDOWS
+from softpvtol_gym.baselines.leaderboard.spec import is_learned
+from softpvtol_gym.baselines.leaderboard.stats import MIN_CI_VALUES, REFERENCE, WINDOWS, learned_name
 from softpvtol_gym.baselines.util.atomic import atomic_path
 from softpvtol_gym.baselines.util.blocks import markers
 
@@ -248,7 +249,7 @@ def render_markdown(data: dict, chart: str = "../results/leaderboard.png") -> st
         + (f", and on {meta['selection_episodes']} held-out selection episodes (seeds {meta['selection_seed']} + i), "
            "on which the headline chooses each side's strongest entry" if meta.get("selection_episodes") else "")
         + (f"; learned entries through the `{meta['inference']}` forward pass" if meta.get("inference") else "")
-        + f". PPO entries have {meta['seeds']} training seeds "
+        + f". Learned entries have {meta['seeds']} training seeds "
         "each. Point estimates: IQM (interquartile mean) over runs x episodes of the RMS position error [m] (whole "
         "episode, first quarter, last half) and of the max position error over the last 5 s [m], IQM of the return, "
         "and the mean crash rate. Brackets: 95 % stratified-bootstrap CIs over runs and episodes "
@@ -313,15 +314,17 @@ def training_budgets(data: dict) -> list[dict]:
     was evaluated from an existing model and its time is not on record)."""
     cells: dict[tuple, dict] = {}
     for c in data["cells"]:
-        if c["policy"] != "ppo":
+        if not is_learned(c["policy"]):
             continue
-        key = (c["action_mode"], c.get("train_task", c["task"]), c["train_tier"], c.get("recipe") or "")
-        cells.setdefault(key, {})[c["seed"]] = (c.get("timesteps"), c["train_seconds"])
+        key = (learned_name(c), c.get("train_task", c["task"]), c["train_tier"])
+        cells.setdefault(key, {})[c["seed"]] = (c.get("timesteps"), c["train_seconds"], c)
     out = []
-    for (mode, task, tier, recipe), seeds in sorted(cells.items()):
-        steps = sorted({s for s, _ in seeds.values() if s is not None})
-        seconds = [t for _, t in seeds.values() if t is not None]
-        out.append({"action_mode": mode, "train_task": task, "train_tier": tier, "recipe": recipe or None,
+    for (name, task, tier), seeds in sorted(cells.items()):
+        steps = sorted({s for s, _, _ in seeds.values() if s is not None})
+        seconds = [t for _, t, _ in seeds.values() if t is not None]
+        first = next(iter(seeds.values()))[2]
+        out.append({"name": name, "policy": first["policy"], "action_mode": first["action_mode"], "train_task": task,
+                    "train_tier": tier, "recipe": first.get("recipe"), "teacher": first.get("teacher"),
                     "seeds": len(seeds), "timesteps": steps, "train_seconds": sorted(seconds)})
     return out
 
@@ -331,20 +334,21 @@ def _budget_markdown(data: dict) -> list[str]:
     if not rows:
         return []
     lines = ["## Training budgets", "",
-             "Per learned cell: the PPO steps of each seed (the spec's budget) and the wall time of its training "
+             "Per learned cell: the PPO steps of each seed (the spec's budget; a distilled student takes no PPO "
+             "steps, its samples are in the job's distill.json) and the wall time of its training "
              "(`train_seconds` in the job records: median and range over the seeds; one process per job with one torch "
              "thread). Wall time depends on the machine and on what else it ran meanwhile, so compare cells by steps; "
              "the commit that added these results says on what machine, and at what load, the jobs ran.",
              "", "| policy | trained on | seeds | steps per seed | training wall time per seed [s] |",
              "|---|---|---|---|---|"]
     for r in rows:
-        steps = ", ".join(f"{s:,}" for s in r["timesteps"]) or "not on record"
+        steps = ", ".join(f"{s:,}" for s in r["timesteps"]) or (
+            "none (distilled: distill.json)" if r["policy"] == "distilled" else "not on record")
         t = r["train_seconds"]
         wall = f"{float(np.median(t)):.0f} [{t[0]:.0f}, {t[-1]:.0f}]" if t else "not on record"
         if t and len(t) < r["seeds"]:
             wall += f" ({len(t)} of {r['seeds']} seeds on record)"
-        name = f"PPO {r['recipe']}" if r.get("recipe") else f"PPO-{r['action_mode']}"
-        lines.append(f"| {name} | {r['train_task']}, {r['train_tier']} | {r['seeds']} | {steps} | "
+        lines.append(f"| {r['name']} | {r['train_task']}, {r['train_tier']} | {r['seeds']} | {steps} | "
                      f"{wall} |")
     return lines + [""]
 

@@ -8,6 +8,10 @@ Analytic entries (the spec's ``analytic`` list, or the older ``passivity`` list 
 ``evaluation.episodes`` seeded test episodes (an entry's own ``episodes`` is refused: fewer episodes would give
 it CIs that are not comparable).
 
+Distilled entries (the spec's ``distilled`` list; :mod:`~softpvtol_gym.baselines.leaderboard.distilled`) are
+students of a teacher controller, one job per seed like the ``trained`` PPO cells; both are *learned* entries
+(:data:`LEARNED_POLICIES`).
+
 ``evaluation``: ``episodes`` and ``seed`` (the test episodes, seeds ``seed + i``), ``tiers``, and optionally
 ``selection_episodes`` and ``selection_seed`` (default :data:`SELECTION_SEED`): the held-out episodes on which the
 headline chooses each side's strongest entry before it reports that entry on the test episodes (0, the default,
@@ -32,6 +36,7 @@ from softpvtol_gym.baselines.config.recipes import load_recipe, recipe_hyperpara
 from softpvtol_gym.baselines.config.validation import validate_hyperparams
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET
+from softpvtol_gym.baselines.leaderboard.distilled import distill_config
 from softpvtol_gym.baselines.util.paths import check_slug, data_file
 from softpvtol_gym.control import LOOPS
 from softpvtol_gym.envs.actions import ACTION_MODES
@@ -41,8 +46,8 @@ from softpvtol_gym.tasks import registered_tasks
 #: the leaderboard spec shipped with the package (``--spec`` passes another)
 SPEC_FILE = data_file("leaderboard.yml")
 #: the spec's keys, and those of its entries (anything else is an error, not ignored)
-SPEC_KEYS = ("evaluation", "passivity", "analytic", "tasks", "trained", "seeds")
-REQUIRED_SPEC_KEYS = ("evaluation", "tasks", "trained", "seeds")  # passivity, analytic: optional (default [])
+SPEC_KEYS = ("evaluation", "passivity", "analytic", "tasks", "trained", "distilled", "seeds")
+REQUIRED_SPEC_KEYS = ("evaluation", "tasks", "trained", "seeds")  # passivity, analytic, distilled: optional ([])
 EVALUATION_KEYS = ("episodes", "seed", "tiers", "selection_episodes", "selection_seed", "inference")
 REQUIRED_EVALUATION_KEYS = ("episodes", "seed", "tiers")
 #: the first seed of the selection episodes by default (the test episodes' default seed is 1,000,000)
@@ -58,6 +63,11 @@ ANALYTIC_KEYS = ("name", "kind", "allocation", "loop", "options")
 # the last three optional; recipe: a training recipe of data/hyperparams/recipes.yml (its action mode must be the
 # cell's; hp overrides apply on top of the recipe's)
 TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps", "also_evaluated_on", "hp", "recipe")
+#: the keys of a ``distilled`` entry (the first three required; leaderboard/distilled.py)
+DISTILLED_KEYS = ("teacher", "task", "tier", "variant", "options", "also_evaluated_on")
+#: the ``policy`` of the learned jobs: PPO cells (``trained``) and students (``distilled``); every other policy is
+#: an analytic entry's name
+LEARNED_POLICIES = ("ppo", "distilled")
 ALLOCATIONS = ("paper", "exact")
 
 
@@ -149,13 +159,46 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
         if key in cells:
             raise ConfigError(f"{source}: trained[{i}] repeats the cell {key}")
         cells.add(key)
-    seeds = _list(spec["seeds"], f"{source}: seeds", allow_empty=not spec["trained"])
+    for i, d in enumerate(_list(spec.get("distilled", []), f"{source}: distilled")):
+        key = _distilled_entry(d, f"{source}: distilled[{i}]", tasks)
+        if key in cells:
+            raise ConfigError(f"{source}: distilled[{i}] repeats the cell {key}; give one a variant")
+        cells.add(key)
+    seeds = _list(spec["seeds"], f"{source}: seeds", allow_empty=not (spec["trained"] or spec.get("distilled")))
     for s in seeds:
         if not is_int(s) or not 0 <= s < TRAIN_SEED_LIMIT:
             raise ConfigError(f"{source}: seeds must be integers in [0, {TRAIN_SEED_LIMIT:,}), got {s!r}")
     if len(set(seeds)) != len(seeds):
         raise ConfigError(f"{source}: seeds lists a seed twice: {seeds}")
     return spec
+
+
+def is_learned(policy: str) -> bool:
+    """Whether a job's or row's ``policy`` is a learned one (:data:`LEARNED_POLICIES`)."""
+    return policy in LEARNED_POLICIES
+
+
+def _distilled_entry(d, where: str, tasks: list) -> tuple:
+    """Check one ``distilled`` entry (ConfigError naming the key); returns the cell's key."""
+    _mapping(d, DISTILLED_KEYS, where, required=DISTILLED_KEYS[:3])
+    _choice(d["task"], tasks, f"{where}.task (a task of the spec's tasks)")
+    _choice(d["tier"], registered_tiers(), f"{where}.tier")
+    if d.get("variant") is not None:
+        check_slug(d["variant"], f"{where}.variant")
+    also = _list(d.get("also_evaluated_on", []), f"{where}.also_evaluated_on")
+    for t in also:
+        _choice(t, tasks, f"each of {where}.also_evaluated_on (a task of the spec's tasks)")
+    if d["task"] in also or len(set(also)) != len(also):
+        raise ConfigError(f"{where}.also_evaluated_on must list other tasks than the cell's own ({d['task']!r}), "
+                          f"each once; got {also}")
+    options = d.get("options", {})
+    if not isinstance(options, dict):
+        raise ConfigError(f"{where}.options must be a mapping of distillation settings, got {options!r}")
+    try:
+        distill_config(d["teacher"], d["task"], d["tier"], 0, options)
+    except (ConfigError, TypeError) as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    return ("distilled", d["teacher"], d["task"], d["tier"], d.get("variant"))
 
 
 def _evaluation_episodes(ev: dict, source: str) -> None:
@@ -200,8 +243,9 @@ def _analytic_entry(p, section: str, where: str, names: set) -> None:
             raise ConfigError(f"{where} (kind {kind}) has keys {wrong} that only other kinds take; a {kind} entry "
                               f"takes {list(ANALYTIC_KINDS[kind])}")
     check_slug(p["name"], f"{where}.name")
-    if p["name"] == "ppo" or p["name"] in names:
-        raise ConfigError(f"{where}.name {p['name']!r} is taken (names must be unique, not 'ppo')")
+    if is_learned(p["name"]) or p["name"] in names:
+        raise ConfigError(f"{where}.name {p['name']!r} is taken (names must be unique, not one of "
+                          f"{list(LEARNED_POLICIES)})")
     names.add(p["name"])
     if kind == "passivity":
         if "allocation" not in p:

@@ -55,7 +55,7 @@ from softpvtol_gym.baselines.leaderboard.jobs import (
     selections_of,
     stale_evaluations,
 )
-from softpvtol_gym.baselines.leaderboard.spec import selection_seed
+from softpvtol_gym.baselines.leaderboard.spec import is_learned, selection_seed
 from softpvtol_gym.baselines.util.safe_load import loads_json
 
 REFERENCE = "passivity-bounded"   # the strongest analytic loop, the env's default (docs/control.md)
@@ -75,14 +75,20 @@ WINDOWS = (("whole", "rms_position_error", "RMS, whole episode"),
            ("final_5s", "max_position_error_final_5s", "max, last 5 s"))
 
 
+def learned_name(row: dict) -> str:
+    """The short name of a learned job or row (no training tier): ``PPO <recipe>``, ``PPO-<action mode>`` or
+    ``distilled <teacher>[ <variant>]``."""
+    if row["policy"] == "distilled":
+        return f"distilled {row['teacher']}" + (f" {row['variant']}" if row.get("variant") else "")
+    return f"PPO {row['recipe']}" if row.get("recipe") else f"PPO-{row['action_mode']}"
+
+
 def entry_label(job: dict, task: str | None = None) -> str:
-    """The row label of a job evaluated on ``task`` (default: its own): a PPO entry names the tier it was
+    """The row label of a job evaluated on ``task`` (default: its own): a learned entry names the tier it was
     trained on, and the task too where that is not the one evaluated."""
-    if job["policy"] == "ppo":
+    if is_learned(job["policy"]):
         where = job["train_tier"] if task in (None, job["task"]) else f"{job['task']}, {job['train_tier']}"
-        if job.get("recipe"):
-            return f"PPO {job['recipe']} (trained on {where})"
-        return f"PPO-{job['action_mode']} (trained on {where})"
+        return f"{learned_name(job)} (trained on {where})"
     return job["policy"]
 
 
@@ -120,7 +126,7 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, inference: str | None
                     continue
                 cells.append({
                     "entry": entry_label(j, task), "policy": j["policy"], "action_mode": j["action_mode"],
-                    "recipe": j.get("recipe"),
+                    "recipe": j.get("recipe"), "teacher": j.get("teacher"), "variant": j.get("variant"),
                     "task": task, "train_task": j["task"], "train_tier": j["train_tier"], "tier": tier,
                     "seed": j["seed"], "timesteps": j.get("timesteps") or None, "checkpoint": rec["checkpoint"],
                     "train_seconds": rec["train_seconds"],
@@ -310,6 +316,7 @@ def aggregate(cells: list[dict], deterministic: set | None = None) -> list[dict]
         row = {"task": task, "tier": tier, "entry": entry, "policy": group[0]["policy"],
                "action_mode": group[0]["action_mode"], "train_task": group[0].get("train_task", task),
                "train_tier": group[0]["train_tier"], "recipe": group[0].get("recipe"),
+               "teacher": group[0].get("teacher"), "variant": group[0].get("variant"),
                "runs": len(group), "episodes": len(group[0]["episodes"]), "deterministic": det,
                "ci_over": ("none (one run of a deterministic task and tier)" if det and len(group) == 1 else
                            "training seeds only (a deterministic task and tier)" if det else

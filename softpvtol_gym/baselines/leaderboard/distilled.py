@@ -1,0 +1,61 @@
+"""Distilled cells of the leaderboard: students of an analytic controller (``softpvtol distill``) trained by
+behaviour cloning and DAgger, then evaluated like every learned entry.
+
+A spec's ``distilled`` list holds one mapping per cell::
+
+    - {teacher: integral, task: track_random, tier: nominal, variant: small, also_evaluated_on: [track_paper],
+       options: {net_arch: [64, 64], precision_scale: 1.0e-3, epochs: 60}}
+
+``teacher`` (a name of :data:`~softpvtol_gym.baselines.training.teachers.TEACHERS`), ``task`` and ``tier`` (the
+tier the student's episodes fly) are required; ``variant`` (a slug) tells two cells of the same teacher, task and
+tier apart; ``options`` are :class:`~softpvtol_gym.baselines.training.distill.DistillConfig` fields other than
+``teacher``, ``task``, ``tiers`` and ``seed`` (the job's seed is the run's). The spec's checks are in
+:mod:`~softpvtol_gym.baselines.leaderboard.spec`. Each seed of the spec is one job
+(:mod:`~softpvtol_gym.baselines.leaderboard.jobs`): the student is distilled in ``<job>.run/`` and its model
+files, ``distill.json`` and ``distill_config.json`` are copied into the job's folder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.training.distill import DISTILL_FILE, DistillConfig, distill
+from softpvtol_gym.baselines.util.safe_load import loads_json
+
+#: the DistillConfig fields a cell fixes itself (an entry's ``options`` may not set them)
+FIXED_FIELDS = ("teacher", "task", "tiers", "seed")
+#: what a distilled job's folder keeps besides the model files
+RECORD_FILES = (DISTILL_FILE, "distill_config.json")
+
+
+def option_fields() -> tuple:
+    """The DistillConfig fields an entry's ``options`` may set."""
+    return tuple(f.name for f in dataclasses.fields(DistillConfig) if f.name not in FIXED_FIELDS)
+
+
+def distill_config(teacher: str, task: str, tier: str, seed: int, options) -> DistillConfig:
+    """The DistillConfig of one distilled job (ConfigError naming the option that is wrong)."""
+    options = dict(options)
+    unknown = [k for k in options if k not in option_fields()]
+    if unknown:
+        raise ConfigError(f"options {unknown} are not distillation settings; valid ones are {list(option_fields())}")
+    options = {k: tuple(v) if isinstance(v, list) else v for k, v in options.items()}
+    return DistillConfig(teacher=teacher, task=task, tiers=(tier,), seed=seed, **options)
+
+
+def train_distilled(job, run_dir: Path) -> float:
+    """Distil ``job``'s student in ``run_dir`` (resumed where a run was interrupted); returns its seconds."""
+    config = distill_config(job.teacher, job.task, job.train_tier, job.seed, job.distill_options)
+    return float(distill(config, run_dir, resume=True)["record"]["seconds"])
+
+
+def recorded_seconds(out: Path) -> float | None:
+    """The distillation's seconds as its ``distill.json`` in ``out`` records them (None where it does not)."""
+    try:
+        path = Path(out) / DISTILL_FILE
+        seconds = loads_json(path.read_text(), str(path)).get("seconds")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return float(seconds) if isinstance(seconds, (int, float)) and not isinstance(seconds, bool) else None
