@@ -98,3 +98,15 @@ def test_a_distilled_job_distils_evaluates_and_reaches_the_leaderboard_as_learne
                             for v in verdicts)
     (budget,) = training_budgets({"cells": cells})
     assert budget["name"] == "distilled integral" and budget["train_seconds"] == [record["train_seconds"]]
+
+
+def test_the_docs_rounds_table_is_generated_from_the_committed_students():
+    from softpvtol_gym.baselines.commands.leaderboard import distilled_records
+    from softpvtol_gym.baselines.leaderboard.distilled import ROUNDS_BLOCK, rounds_table
+    from softpvtol_gym.baselines.util.blocks import read_block
+    from tests.conftest import RESULTS, ROOT
+
+    records = distilled_records(RESULTS / "leaderboard_runs")
+    assert {name: len(seeds) for name, seeds in records.items()} == {"distilled integral": 5,
+                                                                      "distilled integral small": 5}
+    assert read_block(*ROUNDS_BLOCK, ROOT / "docs" / "baselines.md") == rounds_table(records).strip()

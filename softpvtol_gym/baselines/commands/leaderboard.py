@@ -30,29 +30,33 @@ once, so its CIs come from the training seeds only. The headline compares, per (
 strongest learned entry with the strongest model-based controller (docs/baselines.md, "The leaderboard"). Results
 recorded before the windowed metrics are listed as stale and left out: ``softpvtol run-jobs --rescore`` first.
 
-The output paths are checked, and the spec, every job result (required keys and types, finite numbers: a NaN
-in an ``eval.json`` is refused naming the file) or the JSON validated, before any work; then every output (JSON,
-Markdown, PNG, the README block) is rendered in memory and written together: each to a temporary file first,
-renamed over the targets only once all are written, so a failure (bad input, a full disk) changes none of them.
-Exit codes: 0 done, 2 bad input (one line, nothing written), 74 an output that cannot be written (one line naming
-it; nothing changed), 130 / 143 interrupted (nothing changed).
+The output paths are checked, and the spec, every job result (required keys and types, finite numbers: a NaN in an
+``eval.json`` is refused naming the file) or the JSON validated, before any work; then every output (JSON, Markdown,
+PNG, the README block, and the distilled cells' rounds table in ``docs/baselines.md``) is rendered in memory and
+written together: each to a temporary file first, renamed over the targets only once all are written, so a failure
+(bad input, a full disk) changes none of them. Exit codes: 0 done, 2 bad input (one line, nothing written), 74 an
+output that cannot be written (one line naming it; nothing changed), 130 / 143 interrupted (nothing changed).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 from pathlib import Path
 
-from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE
+from softpvtol_gym.baselines.leaderboard.distilled import ROUNDS_BLOCK, rounds_table
+from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_jobs
 from softpvtol_gym.baselines.leaderboard.render import SUMMARY_BLOCK, chart_png, render_markdown, summary_markdown
 from softpvtol_gym.baselines.leaderboard.spec import INFERENCE
-from softpvtol_gym.baselines.leaderboard.stats import build, read_data, validate_data
+from softpvtol_gym.baselines.leaderboard.stats import build, learned_name, read_data, validate_data
+from softpvtol_gym.baselines.training.distill import DISTILL_FILE
 from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main, refuse_overwrite
 from softpvtol_gym.baselines.util.atomic import atomic_write_all
 from softpvtol_gym.baselines.util.blocks import markers
 from softpvtol_gym.baselines.util.paths import Layout
+from softpvtol_gym.baselines.util.safe_load import loads_json
 
 
 def _check_output(path: Path, option: str) -> None:
@@ -68,6 +72,17 @@ def _with_block(name: str, source: str, table: str, path: Path) -> bytes | None:
         return None
     a, b = text.index(start) + len(start), text.index(end)
     return (text[:a] + "\n" + table.strip() + "\n" + text[b:]).encode("utf-8")
+
+
+def distilled_records(root: Path, spec: Path = SPEC_FILE) -> dict[str, list[dict]]:
+    """The ``distill.json`` records of the spec's distilled jobs under ``root``: entry name -> the seeds' records
+    (jobs without one left out)."""
+    out: dict[str, list[dict]] = {}
+    for job in load_jobs(spec):
+        path = job.folder(root) / DISTILL_FILE
+        if job.policy == "distilled" and path.is_file():
+            out.setdefault(learned_name(dataclasses.asdict(job)), []).append(loads_json(path.read_text(), str(path)))
+    return out
 
 
 def _main(argv, layout: Layout, prog: str) -> int:
@@ -111,6 +126,12 @@ def _main(argv, layout: Layout, prog: str) -> int:
         readme = _with_block(*SUMMARY_BLOCK, summary_markdown(data, link), layout.readme)
         if readme is not None:
             outputs[layout.readme] = readme
+    students = {} if args.from_json else distilled_records(args.root, args.spec)
+    guide = layout.doc("baselines.md")
+    if students and guide is not None and guide.is_file() and args.markdown.resolve() == page.resolve():
+        text = _with_block(*ROUNDS_BLOCK, rounds_table(students), guide)  # docs/baselines.md: the students' rounds
+        if text is not None:
+            outputs[guide] = text
     atomic_write_all(outputs)
     print(f"wrote {args.markdown} and {args.chart}" + ("" if args.from_json else f" from {args.json}"))
     return 0

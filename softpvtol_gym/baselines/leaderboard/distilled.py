@@ -20,6 +20,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import numpy as np
+
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.training.distill import DISTILL_FILE, DistillConfig, distill
 from softpvtol_gym.baselines.util.safe_load import loads_json
@@ -59,3 +61,43 @@ def recorded_seconds(out: Path) -> float | None:
     except (OSError, ValueError, AttributeError):
         return None
     return float(seconds) if isinstance(seconds, (int, float)) and not isinstance(seconds, bool) else None
+
+
+# ------------------------------------------------------------------------------- rounds, over seeds
+#: the windows of the rounds table: (distill.json summary key, column)
+ROUND_WINDOWS = (("mean_rms_position_error_transient", "first quarter [m]"),
+                 ("mean_rms_position_error_steady", "last half [m]"),
+                 ("mean_max_position_error_final_5s", "max last 5 s [m]"))
+#: the rounds table's block in docs/baselines.md: (name, source)
+ROUNDS_BLOCK = ("leaderboard.py distilled rounds", "results/leaderboard_runs/distilled-*/seed_*/distill.json")
+
+
+def rounds_table(records: dict[str, list[dict]]) -> str:
+    """A Markdown table of the distilled cells round by round: per cell (``records``: cell name -> the seeds'
+    ``distill.json`` records) and round, the median over the seeds of each seed's mean student error per window on
+    its evaluation episodes (seeds whose student crashed in that window left out), and the crashed episodes of all
+    seeds; below each cell, its teacher's on the same episodes."""
+    def cell_values(summaries: list[dict]) -> str:
+        out = []
+        for key, _ in ROUND_WINDOWS:
+            flown = [s[key] for s in summaries if s.get(key) is not None]
+            out.append("crashed" if not flown else f"{float(np.median(flown)):.2e}"
+                       + ("" if len(flown) == len(summaries) else f" ({len(flown)} seeds)"))
+        crashed = sum(round(s["crash_rate"] * s["episodes"]) for s in summaries)
+        return " | ".join(out) + f" | {crashed}/{sum(s['episodes'] for s in summaries)}"
+
+    lines = ["| cell | round | samples (all rounds, median) | tier | policy | "
+             + " | ".join(c for _, c in ROUND_WINDOWS) + " | crashes |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for cell, recs in records.items():
+        first = recs[0]
+        for k, r in enumerate(first["rounds"]):
+            samples = int(np.median([rec["rounds"][k]["aggregate"] for rec in recs]))
+            for tier in r["evaluation"]:
+                students = [rec["rounds"][k]["evaluation"][tier]["student"] for rec in recs]
+                lines.append(f"| {cell} | {k} ({r['kind']}) | {samples:,} | {tier} | student ({len(recs)} seeds) | "
+                             f"{cell_values(students)} |")
+        for tier in first["rounds"][0]["evaluation"]:
+            teachers = [rec["rounds"][0]["evaluation"][tier]["teacher"] for rec in recs]
+            lines.append(f"| {cell} | | | {tier} | teacher ({first['config']['teacher']}) | {cell_values(teachers)} |")
+    return "\n".join(lines)

@@ -1,0 +1,52 @@
+"""benchmarks/distill_sweep.py: its table in docs/baselines.md is the one generated from the committed JSON, the
+JSON holds every setting as the script defines it, and the leaderboard's distilled cells use the setting the
+sweep found best."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from softpvtol_gym.baselines.leaderboard.spec import load_spec
+from softpvtol_gym.baselines.util.blocks import read_block
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+from benchmarks import distill_sweep as bench  # noqa: E402
+
+COMMITTED = json.loads((ROOT / bench.SOURCE).read_text())
+
+
+def test_docs_table_is_the_generated_one():
+    assert read_block(bench.BLOCK, bench.SOURCE, ROOT / "docs" / "baselines.md") == \
+        bench.markdown_table(COMMITTED).strip()
+
+
+def test_the_committed_sweep_holds_every_setting_with_its_evaluation():
+    assert list(COMMITTED["variants"]) == list(bench.VARIANTS) and COMMITTED["base"] == bench.BASE
+    for name, v in COMMITTED["variants"].items():
+        assert v["settings"] == bench.VARIANTS[name]
+        assert set(v["evaluation"]) == set(v["settings"].get("tiers", bench.BASE["tiers"]))
+        assert all(s["episodes"] == bench.BASE["eval_episodes"] for s in v["evaluation"].values())
+
+
+def test_the_distilled_cell_uses_the_sweeps_best_setting_on_nominal():
+    def steady(name):
+        value = COMMITTED["variants"][name]["evaluation"]["nominal"]["mean_rms_position_error_steady"]
+        return float("inf") if value is None else value
+
+    best = min(COMMITTED["variants"], key=steady)
+    (cell,) = [d for d in load_spec()["distilled"] if d.get("variant") is None]
+    assert {**bench.BASE, **bench.VARIANTS[best]} == {**bench.BASE, **cell["options"], "teacher": cell["teacher"],
+                                                      "task": cell["task"], "tiers": [cell["tier"]]}
+
+
+def test_render_only_writes_the_table_from_the_json(tmp_path, capsys):
+    doc = tmp_path / "page.md"
+    start, end = (f"<!-- {bench.BLOCK}: table start (generated from {bench.SOURCE}, do not edit) -->",
+                  f"<!-- {bench.BLOCK}: table end -->")
+    doc.write_text(f"# x\n\n{start}\nold\n{end}\n")
+    assert bench.main(["--render-only", "--doc", str(doc)]) == 0
+    assert read_block(bench.BLOCK, bench.SOURCE, doc) == bench.markdown_table(COMMITTED).strip()
+    assert "wrote the table" in capsys.readouterr().out
