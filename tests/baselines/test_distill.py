@@ -117,6 +117,22 @@ def test_dagger_rounds_are_flown_by_the_student_and_labelled_by_the_teacher(tmp_
     assert not np.allclose(flown[:n], by_teacher[:n])
 
 
+def test_wide_episodes_start_far_from_the_reference_and_the_others_as_the_task_does(tmp_path):
+    from softpvtol_gym.baselines.training.distill import _collect_round
+
+    teacher = LinearTeacher()
+    config = DistillConfig(**{**TINY, "episodes": 4, "wide_fraction": 0.5})
+    assert config.wide_episodes() == 2
+    obs, labels = _collect_round(teacher, config, "nominal", 0, None, None)
+    task_obs, _ = collect(teacher, "hover", "nominal", 2, 0)  # the first two: the task's own starts, same seeds
+    assert np.array_equal(obs[:len(task_obs)], task_obs)
+    wide_obs, _ = collect(teacher, "hover", "nominal", 2, 2, env_options={"observe_error_integral": True,
+                                                                         "start_distribution": "wide"})
+    assert np.array_equal(obs[len(task_obs):], wide_obs) and len(obs) == len(labels)
+    first_errors = np.hypot(obs[:, 0], obs[:, 1])
+    assert first_errors[len(task_obs)] > 5 * first_errors[0]  # metres off, not the task's small offsets
+
+
 @pytest.mark.xdist_group("distilled")  # one worker computes the module fixture once
 def test_resume_loads_the_cached_datasets_and_gives_the_same_student(distilled, tmp_path):
     out, _ = distilled
@@ -149,6 +165,8 @@ def test_resume_loads_the_cached_datasets_and_gives_the_same_student(distilled, 
     ({"seed": 50}, "collection seeds"),
     ({"episodes": True}, "episodes must be an integer"),
     ({"precision_scale": 0.0}, "precision_scale must be None or a length"),
+    ({"wide_fraction": 1.5}, "wide_fraction must be a share in"),
+    ({"wide_fraction": True}, "wide_fraction must be a share in"),
 ])
 def test_bad_settings_are_refused_with_what_was_given(changes, words):
     with pytest.raises(ConfigError, match=words):

@@ -56,6 +56,9 @@ def build_parser(prog: str = "distill.py") -> Parser:
     ap.add_argument("--precision-scale", type=float_arg(0.0, 100.0, lo_open=True), default=None, metavar="S",
                     help="weigh each sample by 1 / (S + |position error|) (S in m, e.g. 0.01): the fit spends its "
                          "accuracy where the errors are small (default: every sample the same)")
+    ap.add_argument("--wide-fraction", type=float_arg(0.0, 1.0), default=DEFAULTS.wide_fraction, metavar="F",
+                    help="the share of each round's episodes that start far from the reference, like track_paper's "
+                         "(the env's start_distribution='wide'; default 0)")
     ap.add_argument("--out", type=Path, default=None,
                     help="run directory (default runs/distilled_<teacher>_<task>_s<seed>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out (same options)")
@@ -81,7 +84,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
         config = DistillConfig(teacher=args.teacher, task=args.task, tiers=tuple(tiers), seed=args.seed,
                                net_arch=_net_arch(args.net_arch, ap), rounds=args.rounds, episodes=args.episodes,
                                epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
-                               eval_episodes=args.eval_episodes, precision_scale=args.precision_scale)
+                               eval_episodes=args.eval_episodes, precision_scale=args.precision_scale,
+                               wide_fraction=args.wide_fraction)
     except ConfigError as exc:
         ap.error(str(exc))
     out = args.out or Path("runs") / f"distilled_{config.teacher}_{config.task}_s{config.seed}"

@@ -94,6 +94,9 @@ class DistillConfig:
         precision_scale: None: every sample weighs the same; s > 0 [m]: a sample of position error e weighs
             in proportion to 1 / (s + |e|) (normalised to a mean of 1), so that the fit spends its accuracy
             where the errors are small, where the teacher's fine corrections decide the steady error.
+        wide_fraction: the share of each round's episodes (rounded) that start like track_paper's, far from the
+            reference (the env's ``start_distribution="wide"``); the others start as the task does. The student
+            then also learns to recover from errors of metres, which the task's own starts never show it.
     """
 
     teacher: str = "integral"
@@ -108,6 +111,7 @@ class DistillConfig:
     learning_rate: float = 1e-3
     eval_episodes: int = 8
     precision_scale: float | None = None
+    wide_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tiers", tuple(self.tiers))
@@ -131,6 +135,9 @@ class DistillConfig:
         p = self.precision_scale
         if p is not None and (isinstance(p, bool) or not isinstance(p, (int, float)) or not 0 < p <= 100):
             raise ConfigError(f"precision_scale must be None or a length in (0, 100] m, got {p!r}")
+        w = self.wide_fraction
+        if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0.0 <= w <= 1.0:
+            raise ConfigError(f"wide_fraction must be a share in [0, 1], got {w!r}")
         last = self.seed * SEED_STRIDE + self.collections * self.episodes if _is_int(self.seed) else -1
         if not _is_int(self.seed) or self.seed < 0 or last > TRAIN_SEED_LIMIT or \
                 self.collections * self.episodes > SEED_STRIDE:
@@ -146,6 +153,10 @@ class DistillConfig:
     def collection_seed(self, round_index: int, tier_index: int) -> int:
         """The first episode seed of round ``round_index``'s collection on tier ``tier_index``."""
         return self.seed * SEED_STRIDE + (round_index * len(self.tiers) + tier_index) * self.episodes
+
+    def wide_episodes(self) -> int:
+        """The episodes of each round and tier that start wide (``wide_fraction`` of ``episodes``, rounded)."""
+        return int(round(self.wide_fraction * self.episodes))
 
     def run_config(self, dataset_size: int = 1) -> RunConfig:
         """The student's run config: PPO on the actuators mode with the error integrals observed, the
@@ -291,8 +302,7 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
                 path = _dataset_path(run_dir, k, tier)
                 cached = _load_dataset(path, obs_dim)
                 if cached is None:
-                    cached = collect(teacher, config.task, tier, config.episodes, config.collection_seed(k, j),
-                                     student=student, progress=bar)
+                    cached = _collect_round(teacher, config, tier, config.collection_seed(k, j), student, bar)
                     _save_dataset(path, *cached)
                 elif bar is not None:
                     bar(len(cached[0]))
@@ -321,12 +331,27 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
     return {"policy": student, "run_config": run_config, "record": record}
 
 
+def _collect_round(teacher, config: DistillConfig, tier: str, seed: int, student, bar) -> tuple:
+    """One round's dataset on one tier: ``config.episodes`` episodes from seed ``seed`` on, the last
+    ``config.wide_episodes()`` of them started wide."""
+    wide = config.wide_episodes()
+    parts = []
+    for count, first, start in ((config.episodes - wide, seed, "task"), (wide, seed + config.episodes - wide, "wide")):
+        if count:
+            parts.append(collect(teacher, config.task, tier, count, first, student=student, progress=bar,
+                                 env_options={**STUDENT_ENV_OPTIONS, "start_distribution": start}))
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+
 def _check_same_config(run_dir: Path, config: DistillConfig) -> None:
     path = run_dir / "distill_config.json"
     try:
         saved = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
         raise ConfigError(f"--resume: {path} is unreadable ({exc}); start the run over in another --out") from None
+    defaults = DistillConfig().to_dict()  # settings added after a run was made: their defaults
+    saved = {**{k: v for k, v in defaults.items() if k not in ("teacher", "task", "tiers", "seed")}, **saved} \
+        if isinstance(saved, dict) else saved
     if saved != config.to_dict():
         diff = sorted(k for k in set(saved) | set(config.to_dict()) if saved.get(k) != config.to_dict().get(k))
         raise ConfigError(f"--resume: the run in {run_dir} was made with other settings ({', '.join(diff)}); "
