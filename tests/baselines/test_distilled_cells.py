@@ -59,6 +59,59 @@ def test_a_distilled_cell_is_one_learned_job_per_seed_with_its_teacher_and_setti
         "integral", ("nominal",), (8, 8), 2, 0)
 
 
+FINE_TUNE = ("{action_mode: actuators, task: hover, tier: nominal, timesteps: 64, recipe: student-finetune, "
+             "init_from: distilled-integral_hover_nominal%s}")
+
+
+def write_fine_tuning_spec(path, extra: str = ""):
+    path.write_text(HEAD.replace("trained: []", f"trained: [{FINE_TUNE % extra}]") + f"distilled: [{TINY}]\n")
+    return path
+
+
+@pytest.mark.parametrize("extra, words", [
+    ("", None),
+    (", imitation: {teacher: integral, weight: 1.0, decay_steps: 32, epochs: 1}", None),
+    (", imitation: {teacher: integral, weight: 1.0}", "lacks the keys ['decay_steps', 'epochs']"),
+    (", imitation: {teacher: integral, weight: -1.0, decay_steps: 32, epochs: 1}", "imitation must be None or"),
+])
+def test_a_fine_tuning_cell_names_a_distilled_cell_and_its_imitation_term(tmp_path, extra, words):
+    spec = write_fine_tuning_spec(tmp_path / "spec.yml", extra)
+    if words is not None:
+        with pytest.raises(ConfigError, match=r"trained\[0\]\.imitation") as info:
+            load_spec(spec)
+        assert words in str(info.value)
+        return
+    (job,) = [j for j in load_jobs(spec) if j.policy == "ppo"]
+    assert job.init_from == "distilled-integral_hover_nominal"
+    assert job.name == "ppo-student-finetune_hover_nominal/seed_0"
+    assert dict(job.imitation) == ({} if not extra else {"teacher": "integral", "weight": 1.0, "decay_steps": 32,
+                                                         "epochs": 1})
+
+
+@pytest.mark.parametrize("cell, words", [
+    (FINE_TUNE.replace("distilled-integral_hover_nominal", "distilled-mpc_hover_nominal") % "",
+     "init_from (the folder of a distilled cell of the spec) must be one of ['distilled-integral_hover_nominal']"),
+    ("{action_mode: actuators, task: hover, tier: nominal, timesteps: 64, "
+     "imitation: {teacher: integral, weight: 1.0, decay_steps: 32, epochs: 1}}", "imitation needs init_from"),
+    ("{action_mode: residual, task: hover, tier: nominal, timesteps: 64, init_from: distilled-integral_hover_nominal}",
+     "has action_mode actuators, got 'residual'"),
+])
+def test_bad_fine_tuning_cells_are_refused(tmp_path, cell, words):
+    spec = tmp_path / "spec.yml"
+    spec.write_text(HEAD.replace("trained: []", f"trained: [{cell}]") + f"distilled: [{TINY}]\n")
+    with pytest.raises(ConfigError, match=r"trained\[0\]") as info:
+        load_spec(spec)
+    assert words in str(info.value)
+
+
+def test_a_fine_tuning_job_without_its_student_says_which_job_to_run_first(tmp_path):
+    from softpvtol_gym.baselines.leaderboard.jobs import run_job
+
+    (job,) = [j for j in load_jobs(write_fine_tuning_spec(tmp_path / "spec.yml")) if j.policy == "ppo"]
+    with pytest.raises(ConfigError, match="run its distilled job first .*--only distilled-integral_hover_nominal"):
+        run_job(job, tmp_path / "runs")
+
+
 def test_an_analytic_entry_may_not_take_a_learned_policys_name(tmp_path):
     spec = tmp_path / "spec.yml"
     spec.write_text(HEAD.replace("name: passivity-integral", "name: distilled"))
@@ -73,12 +126,13 @@ def test_a_distilled_job_distils_evaluates_and_reaches_the_leaderboard_as_learne
     from softpvtol_gym.baselines.leaderboard.stats import aggregate, collect
 
     root = tmp_path / "runs"
-    spec = write_spec(tmp_path / "spec.yml", TINY)
+    spec = write_fine_tuning_spec(tmp_path / "spec.yml", ", imitation: {teacher: integral, weight: 1.0, "
+                                                         "decay_steps: 32, epochs: 1}")
     jobs = load_jobs(spec)
     with ThreadPoolExecutor(max_workers=1) as ex:
         run_jobs(jobs, ex, root, progress=False)
     assert pending(jobs, root) == []
-    (student,) = [j for j in jobs if j.learned]
+    (student,) = [j for j in jobs if j.policy == "distilled"]
     folder = student.folder(root)
     record = json.loads((folder / EVAL_FILE).read_text())
     distilled = json.loads((folder / "distill.json").read_text())
@@ -89,15 +143,26 @@ def test_a_distilled_job_distils_evaluates_and_reaches_the_leaderboard_as_learne
     cells, missing = collect(root, spec)
     assert missing == []
     label = "distilled integral (trained on nominal)"
-    assert {c["entry"] for c in cells} == {"passivity-integral", label}
+    assert {c["entry"] for c in cells} == {"passivity-integral", label, "PPO student-finetune (trained on nominal)"}
     rows = aggregate(cells)
     (row,) = [r for r in rows if r["entry"] == label]
     assert (row["policy"], row["teacher"], row["variant"]) == ("distilled", "integral", None)
     verdicts = window_headline({"meta": {"tasks": ["hover"], "tiers": ["nominal"]}, "aggregates": rows})
-    assert verdicts and all(v["learned"]["entry"] == label and v["model_based"]["entry"] == "passivity-integral"
-                            for v in verdicts)
-    (budget,) = training_budgets({"cells": cells})
-    assert budget["name"] == "distilled integral" and budget["train_seconds"] == [record["train_seconds"]]
+    assert verdicts and all(v["learned"]["policy"] in ("distilled", "ppo")
+                            and v["model_based"]["entry"] == "passivity-integral" for v in verdicts)
+    budgets = {b["name"]: b for b in training_budgets({"cells": cells})}
+    assert budgets["distilled integral"]["train_seconds"] == [record["train_seconds"]]
+
+    # the fine-tuning job started from this seed's student, with its network, statistics and env options
+    from softpvtol_gym.baselines.config.run_config import RunConfig
+
+    (tuned,) = [j for j in jobs if j.policy == "ppo"]
+    config = RunConfig.load(tuned.folder(root) / "config.yaml")
+    student_config = RunConfig.load(folder / "config.yaml")
+    assert config.init_from == str(folder) and config.imitation["teacher"] == "integral"
+    assert config.env_options == student_config.env_options == {"observe_error_integral": True}
+    assert config.hyperparams["policy_kwargs"] == student_config.hyperparams["policy_kwargs"]
+    assert config.train_env_options == {"precision_reward_weight": 1.0, "precision_reward_scale": 0.01}
 
 
 def test_the_docs_rounds_table_is_generated_from_the_committed_students():

@@ -54,6 +54,7 @@ from softpvtol_gym.baselines.config.recipes import RECIPES_FILE, load_recipe, re
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import CheckpointError, ConfigError
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, evaluate
+from softpvtol_gym.baselines.training.imitation import source_overrides
 from softpvtol_gym.baselines.training.loop import prepare, train
 from softpvtol_gym.baselines.training.models import DEVICES
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
@@ -221,7 +222,7 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
                               f"{args.recipe!r}; resume with the run's own recipe (or leave --recipe out)")
         recipe_name = saved.recipe
     else:
-        start = _policy_overrides(source)  # the source run's network and normalisation, for --init-from
+        start = source_overrides(source)  # the source run's network and normalisation, for --init-from
         hp = apply_overrides(load_hyperparams(pick["algo"], pick["action_mode"], args.hyperparams),
                              start + recipe_hp + args.hp)
         overrides = start + recipe_hp + list(args.hp)
@@ -269,17 +270,6 @@ def _source_config(args, ap: Parser) -> RunConfig | None:
         return RunConfig.load(find_checkpoint(args.init_from) / CONFIG_FILE_NAME)
     except (ConfigError, CheckpointError) as exc:
         ap.error(f"--init-from {args.init_from}: {exc}")
-
-
-def _policy_overrides(source: RunConfig | None) -> list[str]:
-    """The hyperparameter overrides that give a run the network and normalisation of ``source``."""
-    if source is None:
-        return []
-    hp = source.hyperparams
-    out = [f"normalize={json.dumps(hp.get('normalize', False))}"]
-    if "policy_kwargs" in hp:
-        out.append(f"policy_kwargs={hp['policy_kwargs']}")
-    return out
 
 
 def _imitation(args, timesteps: int, ap: Parser) -> dict | None:

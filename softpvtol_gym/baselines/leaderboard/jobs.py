@@ -65,10 +65,11 @@ from softpvtol_gym import PassivityPolicy
 from softpvtol_gym.baselines.checkpoints.manifest import MANIFEST_FILE, MODEL_FILE, MODEL_FILES
 from softpvtol_gym.baselines.checkpoints.store import legacy_files
 from softpvtol_gym.baselines.config.hyperparams import (
+    CONFIG_FILE_NAME,
     apply_overrides,
     load_hyperparams,
 )
-from softpvtol_gym.baselines.config.recipes import load_recipe, recipe_config_fields, recipe_hyperparams
+from softpvtol_gym.baselines.config.recipes import load_recipe, recipe_config_fields
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import (
@@ -84,10 +85,12 @@ from softpvtol_gym.baselines.leaderboard.spec import (
     INFERENCE,
     SPEC_FILE,
     analytic_entries,
+    distilled_folder,
     is_learned,
     load_spec,
     selection_seed,
 )
+from softpvtol_gym.baselines.training.imitation import source_overrides
 from softpvtol_gym.baselines.training.loop import EVALUATIONS_FILE, train
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
 from softpvtol_gym.baselines.util.args import interrupted, io_error_message
@@ -131,6 +134,8 @@ class Job:
     teacher: str | None = None      # distilled cells: the teacher controller (training.teachers.TEACHERS)
     variant: str | None = None      # distilled cells: the name that tells two cells of one teacher apart, or None
     distill_options: tuple = ()     # distilled cells: (name, value) pairs of DistillConfig settings
+    init_from: str | None = None    # fine-tuning cells: the distilled cell whose student of this seed PPO starts from
+    imitation: tuple = ()           # fine-tuning cells: (name, value) pairs of the imitation term (RunConfig.imitation)
 
     @property
     def eval_tasks(self) -> tuple:
@@ -151,8 +156,9 @@ class Job:
             parts = [self.teacher, self.task, self.train_tier] + ([self.variant] if self.variant else [])
             for v in parts:
                 check_slug(v, "the teacher, task, tier or variant of a distilled job")
-            student = self.teacher + (f"-{self.variant}" if self.variant else "")
-            return f"distilled-{student}_{self.task}_{self.train_tier}/seed_{int(self.seed)}"
+            folder = distilled_folder({"teacher": self.teacher, "variant": self.variant, "task": self.task,
+                                       "tier": self.train_tier})
+            return f"{folder}/seed_{int(self.seed)}"
         check_slug(self.policy, "a passivity entry's name")
         check_slug(self.task, "the task of a job")
         return f"{self.policy}_{self.task}"
@@ -193,7 +199,9 @@ def load_jobs(spec_path: Path = SPEC_FILE, inference: str | None = None) -> list
             jobs.append(Job(policy="ppo", action_mode=cell["action_mode"], task=cell["task"], train_tier=cell["tier"],
                             seed=int(seed), timesteps=int(cell["timesteps"]),
                             other_eval_tasks=tuple(cell.get("also_evaluated_on", ())),
-                            hp=tuple(cell.get("hp", ())), recipe=cell.get("recipe"), inference=inference, **common))
+                            hp=tuple(cell.get("hp", ())), recipe=cell.get("recipe"), inference=inference,
+                            init_from=cell.get("init_from"),
+                            imitation=tuple(sorted((cell.get("imitation") or {}).items())), **common))
     for cell in spec.get("distilled", []):
         for seed in spec["seeds"]:
             jobs.append(Job(policy="distilled", action_mode="actuators", task=cell["task"], train_tier=cell["tier"],
@@ -265,7 +273,7 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
         if job.policy == "distilled":
             train_seconds, kept = train_distilled(job, run_dir), RECORD_FILES
         else:
-            train_seconds, kept = _train_ppo(job, run_dir), (EVALUATIONS_FILE,)
+            train_seconds, kept = _train_ppo(job, run_dir, root), (EVALUATIONS_FILE,)
         for fname in (*MODEL_FILES, *kept, MANIFEST_FILE):  # the manifest last: it marks the copy done
             if (run_dir / fname).is_file():
                 atomic_copy(run_dir / fname, out / fname)
@@ -303,21 +311,30 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
     return record
 
 
-def _train_ppo(job: Job, run_dir: Path) -> float | None:
+def _train_ppo(job: Job, run_dir: Path, root: Path) -> float | None:
     """Train a PPO cell's job in ``run_dir`` (resumed if a run was interrupted); its seconds (None if it was
-    already trained)."""
-    if job.recipe is None:
-        hp = apply_overrides(load_hyperparams("ppo", job.action_mode), list(job.hp))
-        fields, recipe_hp = {"algo": "ppo", "action_mode": job.action_mode}, []
-    else:
-        recipe = load_recipe(job.recipe)
-        hp = apply_overrides(recipe_hyperparams(recipe), list(job.hp))
-        fields, recipe_hp = recipe_config_fields(recipe), list(recipe["hp"])
+    already trained). A fine-tuning cell (``init_from``) starts from the student of its seed under ``root``, with
+    that student's network, normalisation and env options."""
+    recipe = None if job.recipe is None else load_recipe(job.recipe)
+    fields = ({"algo": "ppo", "action_mode": job.action_mode, "env_options": {}} if recipe is None
+              else recipe_config_fields(recipe))
+    recipe_hp = [] if recipe is None else list(recipe["hp"])
+    start, init_from = [], None
+    if job.init_from is not None:
+        source_dir = under(root, f"{job.init_from}/seed_{int(job.seed)}", "the student a job fine-tunes")
+        if not (source_dir / MANIFEST_FILE).is_file():
+            raise ConfigError(f"job {job.name} fine-tunes the student in {source_dir}, which holds none yet; run its "
+                              f"distilled job first (python baselines/run_jobs.py --only {job.init_from})")
+        source = RunConfig.load(source_dir / CONFIG_FILE_NAME)
+        start, init_from = source_overrides(source), str(source_dir)
+        fields["env_options"] = {**source.env_options, **fields["env_options"]}
+    hp = apply_overrides(load_hyperparams(fields["algo"], job.action_mode), start + recipe_hp + list(job.hp))
     config = RunConfig(**fields, recipe=job.recipe, task=job.task, tier=job.train_tier,
                        timesteps=job.timesteps, seed=job.seed, n_envs=int(hp.get("n_envs", 16)), hyperparams=hp,
-                       overrides=recipe_hp + list(job.hp),
+                       overrides=start + recipe_hp + list(job.hp),
                        checkpoint_freq=max(job.timesteps // 4, 1), eval_episodes=5,
-                       eval_freq=max(job.timesteps // 10, 1))  # ten points of the learning curves
+                       eval_freq=max(job.timesteps // 10, 1),  # ten points of the learning curves
+                       init_from=init_from, imitation=dict(job.imitation) or None)
     run = train(config, run_dir, resume=True)
     return run["seconds"] if run["status"] == "trained" else None
 
@@ -505,7 +522,8 @@ def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevalu
     """Submit every job to ``executor`` (anything with ``submit`` returning futures: a
     :class:`~softpvtol_gym.baselines.leaderboard.process_executor.ProcessPerJobExecutor`, a process pool, a
     :class:`softpvtol_gym.baselines.leaderboard.ray_executor.RayExecutor`); returns the names of the jobs that
-    finished, in completion order, printing one line per job (and a progress bar on a terminal, ``progress``). A job
+    finished, in completion order (the jobs that fine-tune a student, ``init_from``, in a second wave once the
+    others are done), printing one line per job (and a progress bar on a terminal, ``progress``). A job
     that fails (a :class:`~softpvtol_gym.baselines.errors.ConfigError`: an unusable checkpoint, a busy folder; a
     worker that was killed: ``worker crashed``; any other error) is reported in one line and the others go on; at
     the end a ConfigError lists the failed jobs and the command that re-runs them (``rerun``; finished jobs are
@@ -527,20 +545,22 @@ def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevalu
             token = stack.enter_context(shared_root_token(root)) if check_root else None
             base = str((Path.cwd() if base is None else Path(base)).resolve())  # paths in eval.json relative to it
             entry = entry or (_rescore_job_entry if rescore else _run_job_entry)
-            futures = {executor.submit(entry, job, str(root), reevaluate, token, base): job for job in jobs}
             # disable=None: a bar on a terminal only (logs get the one line per job below)
             bar = stack.enter_context(tqdm(total=len(jobs), unit="job", file=sys.stderr,
                                            disable=None if progress else True))
-            for fut in as_completed(futures):
-                bar.update(1)
-                try:
-                    name, seconds = fut.result()
-                except Exception as exc:  # noqa: BLE001 - one job's failure must not stop the others
-                    failed.append(futures[fut].name)
-                    bar.write(f"[failed] {futures[fut].name}: {_failure_line(exc)}", file=sys.stderr)
-                    continue
-                done.append(name)
-                bar.write(f"[{len(done)}/{len(jobs)}] {name} ({seconds:.0f} s)", file=sys.stdout)
+            # two waves: the jobs that fine-tune a student start once every other job (their students) is done
+            for wave in ([j for j in jobs if j.init_from is None], [j for j in jobs if j.init_from is not None]):
+                futures = {executor.submit(entry, job, str(root), reevaluate, token, base): job for job in wave}
+                for fut in as_completed(futures):
+                    bar.update(1)
+                    try:
+                        name, seconds = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - one job's failure must not stop the others
+                        failed.append(futures[fut].name)
+                        bar.write(f"[failed] {futures[fut].name}: {_failure_line(exc)}", file=sys.stderr)
+                        continue
+                    done.append(name)
+                    bar.write(f"[{len(done)}/{len(jobs)}] {name} ({seconds:.0f} s)", file=sys.stdout)
     except KeyboardInterrupt as exc:
         raise interrupted(exc, f"{len(done)} of {len(jobs)} jobs finished and are kept under {root}, "
                                f"{len(jobs) - len(done) - len(failed)} not finished{again}") from None

@@ -33,6 +33,7 @@ from softpvtol_gym.baselines.config.hyperparams import (
     read_yaml,
 )
 from softpvtol_gym.baselines.config.recipes import load_recipe, recipe_hyperparams
+from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.config.validation import validate_hyperparams
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET
@@ -62,7 +63,10 @@ ANALYTIC_KINDS = {"passivity": ("name", "kind", "allocation", "loop"),
 ANALYTIC_KEYS = ("name", "kind", "allocation", "loop", "options")
 # the last three optional; recipe: a training recipe of data/hyperparams/recipes.yml (its action mode must be the
 # cell's; hp overrides apply on top of the recipe's)
-TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps", "also_evaluated_on", "hp", "recipe")
+TRAINED_KEYS = ("action_mode", "task", "tier", "timesteps", "also_evaluated_on", "hp", "recipe", "init_from",
+                "imitation")
+#: a fine-tuning cell's imitation term (RunConfig.imitation): its keys
+IMITATION_KEYS = ("teacher", "weight", "decay_steps", "epochs")
 #: the keys of a ``distilled`` entry (the first three required; leaderboard/distilled.py)
 DISTILLED_KEYS = ("teacher", "task", "tier", "variant", "options", "also_evaluated_on")
 #: the ``policy`` of the learned jobs: PPO cells (``trained``) and students (``distilled``); every other policy is
@@ -155,6 +159,7 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
                 validate_hyperparams(algo, apply_overrides(base, hp))
             except ConfigError as exc:
                 raise ConfigError(f"{source}: trained[{i}].hp: {exc}") from None
+        _fine_tuning(c, spec, f"{source}: trained[{i}]")
         key = (c["action_mode"], c["task"], c["tier"], c.get("recipe"))
         if key in cells:
             raise ConfigError(f"{source}: trained[{i}] repeats the cell {key}")
@@ -171,6 +176,35 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
     if len(set(seeds)) != len(seeds):
         raise ConfigError(f"{source}: seeds lists a seed twice: {seeds}")
     return spec
+
+
+def distilled_folder(d: dict) -> str:
+    """The folder of a ``distilled`` entry's jobs under the root (``<folder>/seed_<s>`` each)."""
+    student = d["teacher"] + (f"-{d['variant']}" if d.get("variant") else "")
+    return f"distilled-{student}_{d['task']}_{d['tier']}"
+
+
+def _fine_tuning(c: dict, spec: dict, where: str) -> None:
+    """Check a trained cell's ``init_from`` (the folder of a distilled cell of the spec, whose student of the same
+    seed the cell's PPO starts from) and ``imitation`` (the term toward a teacher; only with ``init_from``)."""
+    if c.get("init_from") is None:
+        if c.get("imitation") is not None:
+            raise ConfigError(f"{where}.imitation needs init_from (the imitation term fine-tunes a student)")
+        return
+    folders = [distilled_folder(d) for d in spec.get("distilled", [])
+               if isinstance(d, dict) and all(isinstance(d.get(k), str) for k in DISTILLED_KEYS[:3])]
+    _choice(c["init_from"], folders, f"{where}.init_from (the folder of a distilled cell of the spec)")
+    if c["action_mode"] != "actuators":
+        raise ConfigError(f"{where}: a student acts on the actuators; a cell that fine-tunes it has action_mode "
+                          f"actuators, got {c['action_mode']!r}")
+    imitation = c.get("imitation")
+    if imitation is not None:
+        _mapping(imitation, IMITATION_KEYS, f"{where}.imitation")
+        try:
+            RunConfig(algo="ppo", action_mode="actuators", task=c["task"], tier=c["tier"], timesteps=c["timesteps"],
+                      seed=0, n_envs=1, hyperparams={}, imitation=dict(imitation))
+        except ConfigError as exc:
+            raise ConfigError(f"{where}.imitation: {exc}") from None
 
 
 def is_learned(policy: str) -> bool:

@@ -24,6 +24,7 @@ running episodes and the term's optimizer, so it is not bit for bit the uninterr
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -34,8 +35,8 @@ from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.training.teachers import teacher_policy
 
-__all__ = ["FROZEN_COUNT", "init_from_run", "imitation_callback", "imitation_weight", "actor_parameters",
-           "action_gap"]
+__all__ = ["FROZEN_COUNT", "init_from_run", "source_overrides", "imitation_callback", "imitation_weight",
+           "actor_parameters", "action_gap"]
 
 #: the sample count given to the source run's observation statistics (they barely move during fine-tuning)
 FROZEN_COUNT = 1e12
@@ -64,6 +65,18 @@ def init_from_run(model, vecnorm, source: Path) -> RunConfig:
         vecnorm.obs_rms.var = np.array(src_vecnorm.obs_rms.var, dtype=np.float64)
         vecnorm.obs_rms.count = FROZEN_COUNT
     return src_config
+
+
+def source_overrides(source: RunConfig | None) -> list[str]:
+    """The hyperparameter overrides that give a fine-tuning run the network and normalisation of the run it
+    starts from (its config ``source``; None: none)."""
+    if source is None:
+        return []
+    hp = source.hyperparams
+    out = [f"normalize={json.dumps(hp.get('normalize', False))}"]
+    if "policy_kwargs" in hp:
+        out.append(f"policy_kwargs={hp['policy_kwargs']}")
+    return out
 
 
 def actor_parameters(policy) -> list:
