@@ -46,7 +46,7 @@ import json
 import os
 from pathlib import Path
 
-from softpvtol_gym.baselines.leaderboard.distilled import ROUNDS_BLOCK, rounds_table
+from softpvtol_gym.baselines.leaderboard.distilled import ABLATION_BLOCK, ROUNDS_BLOCK, ablation_table, rounds_table
 from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_jobs
 from softpvtol_gym.baselines.leaderboard.render import SUMMARY_BLOCK, chart_png, render_markdown, summary_markdown
 from softpvtol_gym.baselines.leaderboard.spec import INFERENCE
@@ -63,15 +63,29 @@ def _check_output(path: Path, option: str) -> None:
     check_output_file(path, force=True, option=option)
 
 
+def _replace_block(text: str, name: str, source: str, table: str) -> str:
+    """``text`` with the block ``name`` replaced by ``table`` (as :func:`write_block`; unchanged without it)."""
+    start, end = markers(name, source)
+    if start not in text or end not in text:
+        return text
+    a, b = text.index(start) + len(start), text.index(end)
+    return text[:a] + "\n" + table.strip() + "\n" + text[b:]
+
+
 def _with_block(name: str, source: str, table: str, path: Path) -> bytes | None:
     """``path``'s text with the block ``name`` replaced by ``table`` (as :func:`write_block`), or None if it has
     no such block."""
-    start, end = markers(name, source)
     text = path.read_text(encoding="utf-8")
-    if start not in text or end not in text:
-        return None
-    a, b = text.index(start) + len(start), text.index(end)
-    return (text[:a] + "\n" + table.strip() + "\n" + text[b:]).encode("utf-8")
+    new = _replace_block(text, name, source, table)
+    return None if new == text and markers(name, source)[0] not in text else new.encode("utf-8")
+
+
+def finetune_probes(folder: Path) -> dict[str, list[dict]]:
+    """The periodic evaluations of the fine-tuning probes under ``folder`` (``<name>/evaluations.json``)."""
+    out = {}
+    for path in sorted(Path(folder).glob("*/evaluations.json")):
+        out[path.parent.name] = loads_json(path.read_text(), str(path))
+    return out
 
 
 def distilled_records(root: Path, spec: Path = SPEC_FILE) -> dict[str, list[dict]]:
@@ -129,9 +143,12 @@ def _main(argv, layout: Layout, prog: str) -> int:
     students = {} if args.from_json else distilled_records(args.root, args.spec)
     guide = layout.doc("baselines.md")
     if students and guide is not None and guide.is_file() and args.markdown.resolve() == page.resolve():
-        text = _with_block(*ROUNDS_BLOCK, rounds_table(students), guide)  # docs/baselines.md: the students' rounds
-        if text is not None:
-            outputs[guide] = text
+        text = guide.read_text(encoding="utf-8")  # docs/baselines.md: the students' rounds and the ablation
+        probes = finetune_probes(layout.results / "distill_runs" / "finetune_probes")
+        for block, table in ((ROUNDS_BLOCK, rounds_table(students)),
+                             (ABLATION_BLOCK, ablation_table(data["aggregates"], students, probes))):
+            text = _replace_block(text, *block, table)
+        outputs[guide] = text.encode("utf-8")
     atomic_write_all(outputs)
     print(f"wrote {args.markdown} and {args.chart}" + ("" if args.from_json else f" from {args.json}"))
     return 0

@@ -101,3 +101,54 @@ def rounds_table(records: dict[str, list[dict]]) -> str:
             teachers = [rec["rounds"][0]["evaluation"][tier]["teacher"] for rec in recs]
             lines.append(f"| {cell} | | | {tier} | teacher ({first['config']['teacher']}) | {cell_values(teachers)} |")
     return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------ ablation
+#: the ablation table's block in docs/baselines.md: (name, source)
+ABLATION_BLOCK = ("leaderboard.py distilled ablation", "results/leaderboard.json")
+#: the ablation's rows from the leaderboard (track_random, nominal): (what, entry)
+ABLATION_ENTRIES = (
+    ("+ 3 DAgger rounds, 64 x 64", "distilled integral small (trained on nominal)"),
+    ("+ 3 DAgger rounds, 256 x 256", "distilled integral (trained on nominal)"),
+    ("+ PPO fine-tuning of the 64 x 64 students (2M steps: precision reward, imitation term)",
+     "PPO student-finetune (trained on nominal)"),
+    ("the teacher", "passivity-integral"),
+    ("the MPC", "mpc"),
+)
+_WINDOW_KEYS = ("rms_position_error", "rms_position_error_transient", "rms_position_error_steady",
+                "max_position_error_final_5s")
+
+
+def ablation_table(aggregates: list[dict], records: dict[str, list[dict]], probes: dict[str, list[dict]]) -> str:
+    """The distillation ablation on track_random nominal: behaviour cloning alone (``records``: the students'
+    ``distill.json``, round 0 on their evaluation episodes), the DAgger students, the fine-tuned students and the
+    teacher (``aggregates``: the leaderboard's rows, IQM on its test episodes), and the fine-tuning with and
+    without the precision reward (``probes``: name -> a run's periodic evaluations, its last one)."""
+    def fmt(v) -> str:
+        return "crashed" if v is None else f"{v:.2e}"
+
+    lines = ["| step | entry | whole [m] | first quarter [m] | last half [m] | max last 5 s [m] | crashes | "
+             "µs/robot | episodes |", "|---|---|---|---|---|---|---|---|---|"]
+    cloned = [rec["rounds"][0]["evaluation"]["nominal"]["student"] for recs in records.values() for rec in recs]
+    if cloned:
+        crashed = sum(round(s["crash_rate"] * s["episodes"]) for s in cloned)
+        lines.append(f"| behaviour cloning only (round 0) | every distilled student | | | | | "
+                     f"{crashed}/{sum(s['episodes'] for s in cloned)} | | their distillations' evaluations |")
+    here = {r["entry"]: r for r in aggregates if r["task"] == "track_random" and r["tier"] == "nominal"}
+    for what, entry in ABLATION_ENTRIES:
+        r = here.get(entry)
+        if r is None:
+            continue
+        values = " | ".join(fmt(r.get(f"{k}_iqm")) for k in _WINDOW_KEYS)
+        single = r.get("compute_us_single")
+        lines.append(f"| {what} | {entry} | {values} | {r['crash_rate']:.0%} | "
+                     f"{'' if single is None else f'{single:.1f}'} | {r['runs']} x {r['episodes']} (IQM) |")
+    for what, name in (("fine-tuning without the precision reward (seed 0)", "noreward"),
+                       ("the same with it (seed 0)", "reward")):
+        if name in probes:
+            last = probes[name][-1]
+            values = " | ".join(fmt(last.get(f"mean_{k}")) for k in _WINDOW_KEYS)
+            lines.append(f"| {what} | finetune_probes/{name}, {last['step']:,} steps | {values} | "
+                         f"{last['crash_rate']:.0%} | | {last['episodes']} (mean, its periodic evaluation) |")
+    lines.append("| + history (a frame stack or a recurrent student) | not run | | | | | | | |")
+    return "\n".join(lines)
