@@ -41,7 +41,8 @@ def test_first_run_message_once_then_silent(tmp_path):
 
 
 def test_no_message_with_a_warm_cache():
-    # the cache holds the kernels of a reset and a step (compiled here if no other test did)
+    # the cache holds the kernels of the light call, a reset and a step (compiled here if no other test did)
+    softpvtol_gym.dynamics.gravity_vector(np.zeros(5), softpvtol_gym.SoftPVTOLParams())
     env = softpvtol_gym.SoftPVTOLEnv()
     env.reset(seed=0)
     env.step(np.zeros(4, dtype=np.float32))
