@@ -12,7 +12,8 @@ tier apart; ``options`` are :class:`~softpvtol_gym.baselines.training.distill.Di
 ``teacher``, ``task``, ``tiers`` and ``seed`` (the job's seed is the run's). The spec's checks are in
 :mod:`~softpvtol_gym.baselines.leaderboard.spec`. Each seed of the spec is one job
 (:mod:`~softpvtol_gym.baselines.leaderboard.jobs`): the student is distilled in ``<job>.run/`` and its model
-files, ``distill.json`` and ``distill_config.json`` are copied into the job's folder.
+files, ``distill.json`` and ``distill_config.json`` are copied into the job's folder. :func:`rounds_table` and
+:func:`ablation_table` are the docs' tables of the students (``softpvtol leaderboard`` writes them).
 """
 
 from __future__ import annotations
