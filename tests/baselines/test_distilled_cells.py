@@ -59,8 +59,9 @@ def test_a_distilled_cell_is_one_learned_job_per_seed_with_its_teacher_and_setti
         "integral", ("nominal",), (8, 8), 2, 0)
 
 
+#: one PPO update of 2 x 32 steps
 FINE_TUNE = ("{action_mode: actuators, task: hover, tier: nominal, timesteps: 64, recipe: student-finetune, "
-             "init_from: distilled-integral_hover_nominal%s}")
+             "hp: [n_envs=2, n_steps=32, batch_size=64], init_from: distilled-integral_hover_nominal%s}")
 
 
 def write_fine_tuning_spec(path, extra: str = ""):
