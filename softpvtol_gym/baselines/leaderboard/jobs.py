@@ -549,7 +549,8 @@ def run_jobs(jobs: list[Job], executor: Executor, root: Path = RUNS_DIR, reevalu
             bar = stack.enter_context(tqdm(total=len(jobs), unit="job", file=sys.stderr,
                                            disable=None if progress else True))
             # two waves: the jobs that fine-tune a student start once every other job (their students) is done
-            for wave in ([j for j in jobs if j.init_from is None], [j for j in jobs if j.init_from is not None]):
+            later = [j for j in jobs if getattr(j, "init_from", None) is not None]
+            for wave in ([j for j in jobs if j not in later], later):
                 futures = {executor.submit(entry, job, str(root), reevaluate, token, base): job for job in wave}
                 for fut in as_completed(futures):
                     bar.update(1)
