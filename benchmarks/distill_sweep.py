@@ -36,7 +36,8 @@ DOC = ROOT / "docs" / "baselines.md"
 BLOCK, SOURCE = "distill-sweep", "benchmarks/distill_sweep.json"
 #: the settings every variant starts from (the committed run results/distill_runs/integral_track_random)
 BASE = dict(teacher="integral", task="track_random", tiers=["nominal"], seed=0, net_arch=[256, 256], rounds=4,
-            episodes=48, epochs=20, batch_size=1024, learning_rate=1e-3, eval_episodes=8, precision_scale=0.01)
+            episodes=48, epochs=20, batch_size=1024, learning_rate=1e-3, eval_episodes=8, precision_scale=0.01,
+            teacher_integral=False)
 #: name -> the settings it changes, in the table's order
 VARIANTS = {
     "base": {},

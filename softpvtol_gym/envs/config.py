@@ -158,6 +158,11 @@ class EnvConfig:
         10.0, "float",
         "`observe_error_integral`: the bound of each error integral (anti-windup clamp), in (0, 1e6] [m s or "
         "rad s]; 10 is an error of 1 m held for 10 s.")
+    error_integral_error_limit: float | None = _argument(
+        None, "float | None",
+        "`observe_error_integral`: the bound on each step's error before it is integrated, in (0, 1e6] [m or "
+        "rad]; None: none. With 0.5 and `error_integral_limit=8` the integrals are those of the integral loop "
+        "(`LOOPS[\"integral\"]`), which clips each error at 0.5 m before integrating it.")
     precision_reward_weight: float = _argument(
         0.0, "float",
         "w >= 0 (at most 100): adds the reward term precision = w exp(-|(e_x, e_z)| / `precision_reward_scale`) "
@@ -264,6 +269,10 @@ class EnvConfig:
         object.__setattr__(self, "observe_error_integral", bool(flag))
         bounded_number("error_integral_limit", self.error_integral_limit, 0.0, ERROR_INTEGRAL_LIMIT_MAX,
                        "[m s]; the bound of each error integral, inside the observation clip 1e6", low_open=True)
+        if self.error_integral_error_limit is not None:
+            bounded_number("error_integral_error_limit", self.error_integral_error_limit, 0.0,
+                           ERROR_INTEGRAL_LIMIT_MAX, "[m]; the bound on each step's error before it is integrated, "
+                           "or None for none", low_open=True)
         for name in ("precision_reward_weight", "action_rate_penalty"):
             bounded_number(name, getattr(self, name), 0.0, MAX_AID_WEIGHT,
                            f"a reward weight; 0 switches the term off, {MAX_AID_WEIGHT:g} is 100 x the alive bonus")

@@ -109,8 +109,9 @@ class SoftPVTOLEnv(gym.Env):
 
     With ``observe_error_integral=True`` the observation is ``Box(-1e6, 1e6, (21,), float32)``: entries
     18, 19, 20 are the integrals over the episode of entries 0, 1, 2 (the measured errors; m s, m s, rad s):
-    I_k = clip(I_(k-1) + dt e_k, -L, L) after every step k, I_0 = 0 at the reset, L = ``error_integral_limit``
-    (10). :class:`~softpvtol_gym.PassivityPolicy` takes the 21 entries and reads 0-17.
+    I_k = clip(I_(k-1) + dt clip(e_k, -E, E), -L, L) after every step k, I_0 = 0 at the reset, L =
+    ``error_integral_limit`` (10), E = ``error_integral_error_limit`` (None: no clip).
+    :class:`~softpvtol_gym.PassivityPolicy` takes the 21 entries and reads 0-17.
 
     ## Rewards
 
@@ -188,6 +189,7 @@ class SoftPVTOLEnv(gym.Env):
     | `model` | `str \| None` | `None` | "paper" \| "consistent": the plant's Lagrangian (docs/model.md): the paper's (rotor masses at tips that do not rotate with theta) or the consistent one (tips rotated by theta, virtual-work input map); None: "consistent" in a tier with the consistent plant ("model_gap"), else "paper". The controllers use the paper's model in every case. |
     | `observe_error_integral` | `bool` | `False` | True: the observation gets 3 more entries (18-20), the integrals over the episode of the measured tracking errors e_x, e_z [m s] and e_theta [rad s] (the errors of entries 0-2, summed x dt after every step, reset to 0 with the episode, each clipped to +/-`error_integral_limit`). |
     | `error_integral_limit` | `float` | `10.0` | `observe_error_integral`: the bound of each error integral (anti-windup clamp), in (0, 1e6] [m s or rad s]; 10 is an error of 1 m held for 10 s. |
+    | `error_integral_error_limit` | `float \| None` | `None` | `observe_error_integral`: the bound on each step's error before it is integrated, in (0, 1e6] [m or rad]; None: none. With 0.5 and `error_integral_limit=8` the integrals are those of the integral loop (`LOOPS["integral"]`), which clips each error at 0.5 m before integrating it. |
     | `precision_reward_weight` | `float` | `0.0` | w >= 0 (at most 100): adds the reward term precision = w exp(-\|(e_x, e_z)\| / `precision_reward_scale`) (true state; in [0, w]; its slope w / scale stays the largest at millimetre errors); 0: no term. |
     | `precision_reward_scale` | `float` | `0.01` | the precision term's length scale [m], in [1e-6, 100]: the term is w/e (37 %) at this error, 0.9 w at a tenth of it. |
     | `action_rate_penalty` | `float` | `0.0` | w >= 0 (at most 100): adds the reward term action_rate = -w mean((a_t - a_(t-1))^2) of the clipped actions (0 at an episode's first step; in [-4 w, 0]); 0: no term. |
@@ -235,6 +237,7 @@ class SoftPVTOLEnv(gym.Env):
         model: str | None = None,
         observe_error_integral: bool = False,
         error_integral_limit: float = 10.0,
+        error_integral_error_limit: float | None = None,
         precision_reward_weight: float = 0.0,
         precision_reward_scale: float = 0.01,
         action_rate_penalty: float = 0.0,
@@ -251,6 +254,7 @@ class SoftPVTOLEnv(gym.Env):
             max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
             actuator_limits=actuator_limits, controller_loop=controller_loop, model=model,
             observe_error_integral=observe_error_integral, error_integral_limit=error_integral_limit,
+            error_integral_error_limit=error_integral_error_limit,
             precision_reward_weight=precision_reward_weight, precision_reward_scale=precision_reward_scale,
             action_rate_penalty=action_rate_penalty, residual_gate=residual_gate, start_error_scale=start_error_scale,
             start_distribution=start_distribution, **unknown)

@@ -68,11 +68,11 @@ def gate_actions(act, state, sigma, out, gate, clipped):
 
 
 @_jit
-def after_step(act, state, obs, integrals, prev, has_prev, terms, dt, limit, integrate, w_prec, prec_scale,
+def after_step(act, state, obs, integrals, prev, has_prev, terms, dt, limit, elimit, integrate, w_prec, prec_scale,
                w_rate):
     """After a step of every row: the error integrals (``integrate``: += dt x the measured errors of
-    observation entries 0-2, clipped to +/-limit, written to obs[:, 18:21]); the precision term
-    w_prec exp(-|(e_x, e_z)| / prec_scale) of the true state (w_prec > 0) and the action-rate term
+    observation entries 0-2, each clipped to +/-elimit first, the integral to +/-limit, written to obs[:, 18:21]);
+    the precision term w_prec exp(-|(e_x, e_z)| / prec_scale) of the true state (w_prec > 0) and the action-rate term
     -w_rate mean((clip(a_t) - clip(a_(t-1)))^2) (w_rate > 0; 0 at an episode's first step), in that order
     into terms (N, 2) and added to the step's reward. ``act`` (N, A): the actions as the policy gave them
     (finite: the step checked them)."""
@@ -83,6 +83,7 @@ def after_step(act, state, obs, integrals, prev, has_prev, terms, dt, limit, int
             e1 = state[n, S.qm + 1] - state[n, S.qr + 1]
             e2 = wrap(state[n, S.qm + 2] - state[n, S.qr + 2])
             for i, e in enumerate((e0, e1, e2)):
+                e = -elimit if e < -elimit else (elimit if e > elimit else e)
                 v = integrals[n, i] + dt * e
                 v = -limit if v < -limit else (limit if v > limit else v)
                 integrals[n, i] = v
@@ -156,6 +157,7 @@ class TrainingAids:
             self.gate[:] = self._new_gate
             istate_clipped[:] = self._clipped
         if self.integrate or self.term_names:
+            elimit = self.cfg.error_integral_error_limit
             after_step(act, state, obs, self.integrals, self.prev_action, self.has_prev, self.terms, dt,
-                       float(self.cfg.error_integral_limit), self.integrate, self.w_prec,
-                       float(self.cfg.precision_reward_scale), self.w_rate)
+                       float(self.cfg.error_integral_limit), math.inf if elimit is None else float(elimit),
+                       self.integrate, self.w_prec, float(self.cfg.precision_reward_scale), self.w_rate)

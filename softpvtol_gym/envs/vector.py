@@ -64,6 +64,7 @@ class SoftPVTOLVectorEnv(VectorEnv):
         model: str | None = None,
         observe_error_integral: bool = False,
         error_integral_limit: float = 10.0,
+        error_integral_error_limit: float | None = None,
         precision_reward_weight: float = 0.0,
         precision_reward_scale: float = 0.01,
         action_rate_penalty: float = 0.0,
@@ -82,6 +83,7 @@ class SoftPVTOLVectorEnv(VectorEnv):
             max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
             actuator_limits=actuator_limits, controller_loop=controller_loop, model=model,
             observe_error_integral=observe_error_integral, error_integral_limit=error_integral_limit,
+            error_integral_error_limit=error_integral_error_limit,
             precision_reward_weight=precision_reward_weight, precision_reward_scale=precision_reward_scale,
             action_rate_penalty=action_rate_penalty, residual_gate=residual_gate, start_error_scale=start_error_scale,
             start_distribution=start_distribution, **unknown)

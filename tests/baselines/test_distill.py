@@ -21,6 +21,8 @@ from softpvtol_gym.baselines.training.distill import (
 )
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
 
+#: the env options of the integral loop's students (teacher_integral, the default)
+STUDENT_OPTIONS = {"observe_error_integral": True, "error_integral_limit": 8.0, "error_integral_error_limit": 0.5}
 #: hover (1,000 steps an episode): 2 rounds of 2 episodes, a few epochs: seconds
 TINY = dict(teacher="integral", task="hover", rounds=2, episodes=2, epochs=3, batch_size=256, eval_episodes=1,
             net_arch=(16, 16))
@@ -62,7 +64,8 @@ def test_a_tiny_distillation_is_a_run_that_loads_and_acts(distilled):
     assert set(record["rounds"][0]["evaluation"]["nominal"]) == {"student", "teacher"}
     assert sorted(p.name for p in (out / DATASET_DIR).iterdir()) == ["round_00_nominal.npz", "round_01_nominal.npz"]
     policy, config = LearnedPolicy.load(out)
-    assert (config.action_mode, config.env_options) == ("actuators", {"observe_error_integral": True})
+    # the integral loop's student observes the error integrals as its teacher integrates them
+    assert (config.action_mode, config.env_options) == ("actuators", STUDENT_OPTIONS)
     obs = np.zeros((3, 21), np.float32)
     action, _ = policy.predict(obs, episode_start=np.ones(3, bool))
     assert action.shape == (3, 4) and np.all(np.abs(action) <= 1)
@@ -117,6 +120,29 @@ def test_dagger_rounds_are_flown_by_the_student_and_labelled_by_the_teacher(tmp_
     assert not np.allclose(flown[:n], by_teacher[:n])
 
 
+def test_the_students_integrals_are_integrated_as_their_teacher_integrates_them():
+    from softpvtol_gym.baselines.training.teachers import student_env_options
+    from softpvtol_gym.control import LOOPS
+
+    assert student_env_options("integral", teacher_integral=True) == STUDENT_OPTIONS
+    assert STUDENT_OPTIONS["error_integral_limit"] == LOOPS["integral"]["integral_limits"][0]
+    assert STUDENT_OPTIONS["error_integral_error_limit"] == LOOPS["integral"]["integral_error_limits"][0]
+    for teacher, matched in (("bounded", True), ("integral", False)):  # no integral action, or not asked for
+        assert student_env_options(teacher, teacher_integral=matched) == {"observe_error_integral": True}
+    assert DistillConfig(**{**TINY, "teacher_integral": False}).env_options == {"observe_error_integral": True}
+
+
+def test_a_run_made_before_the_newer_settings_resumes_with_the_values_it_had(tmp_path):
+    from softpvtol_gym.baselines.training.distill import _check_same_config
+
+    earlier = DistillConfig(**{**TINY, "teacher_integral": False}).to_dict()
+    del earlier["teacher_integral"], earlier["wide_fraction"]
+    (tmp_path / "distill_config.json").write_text(json.dumps(earlier))
+    _check_same_config(tmp_path, DistillConfig(**{**TINY, "teacher_integral": False}))
+    with pytest.raises(ConfigError, match="other settings .teacher_integral."):
+        _check_same_config(tmp_path, DistillConfig(**TINY))
+
+
 def test_wide_episodes_start_far_from_the_reference_and_the_others_as_the_task_does(tmp_path):
     from softpvtol_gym.baselines.training.distill import _collect_round
 
@@ -124,9 +150,9 @@ def test_wide_episodes_start_far_from_the_reference_and_the_others_as_the_task_d
     config = DistillConfig(**{**TINY, "episodes": 4, "wide_fraction": 0.5})
     assert config.wide_episodes() == 2
     obs, labels = _collect_round(teacher, config, "nominal", 0, None, None)
-    task_obs, _ = collect(teacher, "hover", "nominal", 2, 0)  # the first two: the task's own starts, same seeds
+    task_obs, _ = collect(teacher, "hover", "nominal", 2, 0, env_options=config.env_options)  # the task's starts
     assert np.array_equal(obs[:len(task_obs)], task_obs)
-    wide_obs, _ = collect(teacher, "hover", "nominal", 2, 2, env_options={"observe_error_integral": True,
+    wide_obs, _ = collect(teacher, "hover", "nominal", 2, 2, env_options={**config.env_options,
                                                                          "start_distribution": "wide"})
     assert np.array_equal(obs[len(task_obs):], wide_obs) and len(obs) == len(labels)
     first_errors = np.hypot(obs[:, 0], obs[:, 1])
@@ -167,6 +193,7 @@ def test_resume_loads_the_cached_datasets_and_gives_the_same_student(distilled, 
     ({"precision_scale": 0.0}, "precision_scale must be None or a length"),
     ({"wide_fraction": 1.5}, "wide_fraction must be a share in"),
     ({"wide_fraction": True}, "wide_fraction must be a share in"),
+    ({"teacher_integral": 1}, "teacher_integral must be a bool"),
 ])
 def test_bad_settings_are_refused_with_what_was_given(changes, words):
     with pytest.raises(ConfigError, match=words):
@@ -235,7 +262,7 @@ def test_train_init_from_fine_tunes_the_student_with_the_imitation_term(distille
     saved = yaml.safe_load((run / "config.yaml").read_text())
     assert (saved["action_mode"], saved["task"], saved["init_from"]) == ("actuators", "hover", str(out))
     assert saved["imitation"] == {"teacher": "integral", "weight": 5.0, "decay_steps": 100000, "epochs": 1}
-    assert saved["env_options"] == {"observe_error_integral": True}
+    assert saved["env_options"] == STUDENT_OPTIONS  # the student's interface, kept
     policy, _ = LearnedPolicy.load(run)
     obs = np.zeros((2, 21), np.float32)
     moved = policy.predict(obs, episode_start=np.ones(2, bool))[0]

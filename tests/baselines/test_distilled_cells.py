@@ -161,7 +161,9 @@ def test_a_distilled_job_distils_evaluates_and_reaches_the_leaderboard_as_learne
     config = RunConfig.load(tuned.folder(root) / "config.yaml")
     student_config = RunConfig.load(folder / "config.yaml")
     assert config.init_from == str(folder) and config.imitation["teacher"] == "integral"
-    assert config.env_options == student_config.env_options == {"observe_error_integral": True}
+    assert config.env_options == student_config.env_options == {"observe_error_integral": True,
+                                                                 "error_integral_limit": 8.0,
+                                                                 "error_integral_error_limit": 0.5}
     assert config.hyperparams["policy_kwargs"] == student_config.hyperparams["policy_kwargs"]
     assert config.train_env_options == {"precision_reward_weight": 1.0, "precision_reward_scale": 0.01}
 
@@ -173,8 +175,8 @@ def test_the_docs_rounds_table_is_generated_from_the_committed_students():
     from tests.conftest import RESULTS, ROOT
 
     records = distilled_records(RESULTS / "leaderboard_runs")
-    assert {name: len(seeds) for name, seeds in records.items()} == {"distilled integral": 5,
-                                                                      "distilled integral small": 5}
+    assert {name: len(seeds) for name, seeds in records.items()} == {
+        "distilled integral": 5, "distilled integral small": 5, "distilled integral small-matched": 5}
     assert read_block(*ROUNDS_BLOCK, ROOT / "docs" / "baselines.md") == rounds_table(records).strip()
 
 

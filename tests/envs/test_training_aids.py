@@ -94,6 +94,22 @@ def test_the_error_integral_is_clipped_to_its_limit():
     assert np.all(np.abs(obs[18:]) <= np.float32(0.05))
 
 
+def test_each_error_is_clipped_before_it_is_integrated_like_the_integral_loops():
+    env = SoftPVTOLEnv(task="track_paper", observe_error_integral=True, error_integral_error_limit=0.5)
+    env.reset(seed=0)
+    integral = np.zeros(3)
+    for _ in range(30):  # the paper start is 5 m beside and 7 m below: the x and z errors stay beyond 0.5 m
+        obs, *_ = env.step(np.zeros(4))
+        e = obs[:3].astype(np.float64)
+        integral = np.clip(integral + 0.01 * np.clip(e, -0.5, 0.5), -10.0, 10.0)
+    np.testing.assert_allclose(obs[18:], integral, rtol=1e-6, atol=1e-9)
+    assert obs[18] == np.float32(30 * 0.01 * 0.5) and obs[19] == np.float32(-30 * 0.01 * 0.5)
+    default = SoftPVTOLEnv(task="track_paper", observe_error_integral=True)  # None: no clip, as before
+    default.reset(seed=0)
+    obs, *_ = default.step(np.zeros(4))
+    assert abs(obs[18]) > 0.01 * 0.5
+
+
 # ---------------------------------------------------------------------------------------- reward terms
 def test_the_precision_term_is_its_formula_and_sees_millimetres():
     w, s = 0.7, 0.01
@@ -341,6 +357,9 @@ def test_checkpoint_resume_restores_the_aids_memory():
     ({"observe_error_integral": "yes"}, "observe_error_integral must be a bool"),
     ({"error_integral_limit": 0.0}, "error_integral_limit must be finite and > 0"),
     ({"error_integral_limit": math.nan}, "error_integral_limit"),
+    ({"error_integral_error_limit": 0.0}, "error_integral_error_limit must be finite and > 0"),
+    ({"error_integral_error_limit": math.nan}, "error_integral_error_limit"),
+    ({"error_integral_error_limit": -math.inf}, "error_integral_error_limit"),
     ({"precision_reward_weight": -0.1}, r"precision_reward_weight must be in \[0, 100\]"),
     ({"precision_reward_weight": math.nan}, "precision_reward_weight"),
     ({"precision_reward_weight": "1"}, "precision_reward_weight must be a real number"),

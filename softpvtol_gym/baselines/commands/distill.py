@@ -59,6 +59,9 @@ def build_parser(prog: str = "distill.py") -> Parser:
     ap.add_argument("--wide-fraction", type=float_arg(0.0, 1.0), default=DEFAULTS.wide_fraction, metavar="F",
                     help="the share of each round's episodes that start far from the reference, like track_paper's "
                          "(the env's start_distribution='wide'; default 0)")
+    ap.add_argument("--teacher-integral", action=argparse.BooleanOptionalAction, default=DEFAULTS.teacher_integral,
+                    help="observe the error integrals as a teacher with integral action integrates them (its error "
+                         "clip and limit; default on; --no-teacher-integral: the env's raw integrals)")
     ap.add_argument("--out", type=Path, default=None,
                     help="run directory (default runs/distilled_<teacher>_<task>_s<seed>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out (same options)")
@@ -85,7 +88,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
                                net_arch=_net_arch(args.net_arch, ap), rounds=args.rounds, episodes=args.episodes,
                                epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
                                eval_episodes=args.eval_episodes, precision_scale=args.precision_scale,
-                               wide_fraction=args.wide_fraction)
+                               wide_fraction=args.wide_fraction, teacher_integral=args.teacher_integral)
     except ConfigError as exc:
         ap.error(str(exc))
     out = args.out or Path("runs") / f"distilled_{config.teacher}_{config.task}_s{config.seed}"

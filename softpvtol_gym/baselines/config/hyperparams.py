@@ -39,7 +39,7 @@ MAX_FRAME_STACK = 64
 #: observation (softpvtol_gym EnvConfig fields). They define the policy's interface, so the run's training and
 #: evaluation envs both get them
 ENV_OPTION_KEYS = ("residual_scale", "residual_space", "residual_gate", "observe_error_integral",
-                   "error_integral_limit")
+                   "error_integral_limit", "error_integral_error_limit")
 #: the env options that shape the residual action (residual mode only); the others apply in every mode
 RESIDUAL_ONLY_ENV_OPTIONS = ("residual_scale", "residual_space", "residual_gate")
 #: env arguments of the run's training env only (RunConfig.train_env_options, train.py --train-env): the

@@ -111,6 +111,8 @@ ABLATION_BLOCK = ("leaderboard.py distilled ablation", "results/leaderboard.json
 ABLATION_ENTRIES = (
     ("+ 3 DAgger rounds, 64 x 64", "distilled integral small (trained on nominal)"),
     ("+ 3 DAgger rounds, 256 x 256", "distilled integral (trained on nominal)"),
+    ("64 x 64, observing the integrals as the teacher integrates them",
+     "distilled integral small-matched (trained on nominal)"),
     ("+ PPO fine-tuning of the 64 x 64 students (2M steps: precision reward, imitation term)",
      "PPO student-finetune (trained on nominal)"),
     ("the teacher", "passivity-integral"),

@@ -53,7 +53,7 @@ from softpvtol_gym.baselines.evaluation import run_episodes, summarize
 from softpvtol_gym.baselines.training.imitation import action_gap, actor_parameters
 from softpvtol_gym.baselines.training.loop import prepare, torch_threads
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
-from softpvtol_gym.baselines.training.teachers import STUDENT_ENV_OPTIONS, TEACHERS, collect, teacher_policy
+from softpvtol_gym.baselines.training.teachers import TEACHERS, collect, student_env_options, teacher_policy
 from softpvtol_gym.baselines.util.atomic import atomic_write_bytes, atomic_write_text
 from softpvtol_gym.baselines.util.locks import DirectoryLock
 from softpvtol_gym.envs.observation import N_ERROR_INTEGRALS, OBS_DIM
@@ -72,6 +72,8 @@ DISTILL_EVAL_SEED = 3_000_000
 SEED_STRIDE = 10_000
 MAX_EPISODES_PER_ROUND = 1_000
 MAX_ROUNDS = 50
+#: settings added after runs were made, with the value those runs had (a resumed run keeps it)
+EARLIER_DEFAULTS = {"wide_fraction": 0.0, "teacher_integral": False}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,6 +99,9 @@ class DistillConfig:
         wide_fraction: the share of each round's episodes (rounded) that start like track_paper's, far from the
             reference (the env's ``start_distribution="wide"``); the others start as the task does. The student
             then also learns to recover from errors of metres, which the task's own starts never show it.
+        teacher_integral: the student observes the error integrals as a teacher with integral action integrates
+            them (:func:`~softpvtol_gym.baselines.training.teachers.student_env_options`); False: as the env
+            does by default (raw errors). No effect for a teacher without integral action.
     """
 
     teacher: str = "integral"
@@ -112,6 +117,7 @@ class DistillConfig:
     eval_episodes: int = 8
     precision_scale: float | None = None
     wide_fraction: float = 0.0
+    teacher_integral: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tiers", tuple(self.tiers))
@@ -135,6 +141,8 @@ class DistillConfig:
         p = self.precision_scale
         if p is not None and (isinstance(p, bool) or not isinstance(p, (int, float)) or not 0 < p <= 100):
             raise ConfigError(f"precision_scale must be None or a length in (0, 100] m, got {p!r}")
+        if not isinstance(self.teacher_integral, bool):
+            raise ConfigError(f"teacher_integral must be a bool, got {self.teacher_integral!r}")
         w = self.wide_fraction
         if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0.0 <= w <= 1.0:
             raise ConfigError(f"wide_fraction must be a share in [0, 1], got {w!r}")
@@ -154,6 +162,11 @@ class DistillConfig:
         """The first episode seed of round ``round_index``'s collection on tier ``tier_index``."""
         return self.seed * SEED_STRIDE + (round_index * len(self.tiers) + tier_index) * self.episodes
 
+    @property
+    def env_options(self) -> dict:
+        """The student's env options (its observation)."""
+        return student_env_options(self.teacher, self.teacher_integral)
+
     def wide_episodes(self) -> int:
         """The episodes of each round and tier that start wide (``wide_fraction`` of ``episodes``, rounded)."""
         return int(round(self.wide_fraction * self.episodes))
@@ -166,7 +179,7 @@ class DistillConfig:
         hp = apply_overrides(hp, [f"policy_kwargs=dict(log_std_init=-1.0, net_arch=dict(pi=[{arch}], vf=[64, 64]))"])
         return RunConfig(algo="ppo", action_mode="actuators", task=self.task, tier=self.tiers[0],
                          timesteps=max(1, int(dataset_size)), seed=self.seed, n_envs=int(hp.get("n_envs", 16)),
-                         hyperparams=hp, env_options=dict(STUDENT_ENV_OPTIONS))
+                         hyperparams=hp, env_options=self.env_options)
 
     def to_dict(self) -> dict:
         return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
@@ -282,8 +295,8 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
         raise ConfigError(f"run directory {run_dir} is a file; choose a directory for --out")
     torch.set_num_threads(torch_threads())
     run_config = config.run_config()  # validated before anything is written
-    obs_dim = OBS_DIM + N_ERROR_INTEGRALS  # the student's observation (STUDENT_ENV_OPTIONS)
-    teacher = teacher if teacher is not None else teacher_policy(config.teacher, config.task)
+    obs_dim = OBS_DIM + N_ERROR_INTEGRALS  # the student's observation (config.env_options)
+    teacher = teacher if teacher is not None else teacher_policy(config.teacher, config.task, config.env_options)
     run_dir.mkdir(parents=True, exist_ok=True)
     with DirectoryLock(run_dir, "run directory"):
         record_path = run_dir / DISTILL_FILE
@@ -324,7 +337,7 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
         seconds = time.perf_counter() - t0
         write_model_files(run_dir, model, vecnorm, run_config, "run")
         record = {"config": config.to_dict(), "student": {"algo": "ppo", "action_mode": "actuators",
-                                                         "env_options": dict(STUDENT_ENV_OPTIONS),
+                                                         "env_options": config.env_options,
                                                          "net_arch": list(config.net_arch)},
                   "rounds": rounds, "seconds": seconds}
         atomic_write_text(record_path, json.dumps(record, indent=2))
@@ -339,7 +352,7 @@ def _collect_round(teacher, config: DistillConfig, tier: str, seed: int, student
     for count, first, start in ((config.episodes - wide, seed, "task"), (wide, seed + config.episodes - wide, "wide")):
         if count:
             parts.append(collect(teacher, config.task, tier, count, first, student=student, progress=bar,
-                                 env_options={**STUDENT_ENV_OPTIONS, "start_distribution": start}))
+                                 env_options={**config.env_options, "start_distribution": start}))
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
@@ -349,9 +362,7 @@ def _check_same_config(run_dir: Path, config: DistillConfig) -> None:
         saved = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
         raise ConfigError(f"--resume: {path} is unreadable ({exc}); start the run over in another --out") from None
-    defaults = DistillConfig().to_dict()  # settings added after a run was made: their defaults
-    saved = {**{k: v for k, v in defaults.items() if k not in ("teacher", "task", "tiers", "seed")}, **saved} \
-        if isinstance(saved, dict) else saved
+    saved = {**EARLIER_DEFAULTS, **saved} if isinstance(saved, dict) else saved
     if saved != config.to_dict():
         diff = sorted(k for k in set(saved) | set(config.to_dict()) if saved.get(k) != config.to_dict().get(k))
         raise ConfigError(f"--resume: the run in {run_dir} was made with other settings ({', '.join(diff)}); "
@@ -370,7 +381,7 @@ def _evaluate_round(student, teacher, config: DistillConfig, round_index: int) -
             if who == "teacher" and round_index > 0:
                 continue  # the same episodes as round 0's
             eps = run_episodes(policy, "actuators", config.task, tier, config.eval_episodes, seed,
-                               env_kwargs=dict(STUDENT_ENV_OPTIONS))
+                               env_kwargs=config.env_options)
             row[who] = summarize(eps)
         out[tier] = row
     return out

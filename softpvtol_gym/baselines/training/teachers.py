@@ -10,12 +10,25 @@ from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.control import LOOPS
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
-__all__ = ["TEACHERS", "STUDENT_ENV_OPTIONS", "teacher_policy", "collect"]
+__all__ = ["TEACHERS", "STUDENT_ENV_OPTIONS", "student_env_options", "teacher_policy", "collect"]
 
 #: the teachers by name: the passivity loops acting on the actuators, and the MPC (the ``mpc`` extra)
 TEACHERS = ("paper", "exact", "improved", "bounded", "integral", "extended", "mpc")
 #: the student's env options: the error integrals observed (3 more entries)
 STUDENT_ENV_OPTIONS = {"observe_error_integral": True}
+
+
+def student_env_options(teacher: str, teacher_integral: bool = False) -> dict:
+    """The env options of a student of ``teacher``: the error integrals observed, and with ``teacher_integral``
+    for a teacher with integral action (the integral loop), integrated as the teacher integrates them (each
+    error clipped to its ``integral_error_limits`` first, the integral to its ``integral_limits``), so that far
+    from the reference (track_paper's start) the student still observes its teacher's state."""
+    options = dict(STUDENT_ENV_OPTIONS)
+    loop = LOOPS.get(teacher, {})
+    if teacher_integral and "integral_limits" in loop:
+        options.update(error_integral_limit=float(loop["integral_limits"][0]),
+                       error_integral_error_limit=float(loop["integral_error_limits"][0]))
+    return options
 
 
 def teacher_policy(name: str, task: str, env_options: dict | None = None):
