@@ -32,7 +32,7 @@ recorded before the windowed metrics are listed as stale and left out: ``softpvt
 
 The output paths are checked, and the spec, every job result (required keys and types, finite numbers: a NaN in an
 ``eval.json`` is refused naming the file) or the JSON validated, before any work; then every output (JSON, Markdown,
-PNG, the README block, and the distilled cells' rounds table in ``docs/baselines.md``) is rendered in memory and
+PNG, the README block, and the distilled cells' tables in ``docs/baselines.md``) is rendered in memory and
 written together: each to a temporary file first, renamed over the targets only once all are written, so a failure
 (bad input, a full disk) changes none of them. Exit codes: 0 done, 2 bad input (one line, nothing written), 74 an
 output that cannot be written (one line naming it; nothing changed), 130 / 143 interrupted (nothing changed).
@@ -76,8 +76,10 @@ def _with_block(name: str, source: str, table: str, path: Path) -> bytes | None:
     """``path``'s text with the block ``name`` replaced by ``table`` (as :func:`write_block`), or None if it has
     no such block."""
     text = path.read_text(encoding="utf-8")
-    new = _replace_block(text, name, source, table)
-    return None if new == text and markers(name, source)[0] not in text else new.encode("utf-8")
+    start, end = markers(name, source)
+    if start not in text or end not in text:
+        return None
+    return _replace_block(text, name, source, table).encode("utf-8")
 
 
 def finetune_probes(folder: Path) -> dict[str, list[dict]]:

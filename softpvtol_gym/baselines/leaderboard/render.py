@@ -309,23 +309,22 @@ def render_markdown(data: dict, chart: str = "../results/leaderboard.png") -> st
 
 
 def training_budgets(data: dict) -> list[dict]:
-    """Per learned cell (action mode, training task, training tier): the training steps of its jobs (from
+    """Per learned cell (its short name, training task, training tier): the training steps of its jobs (from
     the job records) and the wall time of each seed's training (``train_seconds``; None where a job
     was evaluated from an existing model and its time is not on record)."""
     cells: dict[tuple, dict] = {}
     for c in data["cells"]:
-        if not is_learned(c["policy"]):
-            continue
-        key = (learned_name(c), c.get("train_task", c["task"]), c["train_tier"])
-        cells.setdefault(key, {})[c["seed"]] = (c.get("timesteps"), c["train_seconds"], c)
+        if is_learned(c["policy"]):
+            cells.setdefault((learned_name(c), c.get("train_task", c["task"]), c["train_tier"]), {})[c["seed"]] = c
     out = []
     for (name, task, tier), seeds in sorted(cells.items()):
-        steps = sorted({s for s, _, _ in seeds.values() if s is not None})
-        seconds = [t for _, t, _ in seeds.values() if t is not None]
-        first = next(iter(seeds.values()))[2]
+        first = next(iter(seeds.values()))
         out.append({"name": name, "policy": first["policy"], "action_mode": first["action_mode"], "train_task": task,
                     "train_tier": tier, "recipe": first.get("recipe"), "teacher": first.get("teacher"),
-                    "seeds": len(seeds), "timesteps": steps, "train_seconds": sorted(seconds)})
+                    "seeds": len(seeds),
+                    "timesteps": sorted({c["timesteps"] for c in seeds.values() if c.get("timesteps") is not None}),
+                    "train_seconds": sorted(c["train_seconds"] for c in seeds.values()
+                                            if c["train_seconds"] is not None)})
     return out
 
 

@@ -134,12 +134,7 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
         if not is_int(c["timesteps"]) or not 1 <= c["timesteps"] <= MAX_TIMESTEPS:
             raise ConfigError(f"{source}: trained[{i}].timesteps must be an integer in [1, {MAX_TIMESTEPS:,}], "
                               f"got {c['timesteps']!r}")
-        also = _list(c.get("also_evaluated_on", []), f"{source}: trained[{i}].also_evaluated_on")
-        for t in also:
-            _choice(t, tasks, f"{source}: each of trained[{i}].also_evaluated_on (a task of the spec's tasks)")
-        if c["task"] in also or len(set(also)) != len(also):
-            raise ConfigError(f"{source}: trained[{i}].also_evaluated_on must list other tasks than the cell's own "
-                              f"({c['task']!r}), each once; got {also}")
+        _also_evaluated_on(c, tasks, source, f"trained[{i}]")
         hp = _list(c.get("hp", []), f"{source}: trained[{i}].hp")
         if not all(isinstance(h, str) for h in hp):
             raise ConfigError(f"{source}: trained[{i}].hp must be a list of 'key=value' strings, got {hp!r}")
@@ -165,7 +160,7 @@ def validate_spec(spec, source: str = "leaderboard spec") -> dict:
             raise ConfigError(f"{source}: trained[{i}] repeats the cell {key}")
         cells.add(key)
     for i, d in enumerate(_list(spec.get("distilled", []), f"{source}: distilled")):
-        key = _distilled_entry(d, f"{source}: distilled[{i}]", tasks)
+        key = _distilled_entry(d, source, f"distilled[{i}]", tasks)
         if key in cells:
             raise ConfigError(f"{source}: distilled[{i}] repeats the cell {key}; give one a variant")
         cells.add(key)
@@ -212,19 +207,27 @@ def is_learned(policy: str) -> bool:
     return policy in LEARNED_POLICIES
 
 
-def _distilled_entry(d, where: str, tasks: list) -> tuple:
-    """Check one ``distilled`` entry (ConfigError naming the key); returns the cell's key."""
+def _also_evaluated_on(cell: dict, tasks: list, source: str, name: str) -> None:
+    """Check a learned cell's ``also_evaluated_on`` (``name``: the cell, e.g. ``trained[2]``): tasks of the spec's
+    ``tasks``, other than the cell's own, each once."""
+    also = _list(cell.get("also_evaluated_on", []), f"{source}: {name}.also_evaluated_on")
+    for t in also:
+        _choice(t, tasks, f"{source}: each of {name}.also_evaluated_on (a task of the spec's tasks)")
+    if cell["task"] in also or len(set(also)) != len(also):
+        raise ConfigError(f"{source}: {name}.also_evaluated_on must list other tasks than the cell's own "
+                          f"({cell['task']!r}), each once; got {also}")
+
+
+def _distilled_entry(d, source: str, name: str, tasks: list) -> tuple:
+    """Check one ``distilled`` entry (``name``: e.g. ``distilled[0]``; ConfigError naming the key); returns the
+    cell's key."""
+    where = f"{source}: {name}"
     _mapping(d, DISTILLED_KEYS, where, required=DISTILLED_KEYS[:3])
     _choice(d["task"], tasks, f"{where}.task (a task of the spec's tasks)")
     _choice(d["tier"], registered_tiers(), f"{where}.tier")
     if d.get("variant") is not None:
         check_slug(d["variant"], f"{where}.variant")
-    also = _list(d.get("also_evaluated_on", []), f"{where}.also_evaluated_on")
-    for t in also:
-        _choice(t, tasks, f"each of {where}.also_evaluated_on (a task of the spec's tasks)")
-    if d["task"] in also or len(set(also)) != len(also):
-        raise ConfigError(f"{where}.also_evaluated_on must list other tasks than the cell's own ({d['task']!r}), "
-                          f"each once; got {also}")
+    _also_evaluated_on(d, tasks, source, name)
     options = d.get("options", {})
     if not isinstance(options, dict):
         raise ConfigError(f"{where}.options must be a mapping of distillation settings, got {options!r}")
