@@ -103,6 +103,42 @@ def test_precision_weights_favour_small_errors_and_average_one():
     assert sample_weights(obs, None) is None
 
 
+def test_balanced_actions_weigh_each_channel_by_its_inverse_spread():
+    import torch
+
+    from softpvtol_gym.baselines.training.distill import action_channel_weights
+    from softpvtol_gym.baselines.training.imitation import action_gap
+
+    rng = np.random.default_rng(0)
+    actions = rng.normal(size=(1000, 4)) * np.array([0.1, 0.1, 0.01, 0.01])
+    w = action_channel_weights(actions)
+    assert w.mean() == pytest.approx(1.0)
+    assert w[2] / w[0] == pytest.approx(np.var(actions[:, 0]) / np.var(actions[:, 2]))
+    assert np.isfinite(action_channel_weights(np.zeros((5, 4)))).all()  # a channel that never varies
+
+    class Fixed:  # a policy whose mean action is 0: the gap is the labels' weighted mean square
+        def get_distribution(self, obs):
+            return type("D", (), {"distribution": type("N", (), {"mean": torch.zeros(len(obs), 4)})()})()
+
+    labels = torch.as_tensor(actions, dtype=torch.float32)
+    obs = torch.zeros(len(labels), 3)
+    plain = float(action_gap(Fixed(), obs, labels))
+    balanced = float(action_gap(Fixed(), obs, labels, channel_weights=torch.as_tensor(w, dtype=torch.float32)))
+    assert plain == pytest.approx(float((labels ** 2).mean()), rel=1e-5)
+    assert balanced == pytest.approx(float((labels ** 2 * torch.as_tensor(w, dtype=torch.float32)).mean()), rel=1e-5)
+    # each channel's error counts relative to its spread: the small channels weigh as much as the large ones
+    per_channel = (labels ** 2 * torch.as_tensor(w, dtype=torch.float32)).mean(dim=0).numpy()
+    assert per_channel.max() / per_channel.min() < 1.2
+
+
+def test_a_balanced_distillation_records_the_setting_and_fits_another_student(distilled, tmp_path):
+    _, plain = distilled
+    balanced = distill(DistillConfig(**{**TINY, "balance_actions": True}), tmp_path / "balanced")
+    assert balanced["record"]["config"]["balance_actions"] is True
+    assert plain["record"]["config"]["balance_actions"] is False
+    assert balanced["record"]["rounds"][0]["losses"] != plain["record"]["rounds"][0]["losses"]
+
+
 def test_dagger_rounds_are_flown_by_the_student_and_labelled_by_the_teacher(tmp_path):
     teacher = LinearTeacher()
     config = DistillConfig(**{**TINY, "teacher": "integral"})
@@ -136,7 +172,7 @@ def test_a_run_made_before_the_newer_settings_resumes_with_the_values_it_had(tmp
     from softpvtol_gym.baselines.training.distill import _check_same_config
 
     earlier = DistillConfig(**{**TINY, "teacher_integral": False}).to_dict()
-    del earlier["teacher_integral"], earlier["wide_fraction"]
+    del earlier["teacher_integral"], earlier["wide_fraction"], earlier["balance_actions"]
     (tmp_path / "distill_config.json").write_text(json.dumps(earlier))
     _check_same_config(tmp_path, DistillConfig(**{**TINY, "teacher_integral": False}))
     with pytest.raises(ConfigError, match="other settings .teacher_integral."):
@@ -194,6 +230,7 @@ def test_resume_loads_the_cached_datasets_and_gives_the_same_student(distilled, 
     ({"wide_fraction": 1.5}, "wide_fraction must be a share in"),
     ({"wide_fraction": True}, "wide_fraction must be a share in"),
     ({"teacher_integral": 1}, "teacher_integral must be a bool"),
+    ({"balance_actions": "yes"}, "balance_actions must be a bool"),
 ])
 def test_bad_settings_are_refused_with_what_was_given(changes, words):
     with pytest.raises(ConfigError, match=words):
@@ -205,8 +242,9 @@ def test_the_command_distils_and_evaluate_loads_the_student(tmp_path, capsys):
 
     out = tmp_path / "cli"
     args = ["distill", "--teacher", "integral", "--task", "hover", "--rounds", "1", "--episodes", "1", "--epochs", "1",
-            "--net-arch", "8", "--eval-episodes", "0", "--out", str(out), "--no-progress-bar"]
+            "--net-arch", "8", "--eval-episodes", "0", "--out", str(out), "--no-progress-bar", "--balance-actions"]
     assert main(args) == 0
+    assert json.loads((out / DISTILL_FILE).read_text())["config"]["balance_actions"] is True
     assert "softpvtol evaluate --policy" in capsys.readouterr().out
     for argv, words in ((args, "already holds a distilled run"),  # the run exists: nothing overwritten
                         (["distill", "--net-arch", "64,x", "--out", str(tmp_path / "bad")],

@@ -62,6 +62,9 @@ def build_parser(prog: str = "distill.py") -> Parser:
     ap.add_argument("--teacher-integral", action=argparse.BooleanOptionalAction, default=DEFAULTS.teacher_integral,
                     help="observe the error integrals as a teacher with integral action integrates them (its error "
                          "clip and limit; default on; --no-teacher-integral: the env's raw integrals)")
+    ap.add_argument("--balance-actions", action=argparse.BooleanOptionalAction, default=DEFAULTS.balance_actions,
+                    help="divide each action channel's squared error by its variance over the dataset, so that the "
+                         "arms' bending inputs weigh as much as the thrusts (default off)")
     ap.add_argument("--out", type=Path, default=None,
                     help="run directory (default runs/distilled_<teacher>_<task>_s<seed>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out (same options)")
@@ -88,7 +91,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
                                net_arch=_net_arch(args.net_arch, ap), rounds=args.rounds, episodes=args.episodes,
                                epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
                                eval_episodes=args.eval_episodes, precision_scale=args.precision_scale,
-                               wide_fraction=args.wide_fraction, teacher_integral=args.teacher_integral)
+                               wide_fraction=args.wide_fraction, teacher_integral=args.teacher_integral,
+                               balance_actions=args.balance_actions)
     except ConfigError as exc:
         ap.error(str(exc))
     out = args.out or Path("runs") / f"distilled_{config.teacher}_{config.task}_s{config.seed}"

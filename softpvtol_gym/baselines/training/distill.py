@@ -73,7 +73,7 @@ SEED_STRIDE = 10_000
 MAX_EPISODES_PER_ROUND = 1_000
 MAX_ROUNDS = 50
 #: settings added after runs were made, with the value those runs had (a resumed run keeps it)
-EARLIER_DEFAULTS = {"wide_fraction": 0.0, "teacher_integral": False}
+EARLIER_DEFAULTS = {"wide_fraction": 0.0, "teacher_integral": False, "balance_actions": False}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,6 +102,10 @@ class DistillConfig:
         teacher_integral: the student observes the error integrals as a teacher with integral action integrates
             them (:func:`~softpvtol_gym.baselines.training.teachers.student_env_options`); False: as the env
             does by default (raw errors). No effect for a teacher without integral action.
+        balance_actions: the fit divides each action channel's squared error by that channel's variance over
+            the dataset, so that every actuator weighs the same; False: the squared errors of the actions as
+            they are, where the thrusts' spread (about 0.1 of the action range) outweighs the arms' bending
+            inputs' (about 0.01) a hundred times.
     """
 
     teacher: str = "integral"
@@ -118,6 +122,7 @@ class DistillConfig:
     precision_scale: float | None = None
     wide_fraction: float = 0.0
     teacher_integral: bool = True
+    balance_actions: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tiers", tuple(self.tiers))
@@ -141,8 +146,9 @@ class DistillConfig:
         p = self.precision_scale
         if p is not None and (isinstance(p, bool) or not isinstance(p, (int, float)) or not 0 < p <= 100):
             raise ConfigError(f"precision_scale must be None or a length in (0, 100] m, got {p!r}")
-        if not isinstance(self.teacher_integral, bool):
-            raise ConfigError(f"teacher_integral must be a bool, got {self.teacher_integral!r}")
+        for name in ("teacher_integral", "balance_actions"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"{name} must be a bool, got {getattr(self, name)!r}")
         w = self.wide_fraction
         if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0.0 <= w <= 1.0:
             raise ConfigError(f"wide_fraction must be a share in [0, 1], got {w!r}")
@@ -232,11 +238,20 @@ def sample_weights(observations: np.ndarray, precision_scale: float | None) -> n
     return w / w.mean()
 
 
+def action_channel_weights(actions: np.ndarray) -> np.ndarray:
+    """The weights (4,) of :class:`DistillConfig`'s ``balance_actions``: 1 / the variance of each action channel
+    over ``actions`` (n, 4) (a channel that never varies: 1 / 1e-12), normalised to a mean of 1."""
+    w = 1.0 / np.maximum(np.asarray(actions, dtype=np.float64).var(axis=0), 1e-12)
+    return w / w.mean()
+
+
 def fit(model, vecnorm, observations: np.ndarray, actions: np.ndarray, epochs: int, batch_size: int,
-        learning_rate: float, seed: int, weights: np.ndarray | None = None) -> list[float]:
+        learning_rate: float, seed: int, weights: np.ndarray | None = None,
+        channel_weights: np.ndarray | None = None) -> list[float]:
     """Fit the actor of ``model`` (an SB3 PPO model) to ``actions`` (n, 4) at ``observations`` (n, d):
     VecNormalize's statistics set to the data's, then Adam on the mean squared error of the Gaussian's mean
-    (each sample's weighted by ``weights`` (n,), default 1). Returns the mean loss of each epoch."""
+    (each sample's weighted by ``weights`` (n,), each action channel's by ``channel_weights`` (4,); default 1).
+    Returns the mean loss of each epoch."""
     import torch
 
     rms = vecnorm.obs_rms
@@ -246,6 +261,7 @@ def fit(model, vecnorm, observations: np.ndarray, actions: np.ndarray, epochs: i
     x_all = torch.as_tensor(vecnorm.normalize_obs(observations).astype(np.float32))
     y_all = torch.as_tensor(actions.astype(np.float32))
     w_all = None if weights is None else torch.as_tensor(weights.astype(np.float32))
+    c_all = None if channel_weights is None else torch.as_tensor(np.asarray(channel_weights, dtype=np.float32))
     policy = model.policy
     policy.set_training_mode(True)
     optimizer = torch.optim.Adam(actor_parameters(policy), lr=learning_rate)
@@ -260,7 +276,7 @@ def fit(model, vecnorm, observations: np.ndarray, actions: np.ndarray, epochs: i
         running = 0.0
         for b in range(steps_per_epoch):
             idx = order[b * batch_size:(b + 1) * batch_size]
-            loss = action_gap(policy, x_all[idx], y_all[idx], None if w_all is None else w_all[idx])
+            loss = action_gap(policy, x_all[idx], y_all[idx], None if w_all is None else w_all[idx], c_all)
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
@@ -324,7 +340,8 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
             obs, act = np.concatenate(data_obs), np.concatenate(data_act)
             run_config, vecnorm, model = _fresh_student(config, run_dir, len(obs))
             losses = fit(model, vecnorm, obs, act, config.epochs, config.batch_size, config.learning_rate,
-                         config.seed, weights=sample_weights(obs, config.precision_scale))
+                         config.seed, weights=sample_weights(obs, config.precision_scale),
+                         channel_weights=action_channel_weights(act) if config.balance_actions else None)
             student = LearnedPolicy(model, vecnorm, inference="lean")
             entry = {"round": k, "kind": "behaviour cloning" if k == 0 else "dagger",
                      "samples": int(sum(len(o) for o in data_obs[-len(config.tiers):])), "aggregate": int(len(obs)),

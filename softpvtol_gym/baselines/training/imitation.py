@@ -86,10 +86,13 @@ def actor_parameters(policy) -> list:
             if not name.startswith(("value_net", "mlp_extractor.value_net")) and name != "log_std"]
 
 
-def action_gap(policy, obs, actions, weights=None):
+def action_gap(policy, obs, actions, weights=None, channel_weights=None):
     """The (weighted) mean squared error between ``policy``'s mean actions at the normalised observations
-    ``obs`` (n, d) and ``actions`` (n, 4), torch tensors; ``weights`` (n,) or None."""
+    ``obs`` (n, d) and ``actions`` (n, 4), torch tensors; ``weights`` (n,) per sample and ``channel_weights`` (4,)
+    per action channel, each None for 1."""
     err = (policy.get_distribution(obs).distribution.mean - actions) ** 2
+    if channel_weights is not None:
+        err = err * channel_weights
     return (err if weights is None else weights[:, None] * err).mean()
 
 
