@@ -156,6 +156,30 @@ def test_dagger_rounds_are_flown_by_the_student_and_labelled_by_the_teacher(tmp_
     assert not np.allclose(flown[:n], by_teacher[:n])
 
 
+def test_a_teacher_share_mixes_the_teachers_actions_into_the_students_flight_and_labels_every_step():
+    teacher, student = LinearTeacher(), ZeroStudent()
+    alone, labels = collect(teacher, "hover", "nominal", 2, 7, student=student)
+    mixed, mixed_labels = collect(teacher, "hover", "nominal", 2, 7, student=student, teacher_share=0.5)
+    again, _ = collect(teacher, "hover", "nominal", 2, 7, student=student, teacher_share=0.5)
+    np.testing.assert_allclose(labels, teacher.label(alone).astype(np.float32), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(mixed_labels, teacher.label(mixed).astype(np.float32), rtol=0, atol=1e-6)
+    assert np.array_equal(mixed, again)  # the draws are seeded
+    # the student crashes within a second; with the teacher acting half the time it flies longer
+    assert len(mixed) > len(alone) and not np.array_equal(mixed[:len(alone)], alone)
+    # a share that draws the teacher at every step is the teacher's own flight
+    by_teacher, _ = collect(teacher, "hover", "nominal", 2, 7)
+    nearly_always, _ = collect(teacher, "hover", "nominal", 2, 7, student=student, teacher_share=1 - 1e-12)
+    assert np.array_equal(nearly_always, by_teacher)
+    assert DistillConfig(**{**TINY, "teacher_share": 0.5}).teacher_share == 0.5
+
+
+class ZeroStudent:
+    """A student that applies the middle of every actuator's range, whatever it observes."""
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        return np.zeros((len(obs), 4), np.float32), None
+
+
 def test_the_students_integrals_are_integrated_as_their_teacher_integrates_them():
     from softpvtol_gym.baselines.training.teachers import student_env_options
     from softpvtol_gym.control import LOOPS
@@ -172,7 +196,8 @@ def test_a_run_made_before_the_newer_settings_resumes_with_the_values_it_had(tmp
     from softpvtol_gym.baselines.training.distill import _check_same_config
 
     earlier = DistillConfig(**{**TINY, "teacher_integral": False}).to_dict()
-    del earlier["teacher_integral"], earlier["wide_fraction"], earlier["balance_actions"]
+    for later in ("teacher_integral", "wide_fraction", "balance_actions", "teacher_share"):
+        del earlier[later]
     (tmp_path / "distill_config.json").write_text(json.dumps(earlier))
     _check_same_config(tmp_path, DistillConfig(**{**TINY, "teacher_integral": False}))
     with pytest.raises(ConfigError, match="other settings .teacher_integral."):
@@ -231,6 +256,8 @@ def test_resume_loads_the_cached_datasets_and_gives_the_same_student(distilled, 
     ({"wide_fraction": True}, "wide_fraction must be a share in"),
     ({"teacher_integral": 1}, "teacher_integral must be a bool"),
     ({"balance_actions": "yes"}, "balance_actions must be a bool"),
+    ({"teacher_share": 1.0}, "teacher_share must be a probability in"),
+    ({"teacher_share": -0.1}, "teacher_share must be a probability in"),
 ])
 def test_bad_settings_are_refused_with_what_was_given(changes, words):
     with pytest.raises(ConfigError, match=words):

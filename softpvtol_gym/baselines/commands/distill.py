@@ -65,6 +65,9 @@ def build_parser(prog: str = "distill.py") -> Parser:
     ap.add_argument("--balance-actions", action=argparse.BooleanOptionalAction, default=DEFAULTS.balance_actions,
                     help="divide each action channel's squared error by its variance over the dataset, so that the "
                          "arms' bending inputs weigh as much as the thrusts (default off)")
+    ap.add_argument("--teacher-share", type=float_arg(0.0, 1.0), default=DEFAULTS.teacher_share,
+                    metavar="P", help="DAgger round k applies the teacher's action at a step with probability P**k "
+                                      "(default 0: the student flies alone)")
     ap.add_argument("--out", type=Path, default=None,
                     help="run directory (default runs/distilled_<teacher>_<task>_s<seed>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out (same options)")
@@ -92,7 +95,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
                                epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
                                eval_episodes=args.eval_episodes, precision_scale=args.precision_scale,
                                wide_fraction=args.wide_fraction, teacher_integral=args.teacher_integral,
-                               balance_actions=args.balance_actions)
+                               balance_actions=args.balance_actions, teacher_share=args.teacher_share)
     except ConfigError as exc:
         ap.error(str(exc))
     out = args.out or Path("runs") / f"distilled_{config.teacher}_{config.task}_s{config.seed}"

@@ -73,7 +73,7 @@ SEED_STRIDE = 10_000
 MAX_EPISODES_PER_ROUND = 1_000
 MAX_ROUNDS = 50
 #: settings added after runs were made, with the value those runs had (a resumed run keeps it)
-EARLIER_DEFAULTS = {"wide_fraction": 0.0, "teacher_integral": False, "balance_actions": False}
+EARLIER_DEFAULTS = {"wide_fraction": 0.0, "teacher_integral": False, "balance_actions": False, "teacher_share": 0.0}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,6 +106,10 @@ class DistillConfig:
             the dataset, so that every actuator weighs the same; False: the squared errors of the actions as
             they are, where the thrusts' spread (about 0.1 of the action range) outweighs the arms' bending
             inputs' (about 0.01) a hundred times.
+        teacher_share: p in [0, 1): in DAgger round k (k >= 1) each step of each episode applies the teacher's
+            action with probability p ** k and the student's otherwise (the DAgger paper's beta_k = p ** k), so that
+            the early students, which may crash within a second, still fly where the teacher goes; the teacher
+            labels every step either way. 0: the student flies alone in every DAgger round.
     """
 
     teacher: str = "integral"
@@ -123,6 +127,7 @@ class DistillConfig:
     wide_fraction: float = 0.0
     teacher_integral: bool = True
     balance_actions: bool = False
+    teacher_share: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tiers", tuple(self.tiers))
@@ -152,6 +157,9 @@ class DistillConfig:
         w = self.wide_fraction
         if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0.0 <= w <= 1.0:
             raise ConfigError(f"wide_fraction must be a share in [0, 1], got {w!r}")
+        p = self.teacher_share
+        if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 <= p < 1.0:
+            raise ConfigError(f"teacher_share must be a probability in [0, 1), got {p!r}")
         last = self.seed * SEED_STRIDE + self.collections * self.episodes if _is_int(self.seed) else -1
         if not _is_int(self.seed) or self.seed < 0 or last > TRAIN_SEED_LIMIT or \
                 self.collections * self.episodes > SEED_STRIDE:
@@ -331,7 +339,8 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
                 path = _dataset_path(run_dir, k, tier)
                 cached = _load_dataset(path, obs_dim)
                 if cached is None:
-                    cached = _collect_round(teacher, config, tier, config.collection_seed(k, j), student, bar)
+                    cached = _collect_round(teacher, config, tier, config.collection_seed(k, j), student, bar,
+                                            teacher_share=config.teacher_share ** k if k else 0.0)
                     _save_dataset(path, *cached)
                 elif bar is not None:
                     bar(len(cached[0]))
@@ -361,15 +370,18 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
     return {"policy": student, "run_config": run_config, "record": record}
 
 
-def _collect_round(teacher, config: DistillConfig, tier: str, seed: int, student, bar) -> tuple:
+def _collect_round(teacher, config: DistillConfig, tier: str, seed: int, student, bar,
+                   teacher_share: float = 0.0) -> tuple:
     """One round's dataset on one tier: ``config.episodes`` episodes from seed ``seed`` on, the last
-    ``config.wide_episodes()`` of them started wide."""
+    ``config.wide_episodes()`` of them started wide; with a student, the teacher acts at a step with probability
+    ``teacher_share``."""
     wide = config.wide_episodes()
     parts = []
     for count, first, start in ((config.episodes - wide, seed, "task"), (wide, seed + config.episodes - wide, "wide")):
         if count:
             parts.append(collect(teacher, config.task, tier, count, first, student=student, progress=bar,
-                                 env_options={**config.env_options, "start_distribution": start}))
+                                 env_options={**config.env_options, "start_distribution": start},
+                                 teacher_share=teacher_share))
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 

@@ -47,18 +47,24 @@ def teacher_policy(name: str, task: str, env_options: dict | None = None):
 
 
 def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=None,
-            env_options: dict | None = None, progress=None) -> tuple[np.ndarray, np.ndarray]:
+            env_options: dict | None = None, progress=None,
+            teacher_share: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(observations (n, d), teacher actions (n, 4)) of ``episodes`` seeded episodes (seeds seed + i) on the
     actuators mode: flown by the teacher (``student=None``) or by ``student`` with the teacher labelling
-    every observation the student visits. Each episode's steps until it ends (time limit or crash)."""
+    every observation the student visits; with ``teacher_share`` p > 0 the teacher's action is applied instead of
+    the student's at each step of each episode with probability p (drawn from a generator seeded with ``seed``).
+    Each episode's steps until it ends (time limit or crash)."""
     env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode="actuators", task=task, tier=tier,
                              **(STUDENT_ENV_OPTIONS if env_options is None else env_options))
     obs, _ = env.reset(seed=seed)
     done, start = np.zeros(episodes, bool), np.ones(episodes, bool)
+    draws = np.random.default_rng(seed) if student is not None and teacher_share > 0 else None
     observations, labels = [], []
     while not done.all():
         label, _ = teacher.predict(obs, episode_start=start, deterministic=True)
         action = label if student is None else student.predict(obs, episode_start=start, deterministic=True)[0]
+        if draws is not None:
+            action = np.where((draws.random(episodes) < teacher_share)[:, None], label, action)
         live = ~done
         observations.append(np.array(obs[live], dtype=np.float32))
         labels.append(np.array(label[live], dtype=np.float32))
