@@ -9,7 +9,14 @@ import numpy as np
 from .._validation import short_repr
 from ..control.mpc import ND, NU, NX, MPCOptions, TrackingOCP, hover_input, import_casadi
 from ..envs.config import EnvConfig
-from ._common import _episode_start_mask, actuator_action, env_config, policy_observations, state_from_observation
+from ._common import (
+    _episode_start_mask,
+    action_actuators,
+    actuator_action,
+    env_config,
+    policy_observations,
+    state_from_observation,
+)
 
 #: the units in which the disturbance estimate's update is the least change that explains the velocity residual:
 #: 1 N or N m for the generalized forces on (x, z, theta, q_l, q_r), 0.3 for each arm's thrust-bending share (a
@@ -228,6 +235,17 @@ class MPCPolicy:
         self._last_state[i] = x0
         self.solve_times.append(time.perf_counter() - t0)
         return u
+
+    def observe_applied(self, action) -> None:
+        """Tell the policy that the env's actions ``action`` (N, 4), not its own of the last :meth:`predict`, were
+        applied (another policy flew, as when the MPC labels a student's steps in DAgger): the input applied last,
+        from which the disturbance estimate predicts the next state and the input-rate cost counts, becomes
+        theirs. Without this call the MPC assumes its own actions were applied."""
+        a = np.asarray(action, dtype=np.float64)
+        if self._n is None or a.shape != (self._n, NU) or not np.isfinite(a).all():
+            raise ValueError(f"observe_applied takes the finite actions ({self._n}, {NU}) of the batch of the last "
+                             f"predict, got {short_repr(action)}")
+        self._applied[:] = action_actuators(a, self.config.thrust_max, self.config.arm_torque_max)
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         """(action, state) for observations (18,) or (N, 18) of the env (21 with its ``observe_error_integral``:

@@ -173,6 +173,26 @@ def test_a_teacher_share_mixes_the_teachers_actions_into_the_students_flight_and
     assert DistillConfig(**{**TINY, "teacher_share": 0.5}).teacher_share == 0.5
 
 
+def test_a_teacher_with_memory_of_its_inputs_is_told_the_actions_the_student_applied():
+    class TellingTeacher(LinearTeacher):
+        def __init__(self):
+            super().__init__()
+            self.applied = []
+
+        def observe_applied(self, action):
+            self.applied.append(np.array(action))
+
+    teacher, student = TellingTeacher(), ZeroStudent()
+    collect(teacher, "hover", "nominal", 2, 7, student=student, teacher_share=0.5)
+    told = np.concatenate(teacher.applied)
+    labels_used = (told != 0).any(axis=1)  # the steps where the teacher's own action was drawn
+    assert len(teacher.applied) == teacher.calls and 0 < labels_used.mean() < 1
+    assert np.array_equal(told[~labels_used], np.zeros_like(told[~labels_used]))
+    teacher_alone = TellingTeacher()
+    collect(teacher_alone, "hover", "nominal", 2, 7)
+    assert teacher_alone.applied == []  # flying its own actions, the teacher needs no telling
+
+
 class ZeroStudent:
     """A student that applies the middle of every actuator's range, whatever it observes."""
 

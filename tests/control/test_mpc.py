@@ -316,6 +316,34 @@ def test_the_disturbance_estimate_removes_a_constant_force_offset():
     np.testing.assert_allclose(pol.disturbance[0], force, atol=0.05)
 
 
+def test_told_the_inputs_another_policy_applied_the_estimate_does_not_blame_a_disturbance():
+    """On the MPC's own model with no force, a second policy applies the MPC's action with 5 % more thrust (as a
+    student flies while the MPC labels in DAgger): told the applied actions, the estimate stays near 0 (the model
+    predicts each step); not told, it explains the extra thrust as a force."""
+    from softpvtol_gym.policies._common import action_actuators
+
+    cfg = EnvConfig(task="hover")
+    estimates = {}
+    for told in (False, True):
+        pol = MPCPolicy(cfg, horizon=10, step=0.1)
+        x = np.zeros(10)
+        for _ in range(40):
+            obs = np.zeros(18)
+            obs[0:3], obs[3], obs[4], obs[5:7], obs[7:12] = x[0:3], np.sin(x[2]), np.cos(x[2]), x[3:5], x[5:10]
+            action, _ = pol.predict(obs)
+            applied = action.astype(np.float64) + np.array([0.05, 0.05, 0.0, 0.0])
+            if told:
+                pol.observe_applied(applied[None])
+            x = pol.ocp.predict_step(x, action_actuators(applied, cfg.thrust_max, cfg.arm_torque_max),
+                                     np.zeros(7))[0]
+        estimates[told] = np.abs(pol.disturbance[0, :5]).max()
+    assert estimates[True] < 1e-6 < 0.5 < estimates[False]
+    with pytest.raises(ValueError, match=r"observe_applied takes the finite actions \(1, 4\)"):
+        pol.observe_applied(np.zeros((2, 4)))
+    with pytest.raises(ValueError, match="observe_applied takes the finite actions"):
+        pol.observe_applied(np.full((1, 4), np.nan))
+
+
 def test_the_estimate_learns_that_the_thrusts_bend_the_arms():
     """A plant whose thrusts bend their arms (the MPC's model with the thrust-bending shares at 1: the exact
     input map's arm rows, as model_gap's consistent plant): the estimated shares rise towards 1 and stay in

@@ -53,7 +53,8 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
     actuators mode: flown by the teacher (``student=None``) or by ``student`` with the teacher labelling
     every observation the student visits; with ``teacher_share`` p > 0 the teacher's action is applied instead of
     the student's at each step of each episode with probability p (drawn from a generator seeded with ``seed``).
-    Each episode's steps until it ends (time limit or crash)."""
+    A teacher with an ``observe_applied`` method (the MPC) is told the actions applied. Each episode's steps until
+    it ends (time limit or crash)."""
     env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode="actuators", task=task, tier=tier,
                              **(STUDENT_ENV_OPTIONS if env_options is None else env_options))
     obs, _ = env.reset(seed=seed)
@@ -65,6 +66,8 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
         action = label if student is None else student.predict(obs, episode_start=start, deterministic=True)[0]
         if draws is not None:
             action = np.where((draws.random(episodes) < teacher_share)[:, None], label, action)
+        if student is not None and hasattr(teacher, "observe_applied"):  # a teacher with memory of its inputs
+            teacher.observe_applied(action)
         live = ~done
         observations.append(np.array(obs[live], dtype=np.float32))
         labels.append(np.array(label[live], dtype=np.float32))
