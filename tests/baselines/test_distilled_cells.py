@@ -176,20 +176,22 @@ def test_the_docs_rounds_table_is_generated_from_the_committed_students():
 
     records = distilled_records(RESULTS / "leaderboard_runs")
     assert {name: len(seeds) for name, seeds in records.items()} == {
-        "distilled integral": 5, "distilled integral small": 5, "distilled integral small-matched": 5}
+        "distilled integral": 5, "distilled integral small": 5, "distilled integral small-matched": 5,
+        "distilled mpc small": 5}
     assert read_block(*ROUNDS_BLOCK, ROOT / "docs" / "baselines.md") == rounds_table(records).strip()
 
 
-def test_the_docs_ablation_is_generated_from_the_committed_leaderboard_students_and_probes():
-    from softpvtol_gym.baselines.commands.leaderboard import distilled_records, finetune_probes
+def test_the_docs_ablation_is_generated_from_the_committed_leaderboard_students_and_reward_runs():
+    from softpvtol_gym.baselines.commands.leaderboard import distilled_records, finetune_reward_runs
     from softpvtol_gym.baselines.leaderboard.distilled import ABLATION_BLOCK, ablation_table
     from softpvtol_gym.baselines.util.blocks import read_block
     from tests.conftest import RESULTS, ROOT
 
     aggregates = json.loads((RESULTS / "leaderboard.json").read_text())["aggregates"]
-    probes = finetune_probes(RESULTS / "distill_runs" / "finetune_probes")
-    assert set(probes) == {"reward", "noreward"}
-    table = ablation_table(aggregates, distilled_records(RESULTS / "leaderboard_runs"), probes)
+    reward_runs = finetune_reward_runs(RESULTS / "distill_runs" / "finetune_reward")
+    assert set(reward_runs) == {"reward", "noreward"}
+    table = ablation_table(aggregates, distilled_records(RESULTS / "leaderboard_runs"), reward_runs)
     assert read_block(*ABLATION_BLOCK, ROOT / "docs" / "baselines.md") == table.strip()
-    for entry in ("distilled integral small (trained on nominal)", "PPO student-finetune (trained on nominal)"):
+    for entry in ("distilled integral small (trained on nominal)", "PPO student-finetune (trained on nominal)",
+                  "distilled mpc small (trained on nominal)", "PPO student-finetune (trained on hard)"):
         assert f"| {entry} |" in table  # the leaderboard holds the cells the ablation reads

@@ -82,8 +82,9 @@ def _with_block(name: str, source: str, table: str, path: Path) -> bytes | None:
     return _replace_block(text, name, source, table).encode("utf-8")
 
 
-def finetune_probes(folder: Path) -> dict[str, list[dict]]:
-    """The periodic evaluations of the fine-tuning probes under ``folder`` (``<name>/evaluations.json``)."""
+def finetune_reward_runs(folder: Path) -> dict[str, list[dict]]:
+    """The periodic evaluations of the fine-tuning runs with and without the precision reward under ``folder``
+    (``<name>/evaluations.json``)."""
     out = {}
     for path in sorted(Path(folder).glob("*/evaluations.json")):
         out[path.parent.name] = loads_json(path.read_text(), str(path))
@@ -142,13 +143,13 @@ def _main(argv, layout: Layout, prog: str) -> int:
         readme = _with_block(*SUMMARY_BLOCK, summary_markdown(data, link), layout.readme)
         if readme is not None:
             outputs[layout.readme] = readme
-    students = {} if args.from_json else distilled_records(args.root, args.spec)
+    students = distilled_records(args.root, args.spec) if args.root.is_dir() else {}
     guide = layout.doc("baselines.md")
     if students and guide is not None and guide.is_file() and args.markdown.resolve() == page.resolve():
         text = guide.read_text(encoding="utf-8")  # docs/baselines.md: the students' rounds and the ablation
-        probes = finetune_probes(layout.results / "distill_runs" / "finetune_probes")
+        reward_runs = finetune_reward_runs(layout.results / "distill_runs" / "finetune_reward")
         for block, table in ((ROUNDS_BLOCK, rounds_table(students)),
-                             (ABLATION_BLOCK, ablation_table(data["aggregates"], students, probes))):
+                             (ABLATION_BLOCK, ablation_table(data["aggregates"], students, reward_runs))):
             text = _replace_block(text, *block, table)
         outputs[guide] = text.encode("utf-8")
     atomic_write_all(outputs)

@@ -115,6 +115,10 @@ ABLATION_ENTRIES = (
      "distilled integral small-matched (trained on nominal)"),
     ("+ PPO fine-tuning of the 64 x 64 students (2M steps: precision reward, imitation term)",
      "PPO student-finetune (trained on nominal)"),
+    ("+ PPO fine-tuning of the small-matched students on the hard tier (2M steps, the same recipe)",
+     "PPO student-finetune (trained on hard)"),
+    ("students of the MPC, 64 x 64 (5 rounds of 32 episodes, the teacher acting at a step with probability 0.5^k)",
+     "distilled mpc small (trained on nominal)"),
     ("the teacher", "passivity-integral"),
     ("the MPC", "mpc"),
 )
@@ -122,11 +126,11 @@ _WINDOW_KEYS = ("rms_position_error", "rms_position_error_transient", "rms_posit
                 "max_position_error_final_5s")
 
 
-def ablation_table(aggregates: list[dict], records: dict[str, list[dict]], probes: dict[str, list[dict]]) -> str:
+def ablation_table(aggregates: list[dict], records: dict[str, list[dict]], runs: dict[str, list[dict]]) -> str:
     """The distillation ablation on track_random nominal: behaviour cloning alone (``records``: the students'
     ``distill.json``, round 0 on their evaluation episodes), the DAgger students, the fine-tuned students and the
     teacher (``aggregates``: the leaderboard's rows, IQM on its test episodes), and the fine-tuning with and
-    without the precision reward (``probes``: name -> a run's periodic evaluations, its last one)."""
+    without the precision reward (``runs``: name -> a run's periodic evaluations, its last one)."""
     def fmt(v) -> str:
         return "crashed" if v is None else f"{v:.2e}"
 
@@ -148,10 +152,10 @@ def ablation_table(aggregates: list[dict], records: dict[str, list[dict]], probe
                      f"{'' if single is None else f'{single:.1f}'} | {r['runs']} x {r['episodes']} (IQM) |")
     for what, name in (("fine-tuning without the precision reward (seed 0)", "noreward"),
                        ("the same with it (seed 0)", "reward")):
-        if name in probes:
-            last = probes[name][-1]
+        if name in runs:
+            last = runs[name][-1]
             values = " | ".join(fmt(last.get(f"mean_{k}")) for k in _WINDOW_KEYS)
-            lines.append(f"| {what} | finetune_probes/{name}, {last['step']:,} steps | {values} | "
+            lines.append(f"| {what} | finetune_reward/{name}, {last['step']:,} steps | {values} | "
                          f"{last['crash_rate']:.0%} | | {last['episodes']} (mean, its periodic evaluation) |")
     lines.append("| + history (a frame stack or a recurrent student) | not run | | | | | | | |")
     return "\n".join(lines)
