@@ -89,6 +89,25 @@ def test_smoke_training_saves_checkpoints_and_compares_with_passivity(tmp_path):
     assert "passivity" in r.stdout and "ppo" in r.stdout
 
 
+def test_the_passivity_episodes_run_before_training_so_nothing_compiles_between_it_and_the_table(tmp_path,
+                                                                                                    monkeypatch):
+    """softpvtol train evaluates the passivity controller before the first training step (its kernels compile
+    then) and the trained policy after the last; a second call on the finished run evaluates nothing."""
+    import softpvtol_gym.baselines.commands.train as command
+
+    calls = []
+    real_train, real_evaluate = command.train, command.evaluate
+    monkeypatch.setattr(command, "train", lambda *a, **k: calls.append("train") or real_train(*a, **k))
+    monkeypatch.setattr(command, "evaluate",
+                        lambda policy, *a, **k: calls.append(type(policy).__name__) or real_evaluate(policy, *a, **k))
+    out = tmp_path / "run"
+    assert train_main(["--timesteps", "256", *SHORT, "--out", str(out)]) == 0
+    assert calls == ["PassivityPolicy", "train", "LearnedPolicy"]
+    calls.clear()
+    assert train_main(["--timesteps", "256", *SHORT, "--out", str(out), "--resume"]) == 0
+    assert calls == ["train"]  # a finished run with its result: nothing evaluated again
+
+
 @pytest.mark.slow  # three train.py runs in subprocesses
 def test_killed_run_resumes_bit_for_bit(tmp_path):
     """SIGKILL a run after a checkpoint; --resume finishes it with the same weights (and optimizer state,

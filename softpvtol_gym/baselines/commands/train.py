@@ -320,24 +320,32 @@ def _main(argv, layout: Layout, prog: str) -> int:
 def _train_and_compare(args, config: RunConfig, out: Path) -> int:
     prepared = prepare(config, out, device=args.device)  # bad hyperparameters or device end here: nothing written yet
 
+    cell = (config.action_mode, config.task, config.tier)
+    episodes = max(config.eval_episodes, 1)
+    kw = config.eval_env_kwargs()
+
+    def passivity_episodes() -> dict:
+        probe = SoftPVTOLVectorEnv(num_envs=1, **config.env_kwargs())
+        return evaluate(PassivityPolicy.from_env(probe), *cell, episodes, EVAL_SEED_OFFSET + config.seed, env_kwargs=kw)
+
     with DirectoryLock(out, "run directory"):
+        had_result = (out / RESULT_FILE).is_file()
+        # the passivity controller's episodes before training: what they compile is compiled before the progress
+        # bar starts, so the table follows the last training step at once
+        passivity = None if had_result else passivity_episodes()
         run = train(config, out, resume=args.resume, progress_bar=not args.no_progress_bar, prepared=prepared,
                     device=args.device)
         if run["status"] == "finished":
-            if (out / RESULT_FILE).is_file():
+            if had_result:
                 print(f"{out} is a finished run ({run['num_timesteps']:,} steps, --timesteps "
                       f"{config.timesteps:,}): nothing to train. Its result: {out / RESULT_FILE}")
                 return 0
             print(f"{out} is a finished run ({run['num_timesteps']:,} steps); its {RESULT_FILE} is missing: "
                   f"evaluating it again")
-        cell = (config.action_mode, config.task, config.tier)
-        episodes = max(config.eval_episodes, 1)
-        kw = config.eval_env_kwargs()
         learned = evaluate(LearnedPolicy(run["model"], run["vecnorm"]), *cell, episodes, EVAL_SEED_OFFSET + config.seed,
                            env_kwargs=kw)
-        probe = SoftPVTOLVectorEnv(num_envs=1, **config.env_kwargs())
-        passivity = evaluate(PassivityPolicy.from_env(probe), *cell, episodes, EVAL_SEED_OFFSET + config.seed,
-                             env_kwargs=kw)
+        if passivity is None:  # a run resumed past the result it had
+            passivity = passivity_episodes()
         report = {"config": config.to_dict(), "train_seconds": round(run["seconds"], 1),
                   "device": run["model"].device.type,
                   "eval_seed": EVAL_SEED_OFFSET + config.seed, config.algo: learned, "passivity": passivity}
