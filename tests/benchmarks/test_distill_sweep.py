@@ -50,3 +50,31 @@ def test_render_only_writes_the_table_from_the_json(tmp_path, capsys):
     assert bench.main(["--render-only", "--doc", str(doc)]) == 0
     assert read_block(bench.BLOCK, bench.SOURCE, doc) == bench.markdown_table(COMMITTED).strip()
     assert "wrote the table" in capsys.readouterr().out
+
+
+def test_only_reruns_the_named_settings_and_keeps_the_others_with_their_runs(tmp_path, monkeypatch):
+    class InProcess:  # a pool that runs the settings here, so that run_variant can be replaced
+        def __init__(self, workers):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def starmap(self, fn, args):
+            return [fn(*a) for a in args]
+
+    monkeypatch.setattr(bench.multiprocessing, "get_context", lambda method: type("C", (), {"Pool": InProcess}))
+    name = bench.FIRST_SWEEP[0]
+    monkeypatch.setattr(bench, "run_variant", lambda n, scratch: {**COMMITTED["variants"][n], "seconds": 1.0})
+    out, doc = tmp_path / "sweep.json", tmp_path / "page.md"
+    out.write_text(json.dumps(COMMITTED))
+    doc.write_text("# x\n")
+    assert bench.main(["--only", name, "--workers", "1", "--out", str(out), "--doc", str(doc)]) == 0
+    report = json.loads(out.read_text())
+    assert list(report["variants"]) == list(COMMITTED["variants"])
+    assert report["variants"][name]["seconds"] == 1.0 and report["variants"][name]["workers"] == 1
+    others = [n for n in report["variants"] if n != name]
+    assert all(report["variants"][n] == COMMITTED["variants"][n] for n in others)
