@@ -32,6 +32,7 @@ if str(ROOT) not in sys.path:
 
 from softpvtol_gym.baselines.util.atomic import atomic_write_text  # noqa: E402
 from softpvtol_gym.baselines.util.blocks import write_block  # noqa: E402
+from softpvtol_gym.baselines.util.environment import temporary_environment  # noqa: E402
 
 OUT = ROOT / "benchmarks" / "distill_sweep.json"
 DOC = ROOT / "docs" / "baselines.md"
@@ -143,10 +144,13 @@ def main(argv: list[str] | None = None) -> int:
         report = json.loads(args.out.read_text())
     else:
         names = args.only or list(VARIANTS)
-        os.environ.setdefault("NUMBA_NUM_THREADS", "1")
-        with tempfile.TemporaryDirectory() as scratch, \
-                multiprocessing.get_context("spawn").Pool(min(args.workers, len(names))) as pool:
-            results = pool.starmap(run_variant, [(n, scratch) for n in names])
+        # one numba thread per worker unless the user chose; set for the workers' start only
+        worker_env = {} if "NUMBA_NUM_THREADS" in os.environ else {"NUMBA_NUM_THREADS": "1"}
+        with tempfile.TemporaryDirectory() as scratch:
+            with temporary_environment(worker_env):
+                pool = multiprocessing.get_context("spawn").Pool(min(args.workers, len(names)))
+            with pool:
+                results = pool.starmap(run_variant, [(n, scratch) for n in names])
         run = {"commit": _commit(), "workers": min(args.workers, len(names)), "cpus": os.cpu_count()}
         fresh = {n: {**r, **run} for n, r in zip(names, results, strict=True)}
         # with --only, the other settings' results stay, each with the run that made it

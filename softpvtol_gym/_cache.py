@@ -70,8 +70,38 @@ def configure_numba_cache() -> Path:
         path = Path(tempfile.gettempdir()) / f"softpvtol-gym-{os.getuid() if hasattr(os, 'getuid') else 0}" / name
         path.mkdir(parents=True, exist_ok=True)
     config.CACHE_DIR = str(path)
+    _keep_cache_directory(path)
     announce_compiles(first_run=cache_is_empty(path))
     return path
+
+
+class CacheDirectoryKeeper(_numba_event.Listener):
+    """numba reloads its configuration from the ``NUMBA_*`` environment variables at every compile when one of
+    them changed (say a user sets ``NUMBA_NUM_THREADS`` after the import); the reload forgets the cache directory
+    set here, and a kernel module imported afterwards would cache into the source tree. After each compile this
+    puts the directory back if numba has none (a ``NUMBA_CACHE_DIR`` the user sets later is kept)."""
+
+    def __init__(self, path: Path):
+        self.path = str(path)
+
+    def on_start(self, ev) -> None:
+        pass
+
+    def on_end(self, ev) -> None:
+        from numba.core import config
+
+        if not config.CACHE_DIR:
+            config.CACHE_DIR = self.path
+
+
+_KEEPER: CacheDirectoryKeeper | None = None
+
+
+def _keep_cache_directory(path: Path) -> None:
+    global _KEEPER
+    if _KEEPER is None:
+        _KEEPER = CacheDirectoryKeeper(path)
+        _numba_event.register("numba:compile", _KEEPER)
 
 
 def cache_is_empty(path: Path) -> bool:

@@ -24,6 +24,21 @@ TINY = ["--n-envs", "4", "--hp", "n_steps=64", "--hp", "batch_size=64", "--hp", 
         "--checkpoint-freq", "256", "--eval-freq", "1024", "--no-progress-bar"]
 
 
+def _numba_environment() -> dict[str, str]:
+    return {k: v for k, v in os.environ.items() if k.startswith("NUMBA_")}
+
+
+@pytest.fixture(autouse=True)
+def numba_environment_is_left_as_found():
+    """No test leaves a NUMBA_* variable changed in the test process: numba would reload its configuration at the
+    next compile, drop the package's cache directory, and the later tests of the worker would see another
+    configuration (set child processes' variables around their start only, or use ``monkeypatch.setenv``)."""
+    before = _numba_environment()
+    yield
+    after = _numba_environment()
+    assert after == before, f"the test changed numba's environment variables: {before} -> {after}"
+
+
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory) -> Path:
     """A finished 512-step PPO run (residual / hover / nominal) with checkpoints at 256 and 512. Read-only:

@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import softpvtol_gym
 from softpvtol_gym import _cache
 
@@ -16,6 +18,23 @@ def test_cache_dir_is_named_after_the_source_and_is_used():
     assert config.CACHE_DIR == str(path)
     assert path.name == f"numba-{_cache.source_digest()}"
     assert not path.is_relative_to(_cache.PACKAGE_DIR)
+
+
+@pytest.mark.parametrize("later", ["", "user_cache"])
+def test_a_numba_variable_set_after_the_import_keeps_the_cache_directory(tmp_path, later):
+    """numba reloads its configuration at the next compile when a NUMBA_* variable changed; the package's cache
+    directory stays unless the user then sets NUMBA_CACHE_DIR, which is theirs to choose."""
+    user_dir = str(tmp_path / later) if later else ""
+    code = ("import os, numba, softpvtol_gym\n"
+            "from numba.core import config\n"
+            "os.environ['NUMBA_OPT'] = '2'\n"
+            f"if {user_dir!r}: os.environ['NUMBA_CACHE_DIR'] = {user_dir!r}\n"
+            "assert numba.njit(lambda x: x + 1)(1) == 2\n"
+            "print(config.CACHE_DIR); print(softpvtol_gym.NUMBA_CACHE_DIR)\n")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    numba_dir, package_dir = out.stdout.split()
+    assert numba_dir == (user_dir or package_dir)
 
 
 def test_source_digest_changes_with_any_source_file(tmp_path):

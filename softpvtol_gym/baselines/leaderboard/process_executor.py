@@ -13,12 +13,12 @@ nothing next to a training job).
 
 from __future__ import annotations
 
-import contextlib
 import multiprocessing as mp
-import os
 import signal
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
+
+from softpvtol_gym.baselines.util.environment import temporary_environment
 
 #: seconds a terminated worker gets to exit before it is killed
 TERMINATE_GRACE_S = 5.0
@@ -50,23 +50,6 @@ def _child(conn, fn, args, kwargs) -> None:
         conn.close()
 
 
-@contextlib.contextmanager
-def _environment(variables: dict[str, str]):
-    """``os.environ`` with ``variables`` set, restored on leaving (the parent's environment is the workers' at
-    their start; a lasting change would also make numba reload its whole configuration, the cache directory
-    included, at the parent's next compile)."""
-    saved = {name: os.environ.get(name) for name in variables}
-    os.environ.update(variables)
-    try:
-        yield
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-
-
 class ProcessPerJobExecutor:
     """``submit(fn, *args)`` runs ``fn(*args)`` in a new process (``mp_context``, default ``spawn``), at most
     ``max_workers`` at once; the future holds its result, the exception it raised, or :class:`WorkerCrashed`.
@@ -87,7 +70,7 @@ class ProcessPerJobExecutor:
                 raise WorkerCrashed("not started: the executor was shut down")
             # not a daemon: a job may start processes of its own; shutdown() stops it explicitly
             proc = self._ctx.Process(target=_child, args=(child, fn, args, kwargs), daemon=False)
-            with _environment(self._worker_env):
+            with temporary_environment(self._worker_env):
                 proc.start()
             self._procs.add(proc)
         child.close()
