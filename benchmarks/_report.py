@@ -23,7 +23,7 @@ def readme_table(payload: dict) -> str:
     """The README's Performance table from a full run's results.json payload."""
     it = payload["items"]
     tg = {name: {k: t["value"] for k, t in res["targets"].items()} for name, res in it.items()}
-    ctl = tg["controller"]
+    ctl = it["controller"]["results"]
     cold = it["cold_start"]
     ppo = it["ppo"]
     ttb = it["time_to_beat"]
@@ -33,15 +33,18 @@ def readme_table(payload: dict) -> str:
          "idle; another process keeping one core busy",
          f"{tg['single']['ratio_vs_pendulum']:.2f}x; {tg['single']['ratio_vs_pendulum_busy']:.2f}x "
          f"(Acrobot-v1: {it['single']['ratio_vs_acrobot']:.2f}x)", "<= 0.6x"],
-        ["2. vector env, N = 4096, random actions",
+        ["2. vector env, N = 4096, random actions: idle; another process keeping one core busy",
          f"{tg['vector']['steps_per_second_4096'] / 1e6:.2f} M env-steps/s, "
-         f"{tg['vector']['ratio_vs_cartpole_4096']:.2f}x `CartPoleVectorEnv`", ">= 5 M/s, >= 0.25x"],
+         f"{tg['vector']['ratio_vs_cartpole_4096']:.2f}x `CartPoleVectorEnv`; "
+         f"{tg['vector']['ratio_vs_cartpole_4096_busy']:.2f}x", ">= 5 M/s, >= 0.25x; >= 0.15x"],
         ["2. vector env / `make_vec(..., \"sync\")`, N = 256", f"{tg['vector']['ratio_vs_sync_256']:.0f}x", ">= 50x"],
         ["3. controllers / one env step, single: residual mode's base controller, `PassivityPolicy.predict`, "
          "`PassivityController()`, the integral loop's and the extended loop's `predict`",
-         ", ".join(f"{ctl['single_' + k]:.2f}x" for k in _CONTROLLER_RATIOS), "<= 1x"],
+         ", ".join(f"{ctl['single'][k]:.2f}x" for k in _CONTROLLER_RATIOS), "report"],
         ["3. the same, batched (N = 4096, per env)",
-         ", ".join(f"{ctl['batched_' + k]:.2f}x" for k in _CONTROLLER_RATIOS), "<= 1x"],
+         ", ".join(f"{ctl['batched'][k]:.2f}x" for k in _CONTROLLER_RATIOS), "report"],
+        ["3. a residual-mode env step (the default agent's) / an actuators-mode one, vector env, N = 4096",
+         f"{tg['controller']['batched_ratio_residual_step']:.2f}x", "<= 2.5x"],
         ["4. PPO (default `train.py` configuration): share of wall time in `env.step` (training env-steps/s)",
          f"{100 * ppo['env_share']:.1f} % ({ppo['env_steps_per_second'] / 1e3:.1f} k env-steps/s)", "<= 10 %"],
         [f"4. the fast recipe (`train.py --recipe {ppo['fast']['recipe']}`) on the tracking cell (residual, "
@@ -50,9 +53,11 @@ def readme_table(payload: dict) -> str:
          f"{ppo['fast']['env_steps_per_second'] / 1e3:.1f} k env-steps/s", ">= 50 k/s"],
         ["5. `import softpvtol_gym` + first reset and step, fresh process",
          f"{tg['cold_start']['import_plus_first_step']:.2f} s", "< 2 s"],
-        ["5. the same with a cold numba cache (it compiles): actuators mode; residual mode",
-         f"{cold['cold_actuators']['import'] + cold['cold_actuators']['first_step']:.1f} s; "
-         f"{cold['cold_residual']['import'] + cold['cold_residual']['first_step']:.1f} s", "<= 20 s; <= 30 s"],
+        ["5. the same with a cold numba cache (it compiles), CPU seconds: actuators mode; residual mode; the README's "
+         "quickstart (a whole process)",
+         f"{tg['cold_start']['cold_actuators_first_step_cpu']:.1f} s; "
+         f"{tg['cold_start']['cold_residual_first_step_cpu']:.1f} s; {tg['cold_start']['cold_quickstart_cpu']:.1f} s",
+         "<= 20 s; <= 30 s; <= 30 s"],
         ["5. longest silence while compiling (cold first steps; a cold `python train.py`)",
          f"{max(cold['cold_actuators']['longest_silence'], cold['cold_residual']['longest_silence']):.1f} s; "
          f"{cold['cold_train']['longest_silence']:.1f} s", "<= 10 s"],
