@@ -278,6 +278,8 @@ def test_resume_loads_the_cached_datasets_and_gives_the_same_student(distilled, 
     ({"balance_actions": "yes"}, "balance_actions must be a bool"),
     ({"teacher_share": 1.0}, "teacher_share must be a probability in"),
     ({"teacher_share": -0.1}, "teacher_share must be a probability in"),
+    ({"history": 0}, "history must be an integer in"),
+    ({"history": 2.0}, "history must be an integer in"),
 ])
 def test_bad_settings_are_refused_with_what_was_given(changes, words):
     with pytest.raises(ConfigError, match=words):
@@ -423,3 +425,67 @@ def test_bad_fine_tuning_settings_are_refused(fields, words):
 
     with pytest.raises(ConfigError, match=words):
         RunConfig(**{"action_mode": "actuators", **fields})
+
+
+# ------------------------------------------------------------------------------------- a student with history
+def test_collected_rows_hold_each_episodes_last_observations_with_nan_before_its_start():
+    teacher = LinearTeacher()
+    flat, _ = collect(teacher, "hover", "nominal", 2, 7, env_options=STUDENT_OPTIONS)
+    stacked, labels = collect(LinearTeacher(), "hover", "nominal", 2, 7, env_options=STUDENT_OPTIONS, history=3)
+    assert stacked.shape == (len(flat), 63) and labels.shape == (len(flat), 4)
+    np.testing.assert_array_equal(stacked[:, -21:], flat)
+    # rows are step-major (both episodes' step 0, then both episodes' step 1, ...): a row's older slots are the
+    # same episode's earlier observations, NaN before its start
+    assert np.isnan(stacked[:2, :42]).all() and np.isnan(stacked[2:4, :21]).all()
+    np.testing.assert_array_equal(stacked[2:4, 21:42], flat[:2])
+    np.testing.assert_array_equal(stacked[4:6, :21], flat[:2])
+    np.testing.assert_array_equal(stacked[4:6, 21:42], flat[2:4])
+    assert not np.isnan(stacked[4:]).any()
+
+
+@pytest.fixture(scope="module")
+def distilled_with_history(tmp_path_factory):
+    out = tmp_path_factory.mktemp("distill") / "history"
+    return out, distill(DistillConfig(**{**TINY, "history": 3}), out)
+
+
+@pytest.mark.xdist_group("distilled")
+def test_a_student_with_history_is_fitted_on_what_its_frame_stack_feeds_it(distilled_with_history):
+    """The rows a frame-stacked student's flight is collected into, passed through the fit's input path, give back
+    the actions the student applied at those steps: the fit and the policy see the same stacked inputs."""
+    import torch
+
+    from softpvtol_gym.baselines.training.distill import stacked_inputs
+
+    out, result = distilled_with_history
+    student = result["policy"]
+    assert student.model.policy.observation_space.shape == (63,)
+    assert json.loads((out / DISTILL_FILE).read_text())["config"]["history"] == 3
+    rows, applied = collect(student, "hover", "nominal", 2, 11, env_options=STUDENT_OPTIONS, history=3)
+    x = torch.as_tensor(stacked_inputs(student.vecnorm, rows, 3))
+    with torch.no_grad():
+        mean = student.model.policy.get_distribution(x).distribution.mean.numpy()
+    np.testing.assert_allclose(np.clip(mean, -1, 1), applied, atol=1e-5)
+    loaded, _ = LearnedPolicy.load(out)  # as softpvtol evaluate loads it: the frame stack from the run's config
+    action, _ = loaded.predict(rows[:2, -21:], episode_start=np.ones(2, bool), deterministic=True)
+    np.testing.assert_allclose(action, applied[:2], atol=1e-5)
+
+
+@pytest.mark.xdist_group("distilled")
+def test_fine_tuning_a_student_with_history_keeps_its_frame_stack(distilled_with_history, tmp_path):
+    import torch
+
+    from softpvtol_gym.baselines.config.hyperparams import apply_overrides, frame_stack
+    from softpvtol_gym.baselines.training.imitation import source_overrides
+    from softpvtol_gym.baselines.training.loop import prepare
+
+    out, result = distilled_with_history
+    student = result["run_config"]
+    # a fine-tuning run's own hyperparameters, with what the source run's config carries over
+    hp = {k: v for k, v in student.hyperparams.items() if k not in ("frame_stack", "policy_kwargs", "normalize")}
+    hp = apply_overrides(hp, source_overrides(LearnedPolicy.load(out)[1]))
+    assert frame_stack(hp) == 3
+    config = dataclasses.replace(student, tier="wind", timesteps=256, init_from=str(out), hyperparams=hp)
+    _, _, model = prepare(config, tmp_path / "ft")
+    theirs = result["policy"].model.policy.state_dict()
+    assert all(torch.equal(v, theirs[k]) for k, v in model.policy.state_dict().items())

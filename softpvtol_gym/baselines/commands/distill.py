@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from softpvtol_gym.baselines.config.hyperparams import MAX_FRAME_STACK
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.training.distill import DISTILL_FILE, TEACHERS, DistillConfig, distill, distill_table
 from softpvtol_gym.baselines.util.args import Parser, check_output_dir, command_main, float_arg, int_arg
@@ -68,6 +69,9 @@ def build_parser(prog: str = "distill.py") -> Parser:
     ap.add_argument("--teacher-share", type=float_arg(0.0, 1.0), default=DEFAULTS.teacher_share,
                     metavar="P", help="DAgger round k applies the teacher's action at a step with probability P**k "
                                       "(default 0: the student flies alone)")
+    ap.add_argument("--history", type=int_arg(1, MAX_FRAME_STACK), default=DEFAULTS.history, metavar="K",
+                    help="the student sees its last K observations, oldest first (a frame stack; default 1: the "
+                         "current one)")
     ap.add_argument("--out", type=Path, default=None,
                     help="run directory (default runs/distilled_<teacher>_<task>_s<seed>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out (same options)")
@@ -95,7 +99,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
                                epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
                                eval_episodes=args.eval_episodes, precision_scale=args.precision_scale,
                                wide_fraction=args.wide_fraction, teacher_integral=args.teacher_integral,
-                               balance_actions=args.balance_actions, teacher_share=args.teacher_share)
+                               balance_actions=args.balance_actions, teacher_share=args.teacher_share,
+                               history=args.history)
     except ConfigError as exc:
         ap.error(str(exc))
     out = args.out or Path("runs") / f"distilled_{config.teacher}_{config.task}_s{config.seed}"

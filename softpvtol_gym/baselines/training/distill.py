@@ -43,6 +43,7 @@ import numpy as np
 
 from softpvtol_gym.baselines.checkpoints.store import write_model_files
 from softpvtol_gym.baselines.config.hyperparams import (
+    MAX_FRAME_STACK,
     TRAIN_SEED_LIMIT,
     apply_overrides,
     load_hyperparams,
@@ -73,7 +74,8 @@ SEED_STRIDE = 10_000
 MAX_EPISODES_PER_ROUND = 1_000
 MAX_ROUNDS = 50
 #: settings added after runs were made, with the value those runs had (a resumed run keeps it)
-EARLIER_DEFAULTS = {"wide_fraction": 0.0, "teacher_integral": False, "balance_actions": False, "teacher_share": 0.0}
+EARLIER_DEFAULTS = {"wide_fraction": 0.0, "teacher_integral": False, "balance_actions": False, "teacher_share": 0.0,
+                    "history": 1}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,6 +112,10 @@ class DistillConfig:
             action with probability p ** k and the student's otherwise (the DAgger paper's beta_k = p ** k), so that
             the early students, which may crash within a second, still fly where the teacher goes; the teacher
             labels every step either way. 0: the student flies alone in every DAgger round.
+        history: K, the observations the student sees: its last K, oldest first (``frame_stack`` K of its
+            run, SB3's VecFrameStack over VecNormalize; 1: the current one only). With K > 1 the student can tell
+            the rates of change its observation lacks (of the error integrals, of what the wind or a parameter
+            error does to the motion); its first layer takes K times the inputs.
     """
 
     teacher: str = "integral"
@@ -128,6 +134,7 @@ class DistillConfig:
     teacher_integral: bool = True
     balance_actions: bool = False
     teacher_share: float = 0.0
+    history: int = 1
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tiers", tuple(self.tiers))
@@ -160,6 +167,9 @@ class DistillConfig:
         p = self.teacher_share
         if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 <= p < 1.0:
             raise ConfigError(f"teacher_share must be a probability in [0, 1), got {p!r}")
+        if not _is_int(self.history) or not 1 <= self.history <= MAX_FRAME_STACK:
+            raise ConfigError(f"history must be an integer in [1, {MAX_FRAME_STACK}] (observations the student sees), "
+                              f"got {self.history!r}")
         last = self.seed * SEED_STRIDE + self.collections * self.episodes if _is_int(self.seed) else -1
         if not _is_int(self.seed) or self.seed < 0 or last > TRAIN_SEED_LIMIT or \
                 self.collections * self.episodes > SEED_STRIDE:
@@ -190,7 +200,8 @@ class DistillConfig:
         actuators entry's hyperparameters with the student's ``net_arch`` (``timesteps``: the samples)."""
         hp = load_hyperparams("ppo", "actuators")
         arch = ", ".join(str(n) for n in self.net_arch)
-        hp = apply_overrides(hp, [f"policy_kwargs=dict(log_std_init=-1.0, net_arch=dict(pi=[{arch}], vf=[64, 64]))"])
+        hp = apply_overrides(hp, [f"policy_kwargs=dict(log_std_init=-1.0, net_arch=dict(pi=[{arch}], vf=[64, 64]))"]
+                             + ([f"frame_stack={self.history}"] if self.history > 1 else []))
         return RunConfig(algo="ppo", action_mode="actuators", task=self.task, tier=self.tiers[0],
                          timesteps=max(1, int(dataset_size)), seed=self.seed, n_envs=int(hp.get("n_envs", 16)),
                          hyperparams=hp, env_options=self.env_options)
@@ -219,8 +230,10 @@ def _save_dataset(path: Path, obs: np.ndarray, labels: np.ndarray) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-def _load_dataset(path: Path, obs_dim: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """A cached dataset, or None where there is none or it is unreadable (it is collected again)."""
+def _load_dataset(path: Path, obs_dim: int, history: int = 1) -> tuple[np.ndarray, np.ndarray] | None:
+    """A cached dataset, or None where there is none or it is unreadable (it is collected again). ``obs_dim``: one
+    observation's size; with ``history`` K > 1 the rows hold K of them, NaN in the slots before an episode's
+    start (:func:`~softpvtol_gym.baselines.training.teachers.collect`)."""
     if not path.is_file():
         return None
     try:
@@ -229,9 +242,10 @@ def _load_dataset(path: Path, obs_dim: int) -> tuple[np.ndarray, np.ndarray] | N
     except (OSError, ValueError, KeyError) as exc:
         _say(f"distill: {path} is unreadable ({exc}); collecting it again")
         return None
-    if obs.ndim != 2 or obs.shape[1] != obs_dim or labels.shape != (obs.shape[0], 4) or \
-            not (np.isfinite(obs).all() and np.isfinite(labels).all()):
-        _say(f"distill: {path} does not hold ({obs_dim}-entry observations, 4 actions); collecting it again")
+    if obs.ndim != 2 or obs.shape[1] != obs_dim * history or labels.shape != (obs.shape[0], 4) or \
+            not (np.isfinite(obs[:, -obs_dim:]).all() and not np.isinf(obs).any() and np.isfinite(labels).all()):
+        _say(f"distill: {path} does not hold ({history} x {obs_dim}-entry observations, 4 actions); collecting it "
+             f"again")
         return None
     return obs, labels
 
@@ -253,20 +267,31 @@ def action_channel_weights(actions: np.ndarray) -> np.ndarray:
     return w / w.mean()
 
 
+def stacked_inputs(vecnorm, observations: np.ndarray, history: int) -> np.ndarray:
+    """The model's inputs (n, K d) for dataset rows ``observations`` (n, K d) of ``history`` K: each observation
+    normalised by ``vecnorm``, the slots before an episode's start (NaN) zeros, as VecFrameStack over VecNormalize
+    feeds the model."""
+    n, width = observations.shape
+    one = vecnorm.normalize_obs(observations.reshape(n * history, width // history)).reshape(n, width)
+    return np.where(np.isnan(observations), 0.0, one).astype(np.float32)
+
+
 def fit(model, vecnorm, observations: np.ndarray, actions: np.ndarray, epochs: int, batch_size: int,
         learning_rate: float, seed: int, weights: np.ndarray | None = None,
-        channel_weights: np.ndarray | None = None) -> list[float]:
-    """Fit the actor of ``model`` (an SB3 PPO model) to ``actions`` (n, 4) at ``observations`` (n, d):
-    VecNormalize's statistics set to the data's, then Adam on the mean squared error of the Gaussian's mean
-    (each sample's weighted by ``weights`` (n,), each action channel's by ``channel_weights`` (4,); default 1).
+        channel_weights: np.ndarray | None = None, history: int = 1) -> list[float]:
+    """Fit the actor of ``model`` (an SB3 PPO model) to ``actions`` (n, 4) at ``observations`` (n, K d), K =
+    ``history`` observations of d entries per row (:func:`stacked_inputs`): VecNormalize's statistics set to
+    those of the rows' newest observations, then Adam on the mean squared error of the Gaussian's mean (each
+    sample's weighted by ``weights`` (n,), each action channel's by ``channel_weights`` (4,); default 1).
     Returns the mean loss of each epoch."""
     import torch
 
+    newest = observations[:, -(observations.shape[1] // history):]
     rms = vecnorm.obs_rms
-    rms.mean = observations.mean(axis=0).astype(np.float64)
-    rms.var = observations.var(axis=0).astype(np.float64)
+    rms.mean = newest.mean(axis=0).astype(np.float64)
+    rms.var = newest.var(axis=0).astype(np.float64)
     rms.count = float(len(observations))
-    x_all = torch.as_tensor(vecnorm.normalize_obs(observations).astype(np.float32))
+    x_all = torch.as_tensor(stacked_inputs(vecnorm, observations, history))
     y_all = torch.as_tensor(actions.astype(np.float32))
     w_all = None if weights is None else torch.as_tensor(weights.astype(np.float32))
     c_all = None if channel_weights is None else torch.as_tensor(np.asarray(channel_weights, dtype=np.float32))
@@ -319,7 +344,7 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
         raise ConfigError(f"run directory {run_dir} is a file; choose a directory for --out")
     torch.set_num_threads(torch_threads())
     run_config = config.run_config()  # validated before anything is written
-    obs_dim = OBS_DIM + N_ERROR_INTEGRALS  # the student's observation (config.env_options)
+    obs_dim = OBS_DIM + N_ERROR_INTEGRALS  # one observation of the student (config.env_options)
     teacher = teacher if teacher is not None else teacher_policy(config.teacher, config.task, config.env_options)
     run_dir.mkdir(parents=True, exist_ok=True)
     with DirectoryLock(run_dir, "run directory"):
@@ -337,7 +362,7 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
         for k in range(config.rounds):
             for j, tier in enumerate(config.tiers):
                 path = _dataset_path(run_dir, k, tier)
-                cached = _load_dataset(path, obs_dim)
+                cached = _load_dataset(path, obs_dim, config.history)
                 if cached is None:
                     cached = _collect_round(teacher, config, tier, config.collection_seed(k, j), student, bar,
                                             teacher_share=config.teacher_share ** k if k else 0.0)
@@ -349,8 +374,9 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
             obs, act = np.concatenate(data_obs), np.concatenate(data_act)
             run_config, vecnorm, model = _fresh_student(config, run_dir, len(obs))
             losses = fit(model, vecnorm, obs, act, config.epochs, config.batch_size, config.learning_rate,
-                         config.seed, weights=sample_weights(obs, config.precision_scale),
-                         channel_weights=action_channel_weights(act) if config.balance_actions else None)
+                         config.seed, weights=sample_weights(obs[:, -obs_dim:], config.precision_scale),
+                         channel_weights=action_channel_weights(act) if config.balance_actions else None,
+                         history=config.history)
             student = LearnedPolicy(model, vecnorm, inference="lean")
             entry = {"round": k, "kind": "behaviour cloning" if k == 0 else "dagger",
                      "samples": int(sum(len(o) for o in data_obs[-len(config.tiers):])), "aggregate": int(len(obs)),
@@ -381,7 +407,7 @@ def _collect_round(teacher, config: DistillConfig, tier: str, seed: int, student
         if count:
             parts.append(collect(teacher, config.task, tier, count, first, student=student, progress=bar,
                                  env_options={**config.env_options, "start_distribution": start},
-                                 teacher_share=teacher_share))
+                                 teacher_share=teacher_share, history=config.history))
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 

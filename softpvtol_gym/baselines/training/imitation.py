@@ -68,14 +68,16 @@ def init_from_run(model, vecnorm, source: Path) -> RunConfig:
 
 
 def source_overrides(source: RunConfig | None) -> list[str]:
-    """The hyperparameter overrides that give a fine-tuning run the network and normalisation of the run it
-    starts from (its config ``source``; None: none)."""
+    """The hyperparameter overrides that give a fine-tuning run the network, normalisation and frame stack of the
+    run it starts from (its config ``source``; None: none)."""
     if source is None:
         return []
     hp = source.hyperparams
     out = [f"normalize={json.dumps(hp.get('normalize', False))}"]
     if "policy_kwargs" in hp:
         out.append(f"policy_kwargs={hp['policy_kwargs']}")
+    if "frame_stack" in hp:
+        out.append(f"frame_stack={int(hp['frame_stack'])}")
     return out
 
 

@@ -48,19 +48,24 @@ def teacher_policy(name: str, task: str, env_options: dict | None = None):
 
 def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=None,
             env_options: dict | None = None, progress=None,
-            teacher_share: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+            teacher_share: float = 0.0, history: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """(observations (n, d), teacher actions (n, 4)) of ``episodes`` seeded episodes (seeds seed + i) on the
     actuators mode: flown by the teacher (``student=None``) or by ``student`` with the teacher labelling
     every observation the student visits; with ``teacher_share`` p > 0 the teacher's action is applied instead of
     the student's at each step of each episode with probability p (drawn from a generator seeded with ``seed``).
     A teacher with an ``observe_applied`` method (the MPC) is told the actions applied. Each episode's steps until
-    it ends (time limit or crash)."""
+    it ends (time limit or crash).
+
+    ``history`` K > 1: each row holds the episode's last K observations, oldest first (n, K d), as SB3's
+    VecFrameStack stacks them, with NaN in the slots before the episode's start (VecFrameStack's zeros are zeros
+    of the normalised observation: the fit puts them there after normalising)."""
     env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode="actuators", task=task, tier=tier,
                              **(STUDENT_ENV_OPTIONS if env_options is None else env_options))
     obs, _ = env.reset(seed=seed)
     done, start = np.zeros(episodes, bool), np.ones(episodes, bool)
     draws = np.random.default_rng(seed) if student is not None and teacher_share > 0 else None
     observations, labels = [], []
+    stack = None if history == 1 else np.full((episodes, history, obs.shape[1]), np.nan, dtype=np.float32)
     while not done.all():
         label, _ = teacher.predict(obs, episode_start=start, deterministic=True)
         action = label if student is None else student.predict(obs, episode_start=start, deterministic=True)[0]
@@ -69,7 +74,13 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
         if student is not None and hasattr(teacher, "observe_applied"):  # a teacher with memory of its inputs
             teacher.observe_applied(action)
         live = ~done
-        observations.append(np.array(obs[live], dtype=np.float32))
+        if stack is None:
+            observations.append(np.array(obs[live], dtype=np.float32))
+        else:
+            stack = np.roll(stack, -1, axis=1)
+            stack[start] = np.nan
+            stack[:, -1] = obs
+            observations.append(stack[live].reshape(int(live.sum()), -1))
         labels.append(np.array(label[live], dtype=np.float32))
         start[:] = False
         previous = obs
