@@ -489,3 +489,37 @@ def test_fine_tuning_a_student_with_history_keeps_its_frame_stack(distilled_with
     _, _, model = prepare(config, tmp_path / "ft")
     theirs = result["policy"].model.policy.state_dict()
     assert all(torch.equal(v, theirs[k]) for k, v in model.policy.state_dict().items())
+
+
+@pytest.mark.xdist_group("distilled")
+def test_the_imitation_term_of_a_student_with_history_fits_on_its_frame_stack(distilled_with_history, tmp_path,
+                                                                            monkeypatch):
+    """The term's inputs are what the policy acts on (the stack of 3 normalised observations), its labels the
+    teacher's on the newest raw one."""
+    from softpvtol_gym.baselines.training import imitation
+    from softpvtol_gym.baselines.training.loop import prepare
+
+    out, result = distilled_with_history
+    teacher = LinearTeacher()
+    monkeypatch.setattr(imitation, "teacher_policy", lambda name, task, env_options: teacher)
+    spec = {"teacher": "integral", "weight": 1.0, "decay_steps": 100_000, "epochs": 2}
+    config = dataclasses.replace(result["run_config"], n_envs=2, timesteps=128, init_from=str(out), imitation=spec,
+                                 hyperparams={**result["run_config"].hyperparams, "n_steps": 64, "batch_size": 64})
+    _, vecnorm, model = prepare(config, tmp_path / "ft")
+    term = imitation.imitation_callback(config, vecnorm)
+    original = term._imitate
+
+    def check():
+        obs, labels = np.concatenate(term.obs), np.concatenate(term.labels)
+        assert obs.shape == (128, 63)
+        raw = vecnorm.unnormalize_obs(obs[:, -21:].astype(np.float64))
+        whole = np.all(np.abs(obs[:, -21:]) < vecnorm.clip_obs, axis=1)
+        np.testing.assert_allclose(labels[whole], teacher.label(raw[whole]), atol=1e-4)
+        # each env's stack is the one of its step before shifted by one observation (but after a crash's reset)
+        shifted = np.all(obs[2:, :42] == obs[:-2, 21:], axis=1)
+        assert shifted.mean() > 0.9, shifted.mean()
+        original()
+
+    term._imitate = check
+    model.learn(total_timesteps=128, callback=term)
+    assert len(term.history) == 1 and term.history[0]["gap_after"] < term.history[0]["gap_before"]

@@ -177,7 +177,7 @@ def test_the_docs_rounds_table_is_generated_from_the_committed_students():
     records = distilled_records(RESULTS / "leaderboard_runs")
     assert {name: len(seeds) for name, seeds in records.items()} == {
         "distilled integral": 5, "distilled integral small": 5, "distilled integral small-matched": 5,
-        "distilled mpc small": 5}
+        "distilled integral small-matched-history": 5, "distilled mpc small": 5}
     assert read_block(*ROUNDS_BLOCK, ROOT / "docs" / "baselines.md") == rounds_table(records).strip()
 
 
@@ -193,5 +193,6 @@ def test_the_docs_ablation_is_generated_from_the_committed_leaderboard_students_
     table = ablation_table(aggregates, distilled_records(RESULTS / "leaderboard_runs"), reward_runs)
     assert read_block(*ABLATION_BLOCK, ROOT / "docs" / "baselines.md") == table.strip()
     for entry in ("distilled integral small (trained on nominal)", "PPO student-finetune (trained on nominal)",
-                  "distilled mpc small (trained on nominal)", "PPO student-finetune (trained on hard)"):
+                  "distilled mpc small (trained on nominal)", "PPO student-finetune (trained on hard)",
+                  "distilled integral small-matched-history (trained on nominal)"):
         assert f"| {entry} |" in table  # the leaderboard holds the cells the ablation reads

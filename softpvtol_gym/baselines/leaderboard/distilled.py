@@ -113,6 +113,8 @@ ABLATION_ENTRIES = (
     ("+ 3 DAgger rounds, 256 x 256", "distilled integral (trained on nominal)"),
     ("64 x 64, observing the integrals as the teacher integrates them",
      "distilled integral small-matched (trained on nominal)"),
+    ("+ history: the last 4 observations (a frame stack)",
+     "distilled integral small-matched-history (trained on nominal)"),
     ("+ PPO fine-tuning of the 64 x 64 students (2M steps: precision reward, imitation term)",
      "PPO student-finetune (trained on nominal)"),
     ("+ PPO fine-tuning of the small-matched students on the hard tier (2M steps, the same recipe)",
@@ -157,5 +159,4 @@ def ablation_table(aggregates: list[dict], records: dict[str, list[dict]], runs:
             values = " | ".join(fmt(last.get(f"mean_{k}")) for k in _WINDOW_KEYS)
             lines.append(f"| {what} | finetune_reward/{name}, {last['step']:,} steps | {values} | "
                          f"{last['crash_rate']:.0%} | | {last['episodes']} (mean, its periodic evaluation) |")
-    lines.append("| + history (a frame stack or a recurrent student) | not run | | | | | | | |")
     return "\n".join(lines)

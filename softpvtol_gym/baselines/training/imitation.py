@@ -128,10 +128,12 @@ def imitation_callback(config: RunConfig, vecnorm):
             #: per imitation phase: step, weight, the gap to the teacher's actions before and after it
             self.history = []
 
-        def _label(self) -> None:
+        def _label(self, model_obs) -> None:
+            """The teacher's label of the raw observation the policy acts on next, stored with ``model_obs``, what
+            the policy sees (normalised; with a frame stack, the stack: the same as VecNormalize's output without)."""
             raw = vecnorm.get_original_obs()
             label, _ = self.teacher.predict(raw, episode_start=self.starts, deterministic=True)
-            self.obs.append(vecnorm.normalize_obs(raw).astype(np.float32))
+            self.obs.append(np.asarray(model_obs, dtype=np.float32).copy())
             self.labels.append(np.asarray(label, np.float32))
 
         def _active(self) -> bool:
@@ -145,7 +147,7 @@ def imitation_callback(config: RunConfig, vecnorm):
                 self._imitate()
             self.obs, self.labels = [], []
             if self._active():
-                self._label()  # the observation the rollout's first step acts on
+                self._label(self.model._last_obs)  # the observation the rollout's first step acts on
 
         def _on_training_end(self) -> None:
             if self.obs:  # the last rollout's term (no next rollout starts)
@@ -156,7 +158,7 @@ def imitation_callback(config: RunConfig, vecnorm):
             if self.obs:
                 self.starts = np.asarray(self.locals["dones"], bool)
                 if len(self.obs) < self.model.n_steps:
-                    self._label()
+                    self._label(self.locals["new_obs"])
             return True
 
         def _imitate(self) -> None:
