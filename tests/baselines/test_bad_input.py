@@ -527,13 +527,14 @@ def test_bad_script_input_exits_2_with_one_line_and_writes_nothing(script, argv,
     def refuse(*args, **kwargs):
         raise AssertionError("reached the evaluation / training: the bad input was not caught before it")
 
+    # the case's files first: a setup may train the shared tiny run, which must not meet the refusals below
+    case = tmp_path / "case"
+    case.mkdir()
+    names = {"tmp": str(case), **(setup(case) or {})}
     monkeypatch.setattr(evaluate_command, "evaluate", refuse)
     monkeypatch.setattr(evaluation, "evaluate", refuse)
     if script == T and "already holds" not in message and "--resume:" not in message and "in use" not in message:
         monkeypatch.setattr(train_command, "train", refuse)
-    case = tmp_path / "case"
-    case.mkdir()
-    names = {"tmp": str(case), **(setup(case) or {})}
     for key, value in names.pop("env", {}).items():
         monkeypatch.setenv(key, value)
     before = _snapshot(tmp_path)

@@ -194,5 +194,7 @@ def test_the_docs_ablation_is_generated_from_the_committed_leaderboard_students_
     assert read_block(*ABLATION_BLOCK, ROOT / "docs" / "baselines.md") == table.strip()
     for entry in ("distilled integral small (trained on nominal)", "PPO student-finetune (trained on nominal)",
                   "distilled mpc small (trained on nominal)", "PPO student-finetune (trained on hard)",
-                  "distilled integral small-matched-history (trained on nominal)"):
+                  "distilled integral small-matched-history (trained on nominal)",
+                  "PPO student-history-finetune (trained on hard)",
+                  "PPO student-history-finetune (trained on model_gap)"):
         assert f"| {entry} |" in table  # the leaderboard holds the cells the ablation reads

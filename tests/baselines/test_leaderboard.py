@@ -174,7 +174,7 @@ def check_replay(got: list[dict], want: list[dict]) -> None:
                 assert g[key] == w[key], f"episode {i}: {key} {g[key]!r} != {w[key]!r}"
 
 
-@pytest.mark.slow  # one short replay per committed checkpoint and evaluated task (about 110), ~1 min
+@pytest.mark.slow  # one short replay per committed checkpoint and evaluated task (about 120), ~1 min
 @pytest.mark.parametrize(
     "checkpoint, train_tier, task", LEARNED, ids=[c[0].split("leaderboard_runs/")[-1] for c in LEARNED]
 )
