@@ -45,6 +45,21 @@ def _busy_core(seconds: float):
     return subprocess.Popen([sys.executable, "-c", _SPIN.format(seconds=seconds)])
 
 
+def _interleaved_one_core_busy(cases: dict, reps: int, warm_up: bool = False) -> dict:
+    """:func:`interleaved` timings of ``cases`` while another process keeps one core busy (after one untimed call
+    of each with ``warm_up``)."""
+    spin = _busy_core(600.0)
+    try:
+        time.sleep(0.2)
+        if warm_up:
+            for fn in cases.values():
+                fn()
+        return interleaved(cases, reps)
+    finally:
+        spin.kill()
+        spin.wait()
+
+
 def bench_single(quick: bool) -> dict:
     n_steps, reps = (300, 5) if quick else (3000, 15)
     envs = {
@@ -57,13 +72,7 @@ def bench_single(quick: bool) -> dict:
         fn()
     t = interleaved(cases, reps)
     pair = {k: cases[k] for k in ("SoftPVTOL-v0", "Pendulum-v1")}
-    spin = _busy_core(600.0)  # the same pair again while another process keeps one core busy
-    try:
-        time.sleep(0.2)
-        busy = interleaved(pair, reps)
-    finally:
-        spin.kill()
-        spin.wait()
+    busy = _interleaved_one_core_busy(pair, reps)  # the same pair again while another process keeps a core busy
     r_pend = ratios(t["SoftPVTOL-v0"], t["Pendulum-v1"])
     r_busy = ratios(busy["SoftPVTOL-v0"], busy["Pendulum-v1"])
     r_acro = ratios(t["SoftPVTOL-v0"], t["Acrobot-v1"])
@@ -158,15 +167,7 @@ def bench_vector(quick: bool) -> dict:
     vec = gym.make_vec("SoftPVTOL-v0", num_envs=n, vectorization_mode="vector_entry_point")
     pair = {"softpvtol": _vector_timer(vec, n, n_steps, 0, False),
             "cartpole": _vector_timer(CartPoleVectorEnv(num_envs=n), n, n_steps, 1, True)}
-    spin = _busy_core(600.0)
-    try:
-        time.sleep(0.2)
-        for fn in pair.values():
-            fn()
-        busy = interleaved(pair, reps)
-    finally:
-        spin.kill()
-        spin.wait()
+    busy = _interleaved_one_core_busy(pair, reps, warm_up=True)
     r4096["busy"] = {k: median(v) for k, v in busy.items()}
     r4096["ratio_vs_cartpole_busy"] = ratios(busy["softpvtol"], busy["cartpole"])
     text += (f"\n\nN = 4096 with another process keeping one core busy: SoftPVTOL "

@@ -366,20 +366,27 @@ def test_train_init_from_fine_tunes_the_student_with_the_imitation_term(distille
         assert exc.value.code == 2 and words in err and len(err.strip().splitlines()) == 1, err
 
 
-@pytest.mark.xdist_group("distilled")  # one worker computes the module fixture once
-def test_the_imitation_term_fits_the_teachers_labels_of_the_observations_acted_on(distilled, tmp_path,
-                                                                                     monkeypatch):
+def _fine_tuning_with_imitation(distilled, tmp_path, monkeypatch, timesteps: int, epochs: int):
+    """(teacher, vecnorm, model, imitation term) of a tiny fine-tuning of a distilled run (2 envs x 64 steps a
+    rollout), its imitation term toward a :class:`LinearTeacher`, whose labels the checks can recompute."""
     from softpvtol_gym.baselines.training import imitation
     from softpvtol_gym.baselines.training.loop import prepare
 
     out, result = distilled
     teacher = LinearTeacher()
     monkeypatch.setattr(imitation, "teacher_policy", lambda name, task, env_options: teacher)
-    spec = {"teacher": "integral", "weight": 1.0, "decay_steps": 100_000, "epochs": 5}
-    config = dataclasses.replace(result["run_config"], n_envs=2, timesteps=256, init_from=str(out), imitation=spec,
+    spec = {"teacher": "integral", "weight": 1.0, "decay_steps": 100_000, "epochs": epochs}
+    config = dataclasses.replace(result["run_config"], n_envs=2, timesteps=timesteps, init_from=str(out),
+                                 imitation=spec,
                                  hyperparams={**result["run_config"].hyperparams, "n_steps": 64, "batch_size": 64})
     _, vecnorm, model = prepare(config, tmp_path / "ft")
-    term = imitation.imitation_callback(config, vecnorm)
+    return teacher, vecnorm, model, imitation.imitation_callback(config, vecnorm)
+
+
+@pytest.mark.xdist_group("distilled")  # one worker computes the module fixture once
+def test_the_imitation_term_fits_the_teachers_labels_of_the_observations_acted_on(distilled, tmp_path,
+                                                                                     monkeypatch):
+    teacher, vecnorm, model, term = _fine_tuning_with_imitation(distilled, tmp_path, monkeypatch, 256, epochs=5)
     seen = []
     original = term._imitate
 
@@ -496,17 +503,8 @@ def test_the_imitation_term_of_a_student_with_history_fits_on_its_frame_stack(di
                                                                             monkeypatch):
     """The term's inputs are what the policy acts on (the stack of 3 normalised observations), its labels the
     teacher's on the newest raw one."""
-    from softpvtol_gym.baselines.training import imitation
-    from softpvtol_gym.baselines.training.loop import prepare
-
-    out, result = distilled_with_history
-    teacher = LinearTeacher()
-    monkeypatch.setattr(imitation, "teacher_policy", lambda name, task, env_options: teacher)
-    spec = {"teacher": "integral", "weight": 1.0, "decay_steps": 100_000, "epochs": 2}
-    config = dataclasses.replace(result["run_config"], n_envs=2, timesteps=128, init_from=str(out), imitation=spec,
-                                 hyperparams={**result["run_config"].hyperparams, "n_steps": 64, "batch_size": 64})
-    _, vecnorm, model = prepare(config, tmp_path / "ft")
-    term = imitation.imitation_callback(config, vecnorm)
+    teacher, vecnorm, model, term = _fine_tuning_with_imitation(distilled_with_history, tmp_path, monkeypatch, 128,
+                                                                epochs=2)
     original = term._imitate
 
     def check():

@@ -65,7 +65,7 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
     done, start = np.zeros(episodes, bool), np.ones(episodes, bool)
     draws = np.random.default_rng(seed) if student is not None and teacher_share > 0 else None
     observations, labels = [], []
-    stack = None if history == 1 else np.full((episodes, history, obs.shape[1]), np.nan, dtype=np.float32)
+    stack = np.full((episodes, history, obs.shape[1]), np.nan, dtype=np.float32)  # each episode's last observations
     while not done.all():
         label, _ = teacher.predict(obs, episode_start=start, deterministic=True)
         action = label if student is None else student.predict(obs, episode_start=start, deterministic=True)[0]
@@ -74,13 +74,10 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
         if student is not None and hasattr(teacher, "observe_applied"):  # a teacher with memory of its inputs
             teacher.observe_applied(action)
         live = ~done
-        if stack is None:
-            observations.append(np.array(obs[live], dtype=np.float32))
-        else:
-            stack = np.roll(stack, -1, axis=1)
-            stack[start] = np.nan
-            stack[:, -1] = obs
-            observations.append(stack[live].reshape(int(live.sum()), -1))
+        stack = np.roll(stack, -1, axis=1)
+        stack[start] = np.nan
+        stack[:, -1] = obs
+        observations.append(stack[live].reshape(int(live.sum()), -1))
         labels.append(np.array(label[live], dtype=np.float32))
         start[:] = False
         previous = obs
