@@ -5,8 +5,12 @@
 Each policy acts on the observations of its own closed loop (one episode, ``--steps`` control steps of
 ``track_random``, nominal tier, seed 1,000,000), and
 :func:`softpvtol_gym.baselines.evaluation.compute_us_single` times ``predict`` on one observation (obs_dim,) at
-a time over them, in one thread (torch on one thread). The policies: the passivity controller (the env's
-default loop, ``bounded``), its integral loop, the dynamically extended loop (actuators mode), and a learned
+a time over them, in order, each pass starting the policy's memory anew (an MPC's warm start does each step's
+work as in its closed loop), in one thread (torch on one thread). The MPC's own timer gives its step's median, p99
+and max over every call of the run. The policies: the passivity controller (the env's
+default loop, ``bounded``), its integral loop, the dynamically extended loop (actuators mode), the nonlinear MPC
+(``MPCPolicy``, actuators mode; also on the ``hard`` tier, whose noisy observations cost its QP more
+interior-point iterations), and a learned
 2 x 64 MLP (the committed checkpoint ``ppo_residual_track_random_nominal/seed_0``, residual mode, normalised
 observations) three ways: ``LearnedPolicy(..., inference="lean")`` (the compiled float64 pass), ``inference=
 "torch"`` (SB3's ``predict`` calls), and SB3's own ``model.predict`` after ``VecNormalize.normalize_obs``.
@@ -32,11 +36,12 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import machine_facts  # noqa: E402
-from softpvtol_gym import PassivityPolicy, SoftPVTOLVectorEnv  # noqa: E402
+from softpvtol_gym import MPCPolicy, PassivityPolicy, SoftPVTOLVectorEnv  # noqa: E402
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, compute_us_single  # noqa: E402
 from softpvtol_gym.baselines.training.policy import LearnedPolicy  # noqa: E402
 from softpvtol_gym.baselines.util.atomic import atomic_write_text  # noqa: E402
 from softpvtol_gym.baselines.util.blocks import write_block  # noqa: E402
+from softpvtol_gym.envs.config import EnvConfig  # noqa: E402
 
 SOURCE = "benchmarks/per_robot_compute.json"
 BLOCK = "per_robot_compute.py"
@@ -47,6 +52,8 @@ CASES = (
     ("passivity", "`PassivityPolicy`, the env's default loop (bounded)"),
     ("integral", "`PassivityPolicy`, the integral loop"),
     ("extended", "`ExtendedPolicy`, the dynamically extended loop"),
+    ("mpc", "`MPCPolicy`, the nonlinear MPC (one real-time iteration, HPIPM)"),
+    ("mpc-hard", "`MPCPolicy` on the `hard` tier (noisy observations: more interior-point iterations)"),
     ("learned-lean", "learned 2 x 64 MLP: `LearnedPolicy` (default, `inference=\"lean\"`)"),
     ("learned-torch", "learned 2 x 64 MLP: `LearnedPolicy(..., inference=\"torch\")` (SB3's `predict` calls)"),
     ("learned-sb3", "learned 2 x 64 MLP: SB3's `model.predict` after `VecNormalize.normalize_obs`"),
@@ -63,9 +70,9 @@ class SB3Predict:
         return self.model.predict(self.vecnorm.normalize_obs(observation), deterministic=deterministic)
 
 
-def closed_loop_observations(policy, action_mode: str, steps: int, env_kwargs: dict) -> np.ndarray:
+def closed_loop_observations(policy, action_mode: str, steps: int, env_kwargs: dict, tier: str = TIER) -> np.ndarray:
     """The observations (steps, obs_dim) of one episode of ``policy``'s own closed loop."""
-    env = SoftPVTOLVectorEnv(num_envs=1, action_mode=action_mode, task=TASK, tier=TIER, **env_kwargs)
+    env = SoftPVTOLVectorEnv(num_envs=1, action_mode=action_mode, task=TASK, tier=tier, **env_kwargs)
     obs, _ = env.reset(seed=EVAL_SEED_OFFSET)
     out = []
     for _ in range(steps):
@@ -84,6 +91,9 @@ def build_cases(steps: int) -> dict:
         probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=TASK, **kw)
         policy = PassivityPolicy.from_env(probe)
         cases[name] = (policy, closed_loop_observations(policy, "actuators", steps, kw))
+    for name, tier in (("mpc", TIER), ("mpc-hard", "hard")):
+        policy = MPCPolicy(EnvConfig(task=TASK, tier=tier, action_mode="actuators"))
+        cases[name] = (policy, closed_loop_observations(policy, "actuators", steps, {}, tier))
     lean, config = LearnedPolicy.load(ROOT / CHECKPOINT)
     obs = closed_loop_observations(lean, config.action_mode, steps, config.eval_env_kwargs())
     torch_path = LearnedPolicy(lean.model, lean.vecnorm, inference="torch")
@@ -100,7 +110,9 @@ def measure(steps: int, rounds: int) -> dict:
         for name, (policy, obs) in cases.items():
             per_round[name].append(compute_us_single(policy, obs, repeats=1))
     ratios = [a / b for a, b in zip(per_round["learned-lean"], per_round["integral"])]
+    timer = ("solves", "solve_ms_median", "solve_ms_p99", "solve_ms_max")
     return {
+        "mpc_solver": {name: {k: cases[name][0].stats[k] for k in timer} for name in ("mpc", "mpc-hard")},
         "us": {name: {"median": float(np.median(v)), "min_round": float(min(v)), "max_round": float(max(v)),
                       "rounds": [round(x, 3) for x in v], "observations": int(len(cases[name][1]))}
                for name, v in per_round.items()},
@@ -123,6 +135,11 @@ def markdown_table(report: dict) -> str:
         lines.append(f"| {what} | {m['median']:.1f} ({m['min_round']:.1f}-{m['max_round']:.1f}) |")
     lines += ["", f"The lean path / the integral loop, per round: {report['lean_over_integral']:.2f}x; SB3's "
                   f"`predict` calls (`inference=\"torch\"`) / the lean path: {report['torch_over_lean']:.0f}x."]
+    for name, label in (("mpc", "nominal"), ("mpc-hard", "hard")):
+        m = report["mpc_solver"][name]
+        lines += ["", f"The MPC's step on the {label} tier by its own timer, over all {m['solves']} calls of the run: "
+                     f"median {m['solve_ms_median']:.2f} ms, p99 {m['solve_ms_p99']:.2f} ms, max "
+                     f"{m['solve_ms_max']:.1f} ms."]
     return "\n".join(lines)
 
 

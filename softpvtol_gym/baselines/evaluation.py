@@ -169,14 +169,16 @@ def compute_us_single(policy, observations, repeats: int = 3) -> float:
     """The median wall time [us] of ``policy.predict`` on one observation at a time: the latency of the controller
     of one robot, measured in a pass of its own (not during an evaluation of many episodes at once).
 
-    ``observations`` (n, obs_dim): e.g. the observations of a real episode, in order. One untimed call first
-    (observation 0, ``episode_start`` true: a learned policy's frame stack, a controller's memory for one robot,
-    and any one-off compilation), then ``repeats`` passes over the observations, each ``predict(observations[i],
-    deterministic=True)`` on the observation (obs_dim,) alone, timed with ``time.perf_counter`` around the call.
-    The median over the ``repeats * n`` calls leaves out the occasional call that the OS interrupted. Runs in
-    the calling thread: torch on one thread (restored after); the package's compiled kernels split only batches
-    of 512 rows and more over threads, so one observation never is. Wall time: it depends on the machine and
-    its load (say which, beside the figure)."""
+    ``observations`` (n, obs_dim): the observations of a real episode, in order, as the robot met them, so that a
+    controller with memory (an MPC's warm start and disturbance estimate, an integral loop's integrator, a learned
+    policy's frame stack) does each step's work as it did in the closed loop. One untimed call first (observation
+    0, ``episode_start`` true: any one-off compilation), then ``repeats`` passes over the observations in order,
+    each starting the policy's memory for one robot anew (``episode_start`` true on observation 0) and each call
+    ``predict(observations[i], ...)`` on the observation (obs_dim,) alone, timed with ``time.perf_counter`` around
+    the call. The median over the ``repeats * n`` calls leaves out the occasional call that the OS interrupted.
+    Runs in the calling thread: torch on one thread (restored after); the package's compiled kernels split only
+    batches of 512 rows and more over threads, so one observation never is. Wall time: it depends on the machine
+    and its load (say which, beside the figure)."""
     obs = np.asarray(observations)
     if obs.ndim != 2 or obs.shape[0] < 1:
         raise ValueError(f"observations must be an array (n, obs_dim) of n >= 1 observations, got shape {obs.shape}")
@@ -184,30 +186,39 @@ def compute_us_single(policy, observations, repeats: int = 3) -> float:
         raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
     rows = list(obs)
     seconds = np.empty(repeats * len(rows))
+    start = np.ones(1, dtype=bool)
     with one_torch_thread():
-        policy.predict(rows[0], episode_start=np.ones(1, dtype=bool), deterministic=True)
+        policy.predict(rows[0], episode_start=start, deterministic=True)
         i = 0
         for _ in range(repeats):
-            for row in rows:
+            for j, row in enumerate(rows):
                 tic = time.perf_counter()
-                policy.predict(row, deterministic=True)
+                if j == 0:
+                    policy.predict(row, episode_start=start, deterministic=True)
+                else:
+                    policy.predict(row, deterministic=True)
                 seconds[i] = time.perf_counter() - tic
                 i += 1
     return float(np.median(seconds) * 1e6)
 
 
-#: the per-robot compute pass times at most this many observations of the first episode (evenly spaced)
-COMPUTE_OBSERVATIONS = 250
+#: the per-robot compute pass replays at most this many observations of the first episode, from its start, in order
+#: (10 s of control at 100 Hz: a tracking task's transient and the start of its steady state)
+COMPUTE_OBSERVATIONS = 1000
+#: how the per-robot compute pass is measured (recorded in each job's result: a result measured another way, or
+#: before this was recorded, has its pass run again)
+COMPUTE_PASS = f"closed-loop order, first {COMPUTE_OBSERVATIONS} observations of test episode 0"
 
 
 def episode_observations(policy, action_mode: str, task: str, tier: str, seed: int,
-                         env_kwargs: dict | None = None) -> np.ndarray:
+                         env_kwargs: dict | None = None, steps: int | None = None) -> np.ndarray:
     """The observations (steps, obs_dim) that ``policy`` acts on in evaluation episode 0 of ``seed`` (the episode
-    :func:`run_episodes` runs as sub-env 0), in order, run alone in an env of its own until it ends."""
+    :func:`run_episodes` runs as sub-env 0), in order, run alone in an env of its own until it ends or for at most
+    ``steps`` steps (None: until it ends)."""
     env = SoftPVTOLVectorEnv(num_envs=1, action_mode=action_mode, task=task, tier=tier, **(env_kwargs or {}))
     obs, _ = env.reset(seed=seed)
     seen, start, done = [], np.ones(1, bool), False
-    while not done:
+    while not done and (steps is None or len(seen) < steps):
         seen.append(obs[0].copy())
         action, _ = policy.predict(obs, episode_start=start, deterministic=True)
         start[:] = False
@@ -220,13 +231,13 @@ def episode_observations(policy, action_mode: str, task: str, tier: str, seed: i
 def per_robot_compute_us(policy, action_mode: str, task: str, tier: str, seed: int, env_kwargs: dict | None = None,
                          observations: int = COMPUTE_OBSERVATIONS, repeats: int = 3) -> float:
     """The per-robot compute of ``policy`` on a task and tier [us], measured in a pass of its own:
-    :func:`compute_us_single` on at most ``observations`` evenly spaced observations of evaluation episode 0 of
-    ``seed`` (:func:`episode_observations`). Wall time: machine- and load-dependent."""
+    :func:`compute_us_single` on the first ``observations`` observations of evaluation episode 0 of ``seed``
+    (:func:`episode_observations`; fewer if it ends sooner), in the order of its closed loop. Wall time: machine-
+    and load-dependent."""
     if isinstance(observations, bool) or not isinstance(observations, int) or observations < 1:
         raise ValueError(f"observations must be an integer >= 1, got {observations!r}")
-    seen = episode_observations(policy, action_mode, task, tier, seed, env_kwargs)
-    stride = -(-len(seen) // observations)  # ceil: at most `observations` rows
-    return compute_us_single(policy, seen[::stride], repeats=repeats)
+    seen = episode_observations(policy, action_mode, task, tier, seed, env_kwargs, steps=observations)
+    return compute_us_single(policy, seen, repeats=repeats)
 
 
 def without_timing(episode: dict) -> dict:

@@ -480,7 +480,10 @@ def test_results_without_the_windowed_metrics_a_tier_or_the_episode_count_are_st
     fresh = [ep(0.1) | {"compute_us_single": 15.0}, ep(0.2) | {"compute_us_single": 15.0}]
     v2 = [{k: v for k, v in e.items() if k in ("return", "rms_position_error", "rms_attitude_error",
                                                 "control_effort", "crashed", "length")} for e in fresh]
-    record = {"job": dataclasses.asdict(job), "inference": "lean", "eval": {"nominal": fresh, "model_gap": fresh}}
+    from softpvtol_gym.baselines.evaluation import COMPUTE_PASS
+
+    record = {"job": dataclasses.asdict(job), "inference": "lean", "compute_pass": COMPUTE_PASS,
+              "eval": {"nominal": fresh, "model_gap": fresh}}
     assert stale_evaluations(job, record) == []
     assert stale_evaluations(job, record | {"eval": {"nominal": fresh}}) == [("hover", "model_gap")]
     assert stale_evaluations(job, record | {"eval": {"nominal": v2, "model_gap": fresh}}) == [("hover", "nominal")]
@@ -503,12 +506,14 @@ def test_rescoring_never_trains(tmp_path):
 
 
 def test_stale_parts_name_exactly_what_a_result_lacks():
+    from softpvtol_gym.baselines.evaluation import COMPUTE_PASS
     from softpvtol_gym.baselines.leaderboard.jobs import stale_parts
 
     job = _learned_job(selection_episodes=2, selection_seed=2_000_000)
     scored = [ep(0.1) | {"compute_us_single": 15.0}] * 2
     unmeasured = [ep(0.1)] * 2
-    record = {"job": dataclasses.asdict(job), "inference": "lean", "eval": {"nominal": scored, "model_gap": scored},
+    record = {"job": dataclasses.asdict(job), "inference": "lean", "compute_pass": COMPUTE_PASS,
+              "eval": {"nominal": scored, "model_gap": scored},
               "selection": {"hover": {"nominal": [ep(0.3)] * 2, "model_gap": [ep(0.3)] * 2}}}
     assert stale_parts(job, record) == {}
     assert stale_parts(job, record | {"selection": {"hover": {"nominal": [ep(0.3)] * 2}}}) == {
@@ -522,7 +527,13 @@ def test_stale_parts_name_exactly_what_a_result_lacks():
     assert stale_parts(dataclasses.replace(job, inference="torch"), record | {"inference": "torch"}) == {}
     # an analytic job has no forward pass to check; a job without selection episodes ignores them
     analytic = dataclasses.replace(job, policy="passivity-bounded", train_tier=None, selection_episodes=0)
-    assert stale_parts(analytic, {"job": {"task": "hover"}, "eval": {"nominal": scored, "model_gap": scored}}) == {}
+    analytic_record = {"job": {"task": "hover"}, "compute_pass": COMPUTE_PASS,
+                       "eval": {"nominal": scored, "model_gap": scored}}
+    assert stale_parts(analytic, analytic_record) == {}
+    # a per-robot compute measured another way (or before the way was recorded): only that pass again
+    compute_only = {("hover", t): ("compute",) for t in ("nominal", "model_gap")}
+    assert stale_parts(analytic, analytic_record | {"compute_pass": "evenly spaced observations"}) == compute_only
+    assert stale_parts(analytic, {k: v for k, v in analytic_record.items() if k != "compute_pass"}) == compute_only
 
 
 def test_rescoring_runs_only_the_missing_parts_and_measures_the_per_robot_compute(tmp_path):
@@ -535,6 +546,9 @@ def test_rescoring_runs_only_the_missing_parts_and_measures_the_per_robot_comput
     record = run_job(job, tmp_path)
     test, chosen = record["eval"]["nominal"], record["selection"]["hover"]["nominal"]
     assert len(test) == len(chosen) == 2 and record["inference"] is None
+    from softpvtol_gym.baselines.evaluation import COMPUTE_PASS
+
+    assert record["compute_pass"] == COMPUTE_PASS
     assert {e["compute_us_single"] for e in test} == {test[0]["compute_us_single"]} and test[0]["compute_us_single"] > 0
     assert [e["return"] for e in chosen] != [e["return"] for e in test]  # other seeds, other episodes
     path = job.folder(tmp_path) / "eval.json"

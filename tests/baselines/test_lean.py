@@ -321,7 +321,38 @@ def test_compute_us_single_times_one_observation_at_a_time_in_one_torch_thread()
     finally:
         torch.set_num_threads(before)
     assert us > 0 and np.isfinite(us)
-    assert recorder.calls[0] == ((18,), [True]) and recorder.calls[1:] == [((18,), None)] * 8
+    # the untimed call, then each pass in order, starting the robot's memory anew on its first observation
+    start, step = ((18,), [True]), ((18,), None)
+    assert recorder.calls == [start] + [start, step, step, step] * 2
+
+
+class _ActionRecorder:
+    """A policy that records the actions another policy gives."""
+
+    def __init__(self, policy):
+        self.policy, self.actions = policy, []
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        action, state = self.policy.predict(observation, state, episode_start, deterministic)
+        self.actions.append(np.array(action, dtype=np.float64).reshape(-1))
+        return action, state
+
+
+def test_the_per_robot_compute_pass_replays_the_closed_loop_of_a_controller_with_memory():
+    """The integral loop (an integrator: memory) does in each timed pass what it did in its episode: the pass
+    replays the episode's observations in order from a fresh start, so every action is the episode's."""
+    from softpvtol_gym.baselines.evaluation import episode_observations
+
+    probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task="track_random", controller_loop="integral")
+    recorder = _ActionRecorder(PassivityPolicy.from_env(probe))
+    obs = episode_observations(recorder, "actuators", "track_random", "wind", EVAL_SEED_OFFSET, steps=60)
+    assert obs.shape == (60, 18)
+    in_episode, recorder.actions = np.array(recorder.actions), []
+    compute_us_single(recorder, obs, repeats=2)
+    replayed = np.array(recorder.actions[1:]).reshape(2, 60, -1)  # after the untimed call: two passes
+    np.testing.assert_array_equal(replayed[0], in_episode)
+    np.testing.assert_array_equal(replayed[1], in_episode)
+    assert np.abs(in_episode - in_episode[0]).max() > 0  # the actions do change along the episode
 
 
 @pytest.mark.parametrize("obs, repeats, message", [

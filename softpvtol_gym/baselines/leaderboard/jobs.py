@@ -37,9 +37,10 @@ test episodes, when they lack a metric the evaluator now records
 (:data:`~softpvtol_gym.baselines.evaluation.EPISODE_METRICS`, the timing of
 :data:`~softpvtol_gym.baselines.evaluation.TIMING_METRICS`: results from before the windowed metrics) or come in
 another number than the job asks for; ``selection`` likewise for the selection episodes; ``compute`` when the test
-episodes lack ``compute_us_single``. A learned result scored with another forward pass than the job's
-``inference`` (results from before the lean path record none) is stale in all three. Only the stale parts are run
-again (with the committed model: a learned job with a model is never trained again); ``rescore=True``
+episodes lack ``compute_us_single`` or the result's ``compute_pass`` is not how the pass is measured now
+(:data:`~softpvtol_gym.baselines.evaluation.COMPUTE_PASS`). A learned result scored with another forward pass
+than the job's ``inference`` (results from before the lean path record none) is stale in all three. Only the stale
+parts are run again (with the committed model: a learned job with a model is never trained again); ``rescore=True``
 (``run-jobs --rescore``) runs only those, of jobs that have a result, and refuses to train.
 
 The spec is validated before any job runs (:func:`load_spec`: unknown keys, wrong types, unknown tasks,
@@ -73,6 +74,7 @@ from softpvtol_gym.baselines.config.recipes import load_recipe, recipe_config_fi
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import (
+    COMPUTE_PASS,
     COMPUTE_SINGLE,
     EPISODE_METRICS,
     TIMING_METRICS,
@@ -300,6 +302,7 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
         "checkpoint": _checkpoint_field(out, base) if job.learned else None,
         "train_seconds": None if train_seconds is None else round(train_seconds, 1),
         "inference": job.inference if job.learned else None,
+        "compute_pass": COMPUTE_PASS,
         "eval": evaluations[job.task],
     }
     if job.other_eval_tasks:
@@ -410,7 +413,8 @@ def stale_parts(job: Job, record: dict) -> dict[tuple[str, str], tuple[str, ...]
     """(task, tier) -> the parts of :data:`PARTS` that ``job``'s result ``record`` lacks or holds stale: ``test``
     (missing, another number than ``job.eval_episodes``, or episodes without a metric of :data:`EPISODE_METRICS` /
     :data:`TIMING_METRICS`), ``selection`` (the same for ``job.selection_episodes``, where the job has them),
-    ``compute`` (test episodes without ``compute_us_single``; always with ``test``); a learned result scored with
+    ``compute`` (test episodes without ``compute_us_single``, or a record whose ``compute_pass`` is not
+    :data:`~softpvtol_gym.baselines.evaluation.COMPUTE_PASS`; always with ``test``); a learned result scored with
     another forward pass than ``job.inference`` (none recorded: from before the lean path): every part."""
     have, chosen = evaluations_of(record), selections_of(record)
     other_path = job.learned and record.get("inference") != job.inference
@@ -423,7 +427,7 @@ def stale_parts(job: Job, record: dict) -> dict[tuple[str, str], tuple[str, ...]
         if job.selection_episodes and (other_path or not _fresh(chosen.get(task, {}).get(tier),
                                                                 job.selection_episodes)):
             parts.append("selection")
-        if "test" in parts or not all(COMPUTE_SINGLE in e for e in test):
+        if "test" in parts or record.get("compute_pass") != COMPUTE_PASS or not all(COMPUTE_SINGLE in e for e in test):
             parts.append("compute")
         if parts:
             out[(task, tier)] = tuple(parts)

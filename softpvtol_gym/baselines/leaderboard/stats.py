@@ -36,6 +36,7 @@ import numpy as np
 
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import (
+    COMPUTE_PASS,
     COMPUTE_SINGLE,
     EPISODE_METRICS,
     TIMING_METRICS,
@@ -392,8 +393,8 @@ def build(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, base: Path = Path("."),
             "selection_episodes": int(s["evaluation"].get("selection_episodes", 0)),
             "inference": inference or s["evaluation"].get("inference", "lean"), "min_ci_values": MIN_CI_VALUES,
             "seeds": len(s["seeds"]), "bootstrap_reps": BOOTSTRAP_REPS, "poi_bootstrap_reps": POI_BOOTSTRAP_REPS,
-            "bootstrap_seed": BOOTSTRAP_SEED,
-            "reference": REFERENCE, "missing_jobs": missing, "version": 4}
+            "bootstrap_seed": BOOTSTRAP_SEED, "compute_pass": COMPUTE_PASS,
+            "reference": REFERENCE, "missing_jobs": missing, "version": 5}
     return {"meta": meta, "aggregates": aggregate(cells), "cells": cells}
 
 
