@@ -12,7 +12,8 @@ a task added to a cell's ``also_evaluated_on`` (a tier added to the spec) only r
 ``--reevaluate`` re-runs every evaluation with the committed models (after a change of env or controller code).
 ``--rescore`` re-runs only the stale parts of the evaluations of jobs that have a result: tiers or tasks they lack,
 results recorded before the windowed metrics (episodes without ``rms_position_error_steady``,
-``compute_us_per_step``, ...), missing selection episodes, a missing per-robot compute pass (``compute_us_single``),
+``compute_us_per_step``, ...), missing selection episodes, a per-robot compute pass (``compute_us_single``) missing
+or measured otherwise than the package measures it now (the result's ``compute_pass``),
 learned results scored with another forward pass than ``--inference`` (default: the spec's, ``lean``), with the
 committed models; it never trains (a learned job without its model fails, naming it) and leaves
 the jobs that have no result to a run without it.
