@@ -37,7 +37,11 @@ if str(ROOT) not in sys.path:
 
 from benchmarks._common import machine_facts  # noqa: E402
 from softpvtol_gym import MPCPolicy, PassivityPolicy, SoftPVTOLVectorEnv  # noqa: E402
-from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, compute_us_single  # noqa: E402
+from softpvtol_gym.baselines.evaluation import (  # noqa: E402
+    EVAL_SEED_OFFSET,
+    compute_us_single,
+    episode_observations,
+)
 from softpvtol_gym.baselines.training.policy import LearnedPolicy  # noqa: E402
 from softpvtol_gym.baselines.util.atomic import atomic_write_text  # noqa: E402
 from softpvtol_gym.baselines.util.blocks import write_block  # noqa: E402
@@ -70,19 +74,6 @@ class SB3Predict:
         return self.model.predict(self.vecnorm.normalize_obs(observation), deterministic=deterministic)
 
 
-def closed_loop_observations(policy, action_mode: str, steps: int, env_kwargs: dict, tier: str = TIER) -> np.ndarray:
-    """The observations (steps, obs_dim) of one episode of ``policy``'s own closed loop."""
-    env = SoftPVTOLVectorEnv(num_envs=1, action_mode=action_mode, task=TASK, tier=tier, **env_kwargs)
-    obs, _ = env.reset(seed=EVAL_SEED_OFFSET)
-    out = []
-    for _ in range(steps):
-        out.append(obs[0].copy())
-        obs, _, term, trunc, _ = env.step(policy.predict(obs, deterministic=True)[0])
-        if term[0] or trunc[0]:
-            break
-    return np.array(out)
-
-
 def build_cases(steps: int) -> dict:
     """name -> (policy, its observations)."""
     cases = {}
@@ -90,12 +81,13 @@ def build_cases(steps: int) -> dict:
         kw = {"allocation": "exact", "controller_loop": loop}
         probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=TASK, **kw)
         policy = PassivityPolicy.from_env(probe)
-        cases[name] = (policy, closed_loop_observations(policy, "actuators", steps, kw))
+        cases[name] = (policy, episode_observations(policy, "actuators", TASK, TIER, EVAL_SEED_OFFSET, kw, steps=steps))
     for name, tier in (("mpc", TIER), ("mpc-hard", "hard")):
         policy = MPCPolicy(EnvConfig(task=TASK, tier=tier, action_mode="actuators"))
-        cases[name] = (policy, closed_loop_observations(policy, "actuators", steps, {}, tier))
+        cases[name] = (policy, episode_observations(policy, "actuators", TASK, tier, EVAL_SEED_OFFSET, steps=steps))
     lean, config = LearnedPolicy.load(ROOT / CHECKPOINT)
-    obs = closed_loop_observations(lean, config.action_mode, steps, config.eval_env_kwargs())
+    obs = episode_observations(lean, config.action_mode, TASK, TIER, EVAL_SEED_OFFSET, config.eval_env_kwargs(),
+                               steps=steps)
     torch_path = LearnedPolicy(lean.model, lean.vecnorm, inference="torch")
     cases["learned-lean"] = (lean, obs)
     cases["learned-torch"] = (torch_path, obs)

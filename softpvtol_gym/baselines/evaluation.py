@@ -193,10 +193,7 @@ def compute_us_single(policy, observations, repeats: int = 3) -> float:
         for _ in range(repeats):
             for j, row in enumerate(rows):
                 tic = time.perf_counter()
-                if j == 0:
-                    policy.predict(row, episode_start=start, deterministic=True)
-                else:
-                    policy.predict(row, deterministic=True)
+                policy.predict(row, episode_start=start if j == 0 else None, deterministic=True)
                 seconds[i] = time.perf_counter() - tic
                 i += 1
     return float(np.median(seconds) * 1e6)

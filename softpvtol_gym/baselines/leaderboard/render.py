@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softpvtol_gym.baselines.evaluation import COMPUTE_SINGLE, WINDOW_METRICS
+from softpvtol_gym.baselines.evaluation import COMPUTE_OBSERVATIONS, COMPUTE_SINGLE, WINDOW_METRICS
 from softpvtol_gym.baselines.leaderboard.base_loops import WORSE, WORSE_NOTE, base_loop_comparisons, worse_windows
 from softpvtol_gym.baselines.leaderboard.headline import headline, window_headline
 from softpvtol_gym.baselines.leaderboard.spec import is_learned
@@ -102,7 +102,8 @@ def headline_markdown(data: dict, heading: bool = True) -> list[str]:
         f"training seeds only (zero width for an analytic entry). {FEW_VALUES_NOTE} "
         + _selection_sentence(data, rows)
         + " µs/robot: the per-robot compute, the median µs of the entry's `predict` on one observation at a time "
-        "(`compute_us_single`, a pass of its own over the first 1,000 observations of a test episode in the order "
+        f"(`compute_us_single`, a pass of its own over the first {COMPUTE_OBSERVATIONS:,} observations of a test "
+        "episode in the order "
         "of its closed loop; wall time, machine- and load-dependent; — where not measured).",
         "",
         f"**Model-based control wins {counts['model-based']} of {len(rows)} (task, tier, window) cells, learned "
@@ -266,7 +267,8 @@ def render_markdown(data: dict, chart: str = "../results/leaderboard.png") -> st
         "at the load the jobs ran; in brackets the worst episode's 99th percentile and maximum (which includes "
         "one-off costs such as compiling on the first call). µs/robot: the per-robot compute, the median wall time "
         "of `predict` on one observation at a time in one thread (`compute_us_single`, measured in a pass of its own "
-        "on the first 1,000 observations of each run's first test episode, in the order of its closed loop, so that "
+        f"on the first {COMPUTE_OBSERVATIONS:,} observations of each run's first test episode, in the order of its "
+        "closed loop, so that "
         "a controller with memory does each step's work as in the episode; the median over runs); — where not "
         "measured. "
         f"{FEW_VALUES_NOTE} Lower error, higher return, lower crash rate are better.",
