@@ -1,7 +1,7 @@
 """The MPC's solve time per control step and tracking with each QP solver, on the same episode.
 
     python benchmarks/mpc_solvers.py --json benchmarks/mpc_solvers.json
-    python benchmarks/mpc_solvers.py --solvers hpipm daqp --seconds 10
+    python benchmarks/mpc_solvers.py --solvers piqp hpipm --seconds 10
 
 One ``track_paper`` episode (seed 1,000,000, tier nominal, actuators mode) per solver, as
 ``benchmarks/mpc_quality.py`` runs it: the transient is the RMS position error over 0-10 s, the
@@ -28,7 +28,7 @@ from softpvtol_gym.envs.config import EnvConfig  # noqa: E402
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--solvers", nargs="+", default=["hpipm", "daqp", "qpoases"])
+    ap.add_argument("--solvers", nargs="+", default=["piqp", "hpipm", "daqp", "qpoases"])
     ap.add_argument("--task", default="track_paper")
     ap.add_argument("--tier", default="nominal")
     ap.add_argument("--seed", type=int, default=1_000_000)

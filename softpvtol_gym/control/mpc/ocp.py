@@ -21,10 +21,11 @@ Solver: real-time iteration, i.e. Gauss-Newton SQP with ``sqp_iterations`` steps
 (default one; each step shortened by a backtracking line search on the nonlinear cost), single
 shooting. Each iteration rolls the model out from x0 under the current input guess and gets the
 interval Jacobians A_k = dF/dx, B_k = dF/du from one CasADi Function (symbolic RK4, AD), and solves the
-Gauss-Newton QP in the steps of the plan: by default with HPIPM on the QP with its stage structure
-(state and input steps as variables, the linearised dynamics as equality constraints; ``_SparseQP``),
-else with a dense solver on the QP condensed to the input steps (states eliminated: the N x 4 inputs as
-variables, the 2N curvature rows as constraints; ``_CondensedQP``). Both are the same QP. The guess is
+Gauss-Newton QP in the steps of the plan: by default with PIQP's multistage interior point method on the
+QP with its stage structure (state and input steps as variables, the linearised dynamics as equality
+constraints; ``_SparseQP``; HPIPM through CasADi takes the same QP), else with a dense solver on the QP
+condensed to the input steps (states eliminated: the N x 4 inputs as variables, the 2N curvature rows as
+constraints; ``_CondensedQP``). Both are the same QP. The guess is
 the previous solution shifted by one control period (warm start).
 
 Disturbance: ``d`` (5), a generalized force added to the model's B(q) u, held over the horizon (the
@@ -48,7 +49,7 @@ import numpy as np
 from ..._validation import short_repr
 from ...params import SoftPVTOLParams
 from . import symbolic
-from ._casadi import import_casadi
+from ._casadi import import_casadi, import_piqp
 from ._codegen import compile_functions, find_compiler
 from .qp import (
     FREE_BOUND,
@@ -58,6 +59,7 @@ from .qp import (
     _Buffered,
     _CondensedQP,
     _differences,
+    _PiqpQP,
     _SparseQP,
 )
 
@@ -68,10 +70,16 @@ ND = symbolic.DISTURBANCE_SIZE
 DIVERGED_CURVATURE = 0.5 * FREE_BOUND
 #: the line search's step lengths (fractions of the Gauss-Newton step)
 LINE_SEARCH_STEPS = (1.0, 0.5, 0.25, 0.125)
-#: CasADi QP solvers the MPC accepts (ones that CasADi's wheels bundle) and their options; none of them
-#: starts from an earlier call's solution (qpOASES hot-starts from its last active set: the policy gives
-#: each batch entry its own instance, see ``TrackingOCP.new_qp``)
+#: the QP solvers the MPC accepts and their options: PIQP (its own package, the ``mpc`` extra) and CasADi's
+#: conic plugins that its wheels bundle; none of them starts from an earlier call's solution (qpOASES
+#: hot-starts from its last active set, PIQP keeps its regularisation: the policy gives each batch entry
+#: and episode its own instance, see ``TrackingOCP.new_qp``)
 QP_SOLVERS: dict[str, dict] = {
+    # PIQP's exits: primal and dual residuals at 1e-6 absolute (as HPIPM's below), its duality gap checks at
+    # their defaults; no Ruiz scaling (preconditioner_iter 0: the QP is in normalised inputs already, and
+    # the scaling's update cost 0.15 ms a call, a quarter of the solve, for the same iteration counts); a
+    # median 9-11 iterations at ~0.1 ms each (benchmarks/mpc_solvers.py)
+    "piqp": {"eps_abs": 1e-6, "eps_rel": 0.0, "preconditioner_iter": 0},
     # HPIPM's "speed" mode with its stationarity and complementarity exits at 1e-6 instead of 1e-8: a median
     # 4 interior-point iterations per QP instead of 6 ("balance"), the same plan to the tracking's precision
     # (benchmarks/mpc_solvers.py)
@@ -85,7 +93,9 @@ QP_SOLVERS: dict[str, dict] = {
 }
 #: the solvers that take the QP with its OCP structure (states and inputs as variables); the others
 #: take it condensed (inputs only)
-SPARSE_QP_SOLVERS = ("hpipm",)
+SPARSE_QP_SOLVERS = ("piqp", "hpipm")
+#: the solvers that are not CasADi plugins
+NON_CASADI_QP_SOLVERS = ("piqp",)
 #: the solvers that print to stdout (silenced around each call)
 CHATTY_QP_SOLVERS = ("qpoases",)
 
@@ -115,9 +125,11 @@ class MPCOptions:
                                        each QP may exceed it at a price of ``VIOLATION_PENALTY`` per rad
                                        (an exact L1 penalty), so that a state it cannot hold still has a plan
     ``sqp_iterations``        1        Gauss-Newton SQP iterations per control step (1: real-time iteration)
-    ``qp_solver``             hpipm    CasADi conic plugin: "hpipm" (the QP with its OCP structure, a
-                                       Riccati-based interior point method) | "qpoases" | "daqp" |
-                                       "qrqp" | "osqp" (the QP condensed to the inputs, dense)
+    ``qp_solver``             piqp     "piqp" (PIQP's interior point method on the QP with its OCP
+                                       structure, its multistage KKT solver) | CasADi conic plugins:
+                                       "hpipm" (the same QP, a Riccati-based interior point method) |
+                                       "qpoases" | "daqp" | "qrqp" | "osqp" (the QP condensed to the
+                                       inputs, dense)
     ``disturbance_gain``      0.05     gain per control step of the disturbance estimate (a constant
                                        generalized force added to the model over the horizon, updated
                                        from the measured velocities against the predicted ones; 0: none)
@@ -154,7 +166,7 @@ class MPCOptions:
     terminal_weight: float = 5.0
     curvature_limit: float = math.pi
     sqp_iterations: int = 1
-    qp_solver: str = "hpipm"
+    qp_solver: str = "piqp"
     disturbance_gain: float = 0.05
     jerk_extrapolation: bool = True
     model_input_map: str | None = None
@@ -378,9 +390,14 @@ class TrackingOCP:
             self.solve(np.zeros(NX), np.zeros((n, NX)), np.tile(self.u_hover, (n, 1)), self.u_hover)
             self.qp = self.new_qp()  # forget that solve (a fresh instance: no memory of it)
 
-    def new_qp(self) -> _Buffered:
-        """A fresh instance of the QP solver: a CasADi ``conic`` Function with no memory of earlier
-        calls, with its argument and result arrays (:class:`_Buffered`)."""
+    def new_qp(self) -> _Buffered | _PiqpQP:
+        """A fresh instance of the QP solver with no memory of earlier calls, with its argument and result
+        arrays: PIQP's solver (:class:`_PiqpQP`) or a CasADi ``conic`` Function (:class:`_Buffered`)."""
+        if self.options.qp_solver in NON_CASADI_QP_SOLVERS:
+            import_piqp()
+            qp = _PiqpQP(self._qp_data.sparsity, QP_SOLVERS[self.options.qp_solver])
+            self._qp_data.prepare(qp)
+            return qp
         ca = import_casadi()
         with _quiet_stdout():  # qpOASES prints its banner when its plugin loads
             fn = ca.conic("mpc_qp", self.options.qp_solver, self._qp_data.sparsity,

@@ -1,7 +1,7 @@
 """The MPC's quadratic programs in the two forms its solvers take (see :mod:`.ocp` for the problem): condensed
 (the inputs as variables, for the dense solvers) and sparse with the OCP's stage structure (states and inputs as
-variables, for HPIPM), both with the curvature slacks; and :class:`_Buffered`, a CasADi Function called on NumPy
-arrays in place."""
+variables, for PIQP and HPIPM), both with the curvature slacks; :class:`_Buffered`, a CasADi Function called on
+NumPy arrays in place; and :class:`_PiqpQP`, PIQP's sparse solver behind the same arrays."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ NS = 2
 VIOLATION_PENALTY = 1e4
 #: the QP's quadratic weight on the curvature slacks (keeps the QP strictly convex in them)
 SLACK_WEIGHT = 1.0
-#: the bound of the sparse QP's unbounded variables (state steps) for HPIPM
+#: the bound of the sparse QP's unbounded variables (state steps) for HPIPM (PIQP takes them unbounded)
 FREE_BOUND = 1e4
 
 
@@ -96,8 +96,9 @@ class _CondensedQP:
 
 
 class _SparseQP:
-    """The same Gauss-Newton QP with the OCP's stage structure, for HPIPM (a Riccati-based interior point
-    method: work linear in N, against cubic for a dense QP in the 4N inputs).
+    """The same Gauss-Newton QP with the OCP's stage structure, for PIQP's multistage KKT solver and HPIPM
+    (structure-exploiting interior point methods: work linear in N, against cubic for a dense QP in the 4N
+    inputs).
 
     Variables (the state steps of the rollout and the input steps, in stage order): u_0, then for
     k = 1 .. N-1 (x_k, u_k), then x_N, where u_k = (dv_k (4), w_k (2)) and x_k = (dx_k (10), p_k (4),
@@ -282,3 +283,106 @@ class _Buffered:
     def success(self) -> bool:
         """Whether the last call of a solver succeeded (its ``stats()["success"]``)."""
         return bool(self._buffer.stats().get("success", False))
+
+
+class _PiqpQP:
+    """PIQP's sparse solver (a proximal interior point method; its ``sparse_multistage`` KKT solver factors
+    the OCP's block structure) on a QP given as CasADi's ``conic`` takes it, with the interface of
+    :class:`_Buffered`: ``named_args`` h, g, a (the nonzeros of H and A in the column-major order of the
+    sparsities), lba, uba, lbx, ubx, and ``named_res["x"]``.
+
+    Rows with lba == uba at the first call (the dynamics) are PIQP's equalities, the others its two-sided
+    inequalities; bounds at or beyond +-:data:`FREE_BOUND` are infinite for PIQP (unbounded, as they are meant).
+    The first call sets the problem up (PIQP's symbolic analysis); later calls pass the new values. With
+    PIQP's Ruiz scaling on (``preconditioner_iter`` > 0) a solve depended on the calls before it on the same
+    instance (1e-10: the scaling is updated from the last one); the MPC runs it off, and a solve is then the
+    same on a used instance as on a fresh one (tests/control/test_mpc.py)."""
+
+    def __init__(self, sparsity: dict, settings: dict):
+        import scipy.sparse as sp
+
+        h_sp, a_sp = sparsity["h"], sparsity["a"]
+        self._settings = dict(settings)
+        self._h = sp.csc_matrix((np.zeros(h_sp.nnz()), np.array(h_sp.row()), np.array(h_sp.colind())),
+                                shape=(h_sp.size1(), h_sp.size2()))
+        # the nonzeros of A as an index into themselves, to split the rows once
+        self._a_index = sp.csc_matrix((np.arange(1.0, a_sp.nnz() + 1), np.array(a_sp.row()),
+                                       np.array(a_sp.colind())), shape=(a_sp.size1(), a_sp.size2()))
+        nvar, nrow = h_sp.size1(), a_sp.size1()
+        self.named_args = {"h": np.zeros(h_sp.nnz()), "g": np.zeros(nvar), "a": np.zeros(a_sp.nnz()),
+                           "lba": np.zeros(nrow), "uba": np.zeros(nrow), "lbx": np.zeros(nvar),
+                           "ubx": np.zeros(nvar)}
+        self.named_res = {"x": np.zeros(nvar)}
+        self._solver = None
+        self._status = None
+
+    def _setup(self) -> None:
+        import piqp
+
+        arg = self.named_args
+        equal = arg["lba"] == arg["uba"]
+        rows_eq, rows_in = np.flatnonzero(equal), np.flatnonzero(~equal)
+        a_eq = self._a_index[rows_eq].tocsc()
+        a_in = self._a_index[rows_in].tocsc()
+        a_eq.sort_indices()
+        a_in.sort_indices()
+        self._rows_eq, self._rows_in = rows_eq, rows_in
+        self._take_eq = a_eq.data.astype(np.int64) - 1
+        self._take_in = a_in.data.astype(np.int64) - 1
+        self._a_eq, self._a_in = a_eq, a_in
+        self._h.data[:] = arg["h"]
+        solver = piqp.SparseSolver()
+        solver.settings.kkt_solver = piqp.KKTSolver.sparse_multistage
+        for key, value in self._settings.items():
+            setattr(solver.settings, key, value)
+        self._solver = solver
+        self._fill_values()
+        solver.setup(self._h, arg["g"], a_eq, self._b, a_in, self._h_lo, self._h_hi, self._x_lo, self._x_hi)
+
+    def _fill_values(self) -> None:
+        arg = self.named_args
+        np.take(arg["a"], self._take_eq, out=self._a_eq.data)
+        np.take(arg["a"], self._take_in, out=self._a_in.data)
+        self._b = arg["lba"][self._rows_eq]
+        self._h_lo = _unbounded(arg["lba"][self._rows_in])
+        self._h_hi = _unbounded(arg["uba"][self._rows_in])
+        self._x_lo = _unbounded(arg["lbx"])
+        self._x_hi = _unbounded(arg["ubx"])
+
+    def __call__(self) -> int:
+        """Solve; 0 (PIQP's status is :meth:`success`)."""
+        import piqp
+
+        arg = self.named_args
+        if self._solver is None:
+            self._setup()
+        else:
+            if not np.array_equal(arg["lba"][self._rows_eq], arg["uba"][self._rows_eq]):
+                raise ValueError("the QP's equality rows changed after its first solve; build a new instance")
+            self._fill_values()
+            hessian = None
+            if not np.array_equal(arg["h"], self._h.data):
+                self._h.data[:] = arg["h"]
+                hessian = self._h
+            self._solver.update(P=hessian, c=arg["g"], A=self._a_eq, b=self._b, G=self._a_in, h_l=self._h_lo,
+                                h_u=self._h_hi, x_l=self._x_lo, x_u=self._x_hi)
+        self._status = self._solver.solve()
+        self.named_res["x"][:] = self._solver.result.x
+        self._success = self._status == piqp.PIQP_SOLVED
+        return 0
+
+    def success(self) -> bool:
+        """Whether the last solve ended with PIQP's status "solved"."""
+        return bool(self._solver is not None and self._status is not None and self._success)
+
+    @property
+    def iterations(self) -> int:
+        """PIQP's iterations in the last solve."""
+        return int(self._solver.result.info.iter)
+
+
+def _unbounded(bounds: np.ndarray) -> np.ndarray:
+    """The bounds with the entries at or beyond +-FREE_BOUND made infinite."""
+    out = bounds.copy()
+    out[np.abs(out) >= FREE_BOUND] = np.copysign(np.inf, out[np.abs(out) >= FREE_BOUND])
+    return out
