@@ -55,8 +55,9 @@ class MPCPolicy:
     hard input bounds; |q_l|, |q_r| <= ``curvature_limit`` (pi, the env's) at every node as soft bounds
     (a slack per arm and node with an exact L1 penalty: met whenever the linearised problem can meet them;
     when it cannot, the QP still has a solution, the plan that exceeds them least, counted as ``relaxed``
-    in :attr:`stats`). Solved by real-time iteration: one Gauss-Newton SQP step per control step (by default HPIPM on
-    the QP with its stage structure; ``qp_solver`` selects a dense solver on the condensed QP), with a
+    in :attr:`stats`). Solved by real-time iteration: one Gauss-Newton SQP step per control step (by default PIQP on
+    the QP with its stage structure; ``qp_solver`` selects HPIPM on the same QP or a dense solver on the
+    condensed QP), with a
     backtracking line search on the nonlinear cost, warm-started from the previous plan shifted by one
     control period (from the hover input instead when the model's rollout under that guess diverges).
     When a solve fails (the QP solver, or a rollout that diverges from hover too), the policy applies the

@@ -21,11 +21,12 @@ Solver: real-time iteration, i.e. Gauss-Newton SQP with ``sqp_iterations`` steps
 (default one; each step shortened by a backtracking line search on the nonlinear cost), single
 shooting. Each iteration rolls the model out from x0 under the current input guess and gets the
 interval Jacobians A_k = dF/dx, B_k = dF/du from one CasADi Function (symbolic RK4, AD), and solves the
-Gauss-Newton QP in the steps of the plan: by default with PIQP's multistage interior point method on the
-QP with its stage structure (state and input steps as variables, the linearised dynamics as equality
-constraints; ``_SparseQP``; HPIPM through CasADi takes the same QP), else with a dense solver on the QP
-condensed to the input steps (states eliminated: the N x 4 inputs as variables, the 2N curvature rows as
-constraints; ``_CondensedQP``). Both are the same QP. The guess is
+Gauss-Newton QP in the steps of the plan: by default with PIQP's interior point method on the QP with its
+stage structure (state and input steps as variables, the linearised dynamics as equality constraints, the
+input-rate cost coupling consecutive stages; ``_BandedQP``), with HPIPM through CasADi on the same QP in
+HPIPM's stage form (the previous input step carried as a state; ``_SparseQP``), else with a dense solver on
+the QP condensed to the input steps (states eliminated: the N x 4 inputs as variables, the 2N curvature rows
+as constraints; ``_CondensedQP``). All are the same QP. The guess is
 the previous solution shifted by one control period (warm start).
 
 Disturbance: ``d`` (5), a generalized force added to the model's B(q) u, held over the horizon (the
@@ -56,6 +57,7 @@ from .qp import (
     NU,
     NX,
     VIOLATION_PENALTY,
+    _BandedQP,
     _Buffered,
     _CondensedQP,
     _differences,
@@ -75,11 +77,12 @@ LINE_SEARCH_STEPS = (1.0, 0.5, 0.25, 0.125)
 #: hot-starts from its last active set, PIQP keeps its regularisation: the policy gives each batch entry
 #: and episode its own instance, see ``TrackingOCP.new_qp``)
 QP_SOLVERS: dict[str, dict] = {
-    # PIQP's exits: primal and dual residuals at 1e-6 absolute (as HPIPM's below), its duality gap checks at
-    # their defaults; no Ruiz scaling (preconditioner_iter 0: the QP is in normalised inputs already, and
-    # the scaling's update cost 0.15 ms a call, a quarter of the solve, for the same iteration counts); a
-    # median 9-11 iterations at ~0.1 ms each (benchmarks/mpc_solvers.py)
-    "piqp": {"eps_abs": 1e-6, "eps_rel": 0.0, "preconditioner_iter": 0},
+    # PIQP's exits: primal and dual residuals at 1e-8 absolute, its duality gap checks at their defaults (at
+    # 1e-6, ~5 % faster, the hover hard episodes crashed 2 of 20 times against none at 1e-8 and with HPIPM:
+    # the noisy tiers' closed loops amplify the QP's error); no Ruiz scaling (preconditioner_iter 0: the QP
+    # is in normalised inputs already, and the scaling's update cost 0.15 ms a call, a quarter of the solve,
+    # for the same iteration counts) (benchmarks/README.md, "The MPC's QP solvers")
+    "piqp": {"eps_abs": 1e-8, "eps_rel": 0.0, "preconditioner_iter": 0},
     # HPIPM's "speed" mode with its stationarity and complementarity exits at 1e-6 instead of 1e-8: a median
     # 4 interior-point iterations per QP instead of 6 ("balance"), the same plan to the tracking's precision
     # (benchmarks/mpc_solvers.py)
@@ -378,7 +381,9 @@ class TrackingOCP:
         self._v_hi = np.tile((self.u_hi - self.u_hover) / self.u_scale, n)
         #: "sparse" (states and inputs as variables, the OCP structure: hpipm) or "condensed" (inputs only)
         self.formulation = "sparse" if o.qp_solver in SPARSE_QP_SOLVERS else "condensed"
-        if self.formulation == "sparse":
+        if o.qp_solver in NON_CASADI_QP_SOLVERS:
+            self._qp_data = _BandedQP(n, self.state_weights, o.weight_input, o.weight_input_rate)
+        elif self.formulation == "sparse":
             self._qp_data = _SparseQP(n, self.state_weights, o.weight_input, o.weight_input_rate)
         else:
             self._qp_data = _CondensedQP(n, self.state_weights, o.weight_input, o.weight_input_rate)

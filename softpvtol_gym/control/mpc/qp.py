@@ -235,6 +235,119 @@ class _SparseQP:
         return qp.named_res["x"][self.scols].copy()
 
 
+class _BandedQP:
+    """The same Gauss-Newton QP in its plain sparse form, for PIQP: no variable but the QP's own, the
+    input-rate cost as Hessian entries between consecutive stages (a block-banded KKT system, which PIQP's
+    ``sparse_multistage`` KKT solver factors stage by stage). 16 variables per stage instead of the 22 of
+    :class:`_SparseQP`, whose stage costs cannot couple two stages.
+
+    Variables, in stage order: dv_0, then for k = 1 .. N-1 (dx_k (10), s_k (2), dv_k (4)), then (dx_N, s_N),
+    where dx_k is node k's state step, s_k >= 0 its curvature slacks and dv_k the step of the normalised input
+    of interval k. Rows: the linearised dynamics of each interval, dx_{k+1} = A_k dx_k + B_k S dv_k (dx_0 = 0,
+    S = diag(u_scale)), then per node k = 1 .. N the four curvature rows dq_k + s_k >= -q_max - q_k and
+    dq_k - s_k <= q_max - q_k. Cost: |X + dX - x_ref|^2_W + wu |V + dV|^2 + wd |D (V + dV) - (v_prev, 0, ..)|^2
+    (D the difference operator) + the slacks' VIOLATION_PENALTY s + SLACK_WEIGHT s^2 / 2, as in the module
+    docstring of :mod:`.ocp`."""
+
+    def __init__(self, n: int, state_weights: np.ndarray, weight_input: float, weight_input_rate: float):
+        ca = import_casadi()
+        self.n, self.wu, self.wd = n, weight_input, weight_input_rate
+        self.W = state_weights.reshape(n, NX)
+        stage = NX + NS + NU
+        # first column of node k's (dx_k, s_k, dv_k) block, k = 1 .. N; dv_0 takes columns 0 .. NU-1
+        block = NU + stage * np.arange(n)
+        self.nvar = int(block[-1] + NX + NS)
+        self.xcols = block[:, None] + np.arange(NX)  # (N, 10): dx_k, k = 1 .. N
+        self.scols = block[:, None] + NX + np.arange(NS)  # (N, 2): s_k
+        self.ucols = np.concatenate([np.arange(NU), (block[:-1, None] + NX + NS + np.arange(NU)).reshape(-1)])
+        ucols = self.ucols.reshape(n, NU)
+        self.dynamics_rows = np.arange(NX * n)
+        self.lower_rows = NX * n + NS * 2 * np.arange(n)[:, None] + np.arange(NS)  # (N, 2)
+        self.upper_rows = self.lower_rows + NS
+        self.nrow = NX * n + 2 * NS * n
+
+        rows, cols, consts = [], [], []
+        i10, j10 = np.meshgrid(np.arange(NX), np.arange(NX), indexing="ij")
+        for k in range(1, n):  # A_k on dx_k (interval 0 starts at dx_0 = 0, not a variable)
+            rows.append(NX * k + i10)
+            cols.append(self.xcols[k - 1][j10])
+        i4, j4 = np.meshgrid(np.arange(NX), np.arange(NU), indexing="ij")
+        for k in range(n):  # B_k S on dv_k
+            rows.append(NX * k + i4)
+            cols.append(ucols[k][j4])
+        for k in range(n):  # - dx_{k+1}
+            rows.append(NX * k + np.arange(NX))
+            cols.append(self.xcols[k])
+            consts.append(-np.ones(NX))
+        for k in range(n):  # node k+1's curvature rows: dq + s (lower bound), dq - s (upper bound)
+            for j in range(NS):
+                for row, sign in ((self.lower_rows[k, j], 1.0), (self.upper_rows[k, j], -1.0)):
+                    rows.append(np.array([row, row]))
+                    cols.append(np.array([self.xcols[k, 3 + j], self.scols[k, j]]))
+                    consts.append(np.array([1.0, sign]))
+        rows = np.concatenate([r.ravel() for r in rows])
+        cols = np.concatenate([c.ravel() for c in cols])
+        self._n_a, self._n_b = NX * NX * (n - 1), NX * NU * n
+        a_sp, self._a_order = _sparsity_and_order(ca, rows, cols, self.nrow, self.nvar)
+        self._a_values = np.zeros(rows.size)
+        self._a_values[self._n_a + self._n_b:] = np.concatenate(consts)
+
+        # Hessian (constant): W on dx_k, SLACK_WEIGHT on s_k, wu I + wd D^T D on the stacked dv
+        diag = np.zeros(self.nvar)
+        diag[self.xcols] = self.W
+        diag[self.scols] = SLACK_WEIGHT
+        diag[self.ucols] = weight_input + 2.0 * weight_input_rate
+        diag[ucols[-1]] = weight_input + weight_input_rate  # the last input's change has no successor
+        off_r, off_c = ucols[1:].reshape(-1), ucols[:-1].reshape(-1)
+        hr = np.concatenate([np.arange(self.nvar), off_r, off_c])
+        hc = np.concatenate([np.arange(self.nvar), off_c, off_r])
+        hv = np.concatenate([diag, np.full(off_r.size, -weight_input_rate), np.full(off_c.size, -weight_input_rate)])
+        keep = hv != 0.0
+        h_sp, order = _sparsity_and_order(ca, hr[keep], hc[keep], self.nvar, self.nvar)
+        self._h_values = hv[keep][order]
+        self.sparsity = {"h": h_sp, "a": a_sp}
+
+    def prepare(self, qp) -> None:
+        """The constant Hessian, dynamics residuals, slack costs and bounds, and open sides into the
+        instance's arrays."""
+        arg = qp.named_args
+        arg["h"][:] = self._h_values
+        arg["lba"][self.dynamics_rows] = 0.0
+        arg["uba"][self.dynamics_rows] = 0.0
+        arg["uba"][self.lower_rows] = FREE_BOUND
+        arg["lba"][self.upper_rows] = -FREE_BOUND
+        arg["lbx"][:] = -FREE_BOUND
+        arg["ubx"][:] = FREE_BOUND
+        arg["lbx"][self.scols] = 0.0
+        arg["g"][self.scols] = VIOLATION_PENALTY
+
+    def fill(self, qp, A, B, u_scale, X, x_ref, V, v_prev, lo, hi, qmax) -> None:
+        """The QP's arguments into the solver instance's arrays."""
+        n = self.n
+        vals = self._a_values
+        vals[:self._n_a] = A[:, NX:].reshape(NX, n - 1, NX).transpose(1, 0, 2).reshape(-1)
+        vals[self._n_a:self._n_a + self._n_b] = (B.reshape(NX, n, NU) * u_scale).transpose(1, 0, 2).reshape(-1)
+        arg = qp.named_args
+        np.take(vals, self._a_order, out=arg["a"])
+        dv = _differences(V, v_prev)
+        dtd = dv.copy()  # D^T (D V - (v_prev, 0, ..))
+        dtd[:-NU] -= dv[NU:]
+        g = arg["g"]
+        g[self.ucols] = self.wu * V + self.wd * dtd
+        g[self.xcols] = self.W * (X - x_ref)
+        arg["lbx"][self.ucols] = lo - V
+        arg["ubx"][self.ucols] = hi - V
+        arg["lba"][self.lower_rows] = -qmax - X[:, 3:5]
+        arg["uba"][self.upper_rows] = qmax - X[:, 3:5]
+
+    def input_step(self, qp) -> np.ndarray:
+        return qp.named_res["x"][self.ucols]
+
+    def slacks(self, qp) -> np.ndarray:
+        """The curvature slacks of the last solve, (N, 2) [rad]."""
+        return qp.named_res["x"][self.scols].copy()
+
+
 def _sparsity_and_order(ca, rows: np.ndarray, cols: np.ndarray, nrow: int, ncol: int):
     """(CasADi Sparsity of the entries (rows, cols), the permutation that puts values given in the
     order of (rows, cols) into CasADi's column-major order of nonzeros)."""
