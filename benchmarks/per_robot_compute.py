@@ -56,7 +56,7 @@ CASES = (
     ("passivity", "`PassivityPolicy`, the env's default loop (bounded)"),
     ("integral", "`PassivityPolicy`, the integral loop"),
     ("extended", "`ExtendedPolicy`, the dynamically extended loop"),
-    ("mpc", "`MPCPolicy`, the nonlinear MPC (one real-time iteration, HPIPM)"),
+    ("mpc", "`MPCPolicy`, the nonlinear MPC (one real-time iteration, PIQP)"),
     ("mpc-hard", "`MPCPolicy` on the `hard` tier (noisy observations: more interior-point iterations)"),
     ("learned-lean", "learned 2 x 64 MLP: `LearnedPolicy` (default, `inference=\"lean\"`)"),
     ("learned-torch", "learned 2 x 64 MLP: `LearnedPolicy(..., inference=\"torch\")` (SB3's `predict` calls)"),
