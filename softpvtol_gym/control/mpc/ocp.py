@@ -379,14 +379,11 @@ class TrackingOCP:
         self.state_weights = W.reshape(-1)
         self._v_lo = np.tile((self.u_lo - self.u_hover) / self.u_scale, n)
         self._v_hi = np.tile((self.u_hi - self.u_hover) / self.u_scale, n)
-        #: "sparse" (states and inputs as variables, the OCP structure: hpipm) or "condensed" (inputs only)
+        #: "sparse" (states and inputs as variables, the OCP structure: piqp in its banded form, hpipm in its
+        #: stage form) or "condensed" (inputs only)
         self.formulation = "sparse" if o.qp_solver in SPARSE_QP_SOLVERS else "condensed"
-        if o.qp_solver in NON_CASADI_QP_SOLVERS:
-            self._qp_data = _BandedQP(n, self.state_weights, o.weight_input, o.weight_input_rate)
-        elif self.formulation == "sparse":
-            self._qp_data = _SparseQP(n, self.state_weights, o.weight_input, o.weight_input_rate)
-        else:
-            self._qp_data = _CondensedQP(n, self.state_weights, o.weight_input, o.weight_input_rate)
+        qp_form = {"piqp": _BandedQP, "hpipm": _SparseQP}.get(o.qp_solver, _CondensedQP)
+        self._qp_data = qp_form(n, self.state_weights, o.weight_input, o.weight_input_rate)
         #: the problem's own QP solver instance (:meth:`new_qp` builds more)
         self.qp = self.new_qp()
         # one solve now: loads the QP solver's library (qpOASES prints its banner then, silenced here) and

@@ -427,7 +427,7 @@ class _PiqpQP:
                            "ubx": np.zeros(nvar)}
         self.named_res = {"x": np.zeros(nvar)}
         self._solver = None
-        self._status = None
+        self._success = False
 
     def _setup(self) -> None:
         import piqp
@@ -463,7 +463,7 @@ class _PiqpQP:
         self._x_hi = _unbounded(arg["ubx"])
 
     def __call__(self) -> int:
-        """Solve; 0 (PIQP's status is :meth:`success`)."""
+        """Solve; 0 (whether PIQP solved it: :meth:`success`)."""
         import piqp
 
         arg = self.named_args
@@ -479,14 +479,14 @@ class _PiqpQP:
                 hessian = self._h
             self._solver.update(P=hessian, c=arg["g"], A=self._a_eq, b=self._b, G=self._a_in, h_l=self._h_lo,
                                 h_u=self._h_hi, x_l=self._x_lo, x_u=self._x_hi)
-        self._status = self._solver.solve()
+        status = self._solver.solve()
         self.named_res["x"][:] = self._solver.result.x
-        self._success = self._status == piqp.PIQP_SOLVED
+        self._success = status == piqp.PIQP_SOLVED
         return 0
 
     def success(self) -> bool:
         """Whether the last solve ended with PIQP's status "solved"."""
-        return bool(self._solver is not None and self._status is not None and self._success)
+        return self._success
 
     @property
     def iterations(self) -> int:
