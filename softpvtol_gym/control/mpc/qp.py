@@ -1,7 +1,8 @@
 """The MPC's quadratic programs in the two forms its solvers take (see :mod:`.ocp` for the problem): condensed
 (the inputs as variables, for the dense solvers) and sparse with the OCP's stage structure (states and inputs as
-variables, for PIQP and HPIPM), both with the curvature slacks; :class:`_Buffered`, a CasADi Function called on
-NumPy arrays in place; and :class:`_PiqpQP`, PIQP's sparse solver behind the same arrays."""
+variables: banded for PIQP, HPIPM's stage form for HPIPM), all with the curvature slacks; :class:`_Buffered`,
+a CasADi Function called on NumPy arrays in place; and :class:`_PiqpQP`, PIQP's sparse solver behind the same
+arrays."""
 
 from __future__ import annotations
 
@@ -95,10 +96,83 @@ class _CondensedQP:
         return qp.named_res["x"][self.nv:].reshape(self.n, NS).copy()
 
 
-class _SparseQP:
-    """The same Gauss-Newton QP with the OCP's stage structure, for PIQP's multistage KKT solver and HPIPM
-    (structure-exploiting interior point methods: work linear in N, against cubic for a dense QP in the 4N
-    inputs).
+class _StagedQP:
+    """What the QP's two forms with its stage structure share (:class:`_SparseQP`, :class:`_BandedQP`): the
+    constant entries of A and H from their coordinates, the values that change each solve (the interval
+    Jacobians, the gradient's state part, the input bounds and the curvature rows), and the solution's parts.
+    A subclass sets the columns ``ucols`` (4 N: dv_0 .. dv_{N-1}), ``xcols`` ((N, >= 10): node k's state step
+    in its first 10), ``scols`` ((N, 2): node k's slacks), the rows ``dynamics_rows``, ``lower_rows`` and
+    ``upper_rows`` ((N, 2) each), then calls :meth:`_structure`."""
+
+    def _structure(self, ca, a_rows: list, a_cols: list, a_consts: list, h_diag: np.ndarray, h_off: tuple) -> None:
+        """The sparsities and constant values of A and H. A's entries: the interval Jacobians A_k (k >= 1) and
+        B_k S first (their (row, col) arrays in ``a_rows`` / ``a_cols``, as many as ``_n_a + _n_b``), then
+        the constant entries with their values ``a_consts``; the curvature rows' entries are added here. H:
+        the diagonal ``h_diag`` and -wd at the symmetric pairs ``h_off`` = (rows, cols)."""
+        for k in range(self.n):  # node k+1's curvature rows: dq + s (lower bound), dq - s (upper bound)
+            for j in range(NS):
+                for row, sign in ((self.lower_rows[k, j], 1.0), (self.upper_rows[k, j], -1.0)):
+                    a_rows.append(np.array([row, row]))
+                    a_cols.append(np.array([self.xcols[k, 3 + j], self.scols[k, j]]))
+                    a_consts.append(np.array([1.0, sign]))
+        rows = np.concatenate([r.ravel() for r in a_rows])
+        cols = np.concatenate([c.ravel() for c in a_cols])
+        self._n_a, self._n_b = NX * NX * (self.n - 1), NX * NU * self.n
+        a_sp, self._a_order = _sparsity_and_order(ca, rows, cols, self.nrow, self.nvar)
+        self._a_values = np.zeros(rows.size)
+        self._a_values[self._n_a + self._n_b:] = np.concatenate(a_consts)
+        off_r, off_c = h_off
+        hr = np.concatenate([np.arange(self.nvar), off_r, off_c])
+        hc = np.concatenate([np.arange(self.nvar), off_c, off_r])
+        hv = np.concatenate([h_diag, np.full(off_r.size, -self.wd), np.full(off_c.size, -self.wd)])
+        keep = hv != 0.0
+        h_sp, order = _sparsity_and_order(ca, hr[keep], hc[keep], self.nvar, self.nvar)
+        self._h_values = hv[keep][order]
+        self.sparsity = {"h": h_sp, "a": a_sp}
+
+    def prepare(self, qp) -> None:
+        """The constant Hessian, dynamics residuals, slack costs and bounds, and open sides into the
+        instance's arrays. The state steps, unbounded, get wide finite bounds: HPIPM bounds every variable,
+        and at its default replacement of an infinite bound (1e8) its interior point iterations stall (100
+        iterations without convergence); its ``inf`` option did not keep its calls independent (a call's
+        result depended on the call before it). PIQP takes them as infinite (:class:`_PiqpQP`)."""
+        arg = qp.named_args
+        arg["h"][:] = self._h_values
+        arg["lba"][self.dynamics_rows] = 0.0
+        arg["uba"][self.dynamics_rows] = 0.0
+        arg["uba"][self.lower_rows] = FREE_BOUND
+        arg["lba"][self.upper_rows] = -FREE_BOUND
+        arg["lbx"][:] = -FREE_BOUND
+        arg["ubx"][:] = FREE_BOUND
+        arg["lbx"][self.scols] = 0.0
+        arg["g"][self.scols] = VIOLATION_PENALTY
+
+    def _fill_common(self, qp, A, B, u_scale, X, x_ref, V, lo, hi, qmax) -> None:
+        """The interval Jacobians, the state part of the gradient, the input bounds and the curvature rows'
+        bounds into the instance's arrays."""
+        n = self.n
+        vals = self._a_values
+        vals[:self._n_a] = A[:, NX:].reshape(NX, n - 1, NX).transpose(1, 0, 2).reshape(-1)
+        vals[self._n_a:self._n_a + self._n_b] = (B.reshape(NX, n, NU) * u_scale).transpose(1, 0, 2).reshape(-1)
+        arg = qp.named_args
+        np.take(vals, self._a_order, out=arg["a"])
+        arg["g"][self.xcols[:, :NX]] = self.W * (X - x_ref)
+        arg["lbx"][self.ucols] = lo - V
+        arg["ubx"][self.ucols] = hi - V
+        arg["lba"][self.lower_rows] = -qmax - X[:, 3:5]
+        arg["uba"][self.upper_rows] = qmax - X[:, 3:5]
+
+    def input_step(self, qp) -> np.ndarray:
+        return qp.named_res["x"][self.ucols]
+
+    def slacks(self, qp) -> np.ndarray:
+        """The curvature slacks of the last solve, (N, 2) [rad]."""
+        return qp.named_res["x"][self.scols].copy()
+
+
+class _SparseQP(_StagedQP):
+    """The same Gauss-Newton QP in HPIPM's stage form (HPIPM is a Riccati-based interior point method: work
+    linear in N, against cubic for a dense QP in the 4N inputs).
 
     Variables (the state steps of the rollout and the input steps, in stage order): u_0, then for
     k = 1 .. N-1 (x_k, u_k), then x_N, where u_k = (dv_k (4), w_k (2)) and x_k = (dx_k (10), p_k (4),
@@ -157,19 +231,6 @@ class _SparseQP:
             rows.append(dyn_row[k] + np.arange(nxa))
             cols.append(xcol[k + 1] + np.arange(nxa))
             consts.append(-np.ones(nxa))
-        for k in range(1, n + 1):  # stage k's curvature rows: dq + s (lower bound), dq - s (upper bound)
-            for j in range(NS):
-                for row, sign in ((stage_row[k] + j, 1.0), (stage_row[k] + NS + j, -1.0)):
-                    rows.append(np.array([row, row]))
-                    cols.append(np.array([xcol[k] + 3 + j, xcol[k] + NX + NU + j]))
-                    consts.append(np.array([1.0, sign]))
-        rows = np.concatenate([r.ravel() for r in rows])
-        cols = np.concatenate([c.ravel() for c in cols])
-        self._n_a, self._n_b = NX * NX * (n - 1), NX * NU * n
-        a_sp, self._a_order = _sparsity_and_order(ca, rows, cols, self.nrow, self.nvar)
-        self._a_values = np.zeros(rows.size)
-        self._a_values[self._n_a + self._n_b:] = np.concatenate(consts)
-
         # Hessian (constant): W on dx_k, wu + wd on dv_k, wd on p_k and -wd between dv_k and p_k (k >= 1),
         # SLACK_WEIGHT on s_k
         diag = np.zeros(self.nvar)
@@ -177,65 +238,25 @@ class _SparseQP:
         diag[self.xcols[:, :NX]] = self.W
         diag[self.xcols[:-1, NX:NX + NU]] = weight_input_rate
         diag[self.scols] = SLACK_WEIGHT
-        off_r = self.xcols[:-1, NX:NX + NU].reshape(-1)
-        off_c = self.ucols[NU:]
-        hr = np.concatenate([np.arange(self.nvar), off_r, off_c])
-        hc = np.concatenate([np.arange(self.nvar), off_c, off_r])
-        hv = np.concatenate([diag, np.full(off_r.size, -weight_input_rate), np.full(off_c.size, -weight_input_rate)])
-        keep = hv != 0.0
-        h_sp, order = _sparsity_and_order(ca, hr[keep], hc[keep], self.nvar, self.nvar)
-        self._h_values = hv[keep][order]
-        self.sparsity = {"h": h_sp, "a": a_sp}
+        self._structure(ca, rows, cols, consts, diag, (self.xcols[:-1, NX:NX + NU].reshape(-1), self.ucols[NU:]))
 
     def prepare(self, qp: _Buffered) -> None:
-        """The constant Hessian, dynamics residuals, slack costs and bounds, and unbounded entries into the
-        instance's arrays."""
-        arg = qp.named_args
-        arg["h"][:] = self._h_values
-        arg["lba"][self.dynamics_rows] = 0.0
-        arg["uba"][self.dynamics_rows] = 0.0
-        arg["uba"][self.lower_rows] = FREE_BOUND
-        arg["lba"][self.upper_rows] = -FREE_BOUND
-        # the unbounded entries (all state steps) get wide finite bounds: HPIPM bounds every variable, and
-        # at its default replacement of an infinite bound (1e8) its interior point iterations stall (100
-        # iterations without convergence); the ``inf`` option did not keep its calls independent (a call's
-        # result depended on the call before it)
-        arg["lbx"][:] = -FREE_BOUND
-        arg["ubx"][:] = FREE_BOUND
-        arg["lbx"][self.scols] = 0.0
-        arg["lbx"][self.wcols] = 0.0
-        arg["g"][self.scols] = VIOLATION_PENALTY
+        super().prepare(qp)
+        qp.named_args["lbx"][self.wcols] = 0.0  # the slacks chosen one stage ahead
 
     def fill(self, qp: _Buffered, A, B, u_scale, X, x_ref, V, v_prev, lo, hi, qmax) -> None:
         """The QP's arguments into the solver instance's arrays."""
-        n = self.n
-        vals = self._a_values
-        vals[:self._n_a] = A[:, NX:].reshape(NX, n - 1, NX).transpose(1, 0, 2).reshape(-1)
-        vals[self._n_a:self._n_a + self._n_b] = (B.reshape(NX, n, NU) * u_scale).transpose(1, 0, 2).reshape(-1)
-        arg = qp.named_args
-        np.take(vals, self._a_order, out=arg["a"])
-        Vk = V.reshape(n, NU)
+        self._fill_common(qp, A, B, u_scale, X, x_ref, V, lo, hi, qmax)
+        Vk = V.reshape(self.n, NU)
         change = Vk.copy()  # c_k = v_k - v_{k-1}
         change[1:] -= Vk[:-1]
         change[0] -= v_prev
-        g = arg["g"]
+        g = qp.named_args["g"]
         g[self.ucols] = (self.wu * Vk + self.wd * change).reshape(-1)
-        g[self.xcols[:, :NX]] = self.W * (X - x_ref)
         g[self.xcols[:-1, NX:NX + NU]] = -self.wd * change[1:]
-        arg["lbx"][self.ucols] = lo - V
-        arg["ubx"][self.ucols] = hi - V
-        arg["lba"][self.lower_rows] = -qmax - X[:, 3:5]
-        arg["uba"][self.upper_rows] = qmax - X[:, 3:5]
-
-    def input_step(self, qp: _Buffered) -> np.ndarray:
-        return qp.named_res["x"][self.ucols]
-
-    def slacks(self, qp: _Buffered) -> np.ndarray:
-        """The curvature slacks of the last solve, (N, 2) [rad]."""
-        return qp.named_res["x"][self.scols].copy()
 
 
-class _BandedQP:
+class _BandedQP(_StagedQP):
     """The same Gauss-Newton QP in its plain sparse form, for PIQP: no variable but the QP's own, the
     input-rate cost as Hessian entries between consecutive stages (a block-banded KKT system, which PIQP's
     ``sparse_multistage`` KKT solver factors stage by stage). 16 variables per stage instead of the 22 of
@@ -279,73 +300,21 @@ class _BandedQP:
             rows.append(NX * k + np.arange(NX))
             cols.append(self.xcols[k])
             consts.append(-np.ones(NX))
-        for k in range(n):  # node k+1's curvature rows: dq + s (lower bound), dq - s (upper bound)
-            for j in range(NS):
-                for row, sign in ((self.lower_rows[k, j], 1.0), (self.upper_rows[k, j], -1.0)):
-                    rows.append(np.array([row, row]))
-                    cols.append(np.array([self.xcols[k, 3 + j], self.scols[k, j]]))
-                    consts.append(np.array([1.0, sign]))
-        rows = np.concatenate([r.ravel() for r in rows])
-        cols = np.concatenate([c.ravel() for c in cols])
-        self._n_a, self._n_b = NX * NX * (n - 1), NX * NU * n
-        a_sp, self._a_order = _sparsity_and_order(ca, rows, cols, self.nrow, self.nvar)
-        self._a_values = np.zeros(rows.size)
-        self._a_values[self._n_a + self._n_b:] = np.concatenate(consts)
-
         # Hessian (constant): W on dx_k, SLACK_WEIGHT on s_k, wu I + wd D^T D on the stacked dv
         diag = np.zeros(self.nvar)
         diag[self.xcols] = self.W
         diag[self.scols] = SLACK_WEIGHT
         diag[self.ucols] = weight_input + 2.0 * weight_input_rate
         diag[ucols[-1]] = weight_input + weight_input_rate  # the last input's change has no successor
-        off_r, off_c = ucols[1:].reshape(-1), ucols[:-1].reshape(-1)
-        hr = np.concatenate([np.arange(self.nvar), off_r, off_c])
-        hc = np.concatenate([np.arange(self.nvar), off_c, off_r])
-        hv = np.concatenate([diag, np.full(off_r.size, -weight_input_rate), np.full(off_c.size, -weight_input_rate)])
-        keep = hv != 0.0
-        h_sp, order = _sparsity_and_order(ca, hr[keep], hc[keep], self.nvar, self.nvar)
-        self._h_values = hv[keep][order]
-        self.sparsity = {"h": h_sp, "a": a_sp}
-
-    def prepare(self, qp) -> None:
-        """The constant Hessian, dynamics residuals, slack costs and bounds, and open sides into the
-        instance's arrays."""
-        arg = qp.named_args
-        arg["h"][:] = self._h_values
-        arg["lba"][self.dynamics_rows] = 0.0
-        arg["uba"][self.dynamics_rows] = 0.0
-        arg["uba"][self.lower_rows] = FREE_BOUND
-        arg["lba"][self.upper_rows] = -FREE_BOUND
-        arg["lbx"][:] = -FREE_BOUND
-        arg["ubx"][:] = FREE_BOUND
-        arg["lbx"][self.scols] = 0.0
-        arg["g"][self.scols] = VIOLATION_PENALTY
+        self._structure(ca, rows, cols, consts, diag, (ucols[1:].reshape(-1), ucols[:-1].reshape(-1)))
 
     def fill(self, qp, A, B, u_scale, X, x_ref, V, v_prev, lo, hi, qmax) -> None:
         """The QP's arguments into the solver instance's arrays."""
-        n = self.n
-        vals = self._a_values
-        vals[:self._n_a] = A[:, NX:].reshape(NX, n - 1, NX).transpose(1, 0, 2).reshape(-1)
-        vals[self._n_a:self._n_a + self._n_b] = (B.reshape(NX, n, NU) * u_scale).transpose(1, 0, 2).reshape(-1)
-        arg = qp.named_args
-        np.take(vals, self._a_order, out=arg["a"])
+        self._fill_common(qp, A, B, u_scale, X, x_ref, V, lo, hi, qmax)
         dv = _differences(V, v_prev)
         dtd = dv.copy()  # D^T (D V - (v_prev, 0, ..))
         dtd[:-NU] -= dv[NU:]
-        g = arg["g"]
-        g[self.ucols] = self.wu * V + self.wd * dtd
-        g[self.xcols] = self.W * (X - x_ref)
-        arg["lbx"][self.ucols] = lo - V
-        arg["ubx"][self.ucols] = hi - V
-        arg["lba"][self.lower_rows] = -qmax - X[:, 3:5]
-        arg["uba"][self.upper_rows] = qmax - X[:, 3:5]
-
-    def input_step(self, qp) -> np.ndarray:
-        return qp.named_res["x"][self.ucols]
-
-    def slacks(self, qp) -> np.ndarray:
-        """The curvature slacks of the last solve, (N, 2) [rad]."""
-        return qp.named_res["x"][self.scols].copy()
+        qp.named_args["g"][self.ucols] = self.wu * V + self.wd * dtd
 
 
 def _sparsity_and_order(ca, rows: np.ndarray, cols: np.ndarray, nrow: int, ncol: int):
