@@ -29,7 +29,7 @@ CTRL_LANES = 16
 # ------------------------------------------------------------------------------ exact allocation
 @MK.inline
 def _lever_poly(v, h, q, T, length, eps, input_map):
-    """(G, dG/dv) of :func:`_lever` given q = atan2(h, v) and T = hypot(h, v): the polynomial part
+    """(G, dG/dv) of :func:`_lever` given q = atan2(h, v) and T = sqrt(h^2 + v^2): the polynomial part
     (vectorizes over a lane block)."""
     s0 = MK.sinc(q)
     # d sinc / dq = -q A(q); dq/dv = -h / T^2
@@ -46,12 +46,12 @@ def _lever_poly(v, h, q, T, length, eps, input_map):
 @_jit
 def _lever(v, h, length, eps, input_map):
     """Torque lever term G(v) of one rotor whose thrust has body components (h, v), dG/dv, and the
-    rotor's curvature q = atan2(h, v) and thrust T = hypot(h, v) >= 0: (G, dG, q, T).
+    rotor's curvature q = atan2(h, v) and thrust T = sqrt(h^2 + v^2) >= 0: (G, dG, q, T).
 
     paper map:  G = l v sin(q)/q;  exact map: G = eps v + l T sin(q)/q.
     """
     q = math.atan2(h, v)
-    T = math.hypot(h, v)
+    T = math.sqrt(h * h + v * v)
     G, dG = _lever_poly(v, h, q, T, length, eps, input_map)
     return G, dG, q, T
 
@@ -170,8 +170,8 @@ def _exact_solution(x, evaluated, ql, Tl, qr, Tr, uz, h, qmax):
         vr = uz - x
         ql = math.atan2(h, vl)
         qr = math.atan2(-h, vr)
-        Tl = math.hypot(h, vl)
-        Tr = math.hypot(-h, vr)
+        Tl = math.sqrt(h * h + vl * vl)
+        Tr = math.sqrt(h * h + vr * vr)
     feasible = 1.0
     if abs(ql) > qmax or abs(qr) > qmax:
         feasible = 0.0
@@ -296,14 +296,14 @@ def allocate_exact_lanes(m, X, r_tau, r_theta, r_warm, r_active, r_out, r_info, 
     for it in range(1, 101):
         if live == 0:
             break
-        for j in range(m):  # libm (atan2, hypot): independent lanes, overlapped by the CPU
+        for j in range(m):  # libm (atan2, sqrt): independent lanes, overlapped by the CPU
             if A[live_ + j] == 1.0:
                 x, h = A[x_ + j], A[h_ + j]
                 vr = A[uz_ + j] - x
                 A[ql_ + j] = math.atan2(h, x)
-                A[tl_ + j] = math.hypot(h, x)
+                A[tl_ + j] = math.sqrt(h * h + x * x)
                 A[qr_ + j] = math.atan2(-h, vr)
-                A[tr_ + j] = math.hypot(-h, vr)
+                A[tr_ + j] = math.sqrt(h * h + vr * vr)
         lever_poly_lanes(A, ll, lr, eps, input_map)
         for j in range(m):
             if A[live_ + j] != 1.0:

@@ -271,15 +271,19 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg, integ):
     method, imap, iters, tol, ff, dt, vmax, amax, qmax = cfg
     controller_model_lanes(B, p)
     for j in range(m):
-        # arm references of the body rows: the last allocated curvatures with their feedforward
-        # derivatives, or (no history yet / just reset) the measured curvatures at rest
+        # arm references of the body rows, the algebraic loop's start: the allocated curvatures of the
+        # last two steps extrapolated to this one (q^d_k-1 + (q^d_k-1 - q^d_k-2); a fresh history is flat:
+        # the last ones), with their feedforward derivatives, or (no history yet / just reset) the measured
+        # curvatures at rest
         vl = vr = al = ar = 0.0
         if B[lane_index(CB_ST + ST_FRESH, j)] > 0.5:
             arm_l, arm_r = B[lane_index(CB_Q + 3, j)], B[lane_index(CB_Q + 4, j)]
             put_lane3(B, CB_ST + ST_INT, j, (0.0, 0.0, 0.0))  # a new episode: no integral yet
         else:
             h = CB_ST + ST_HIST
-            arm_l, arm_r = B[lane_index(h + 6, j)], B[lane_index(h + 7, j)]
+            last_l, last_r = B[lane_index(h + 6, j)], B[lane_index(h + 7, j)]
+            arm_l = 2.0 * last_l - B[lane_index(h + 4, j)]
+            arm_r = 2.0 * last_r - B[lane_index(h + 5, j)]
             if ff:
                 hist = lane8(B, h, j)
                 vl, al = _arm_derivatives(hist[0], hist[2], hist[4], hist[6], dt, vmax, amax)
@@ -295,8 +299,8 @@ def controller_lanes(m, B, A, has_res, commit, cfg, p, lam, kg, integ):
     # The algebraic loop: the arm references enter the body rows (through D and C), the body rows give
     # the allocation, the allocation the arm references. Passes until the allocated curvatures move by
     # at most ``tol`` (rad) or ``iters`` passes; from the second pass on, a lane whose change grew has its
-    # step halved (relaxation), so that the iteration stays on the branch it started from (the last
-    # step's arm references, or the measured curvatures after a reset) instead of cycling between roots.
+    # step halved (relaxation), so that the iteration stays on the branch it started from (extrapolated
+    # from the last steps' solutions, or the measured curvatures after a reset) instead of cycling between roots.
     for j in range(m):
         B[lane_index(CB_ACTIVE, j)] = 1.0 if B[lane_index(CB_ERR, j)] == ERR_NONE else 0.0
         B[lane_index(CB_RELAX, j)], B[lane_index(CB_RELAX + 1, j)] = 1.0, math.inf

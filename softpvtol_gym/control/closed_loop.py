@@ -8,7 +8,8 @@ The plant is driven through ``generalized_forces`` with the *actual* curvatures,
 The paper closes an algebraic loop (the arm references enter the body rows through D and C) with
 Simulink's algebraic-constraint block; here every call solves it by passes body rows -> allocation
 -> arm references until the curvatures move by at most ``algebraic_tolerance`` (1e-10 rad), from
-the last step's arm references, so that the solution continues the branch it is on.
+the last two steps' solutions extrapolated to this one (2 q^d_k-1 - q^d_k-2), so that the solution
+continues the branch it is on.
 
 Loops (``LOOPS``):
     ``"paper"``     paper allocation, arm references with zero velocity/acceleration (as printed).
@@ -488,6 +489,10 @@ def simulate_closed_loop(
             a4 = closed_loop(tk + dt, q + dt * (v + h * a2), v + dt * a3, False)[0]
             q = q + dt / 6.0 * (6.0 * v + dt * (a1 + a2 + a3))
             v = v + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+            raise ValueError(f"the closed loop diverged: the state is not finite after t = {t[k + 1]:.4g} s "
+                             f"(loop {loop!r}, hold {hold!r}, dt = {dt:g} s); a shorter dt or other gains may keep "
+                             "it stable")
         Q[k + 1], V[k + 1] = q, v
     # storage function w.r.t. the body reference and the arm references in use
     full_ref = q_ref_all.copy()

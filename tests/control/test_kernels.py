@@ -56,7 +56,7 @@ class ReferenceController:
         if self.history is None:
             arm, arm_d, arm_dd = q[..., 3:5].copy(), np.zeros_like(q[..., 3:5]), np.zeros_like(q[..., 3:5])
         else:
-            arm = self.history[-1].copy()
+            arm = 2.0 * self.history[-1] - self.history[-2]  # the last two solutions extrapolated
             arm_d, arm_dd = self._derivatives()
             if self.reseed is not None:
                 arm[self.reseed] = q[..., 3:5][self.reseed]
