@@ -231,8 +231,9 @@ _TIMED = {"ratio_policy": "PassivityPolicy.predict", "ratio_controller": "Passiv
 #: Item 3 times each controller along its own closed loop, not on one observation given again and again: the
 #: algebraic loop of the actuated loops (body rows -> allocation -> arm references, solved to 1e-10 rad from the
 #: last two steps' solutions extrapolated) depends on where the loop has been: along a closed loop it takes two
-#: passes in steady state and more in an episode's first 100 steps (about three and a half). Windows of WINDOW steps start at the steps STARTS of a hover
-#: episode (nominal tier, seed 0): a single state's windows cover the whole episode, the batch's sample it.
+#: passes in steady state and more in an episode's first 100 steps (about three and a half). Windows of WINDOW
+#: steps start at the steps STARTS of a hover episode (nominal tier, seed 0): a single state's windows cover the
+#: whole episode, the batch's sample it.
 STARTS = tuple(range(0, 1000, 100))
 WINDOW = {"single": 100, "batched": 10}
 
