@@ -94,9 +94,9 @@ QP_SOLVERS: dict[str, dict] = {
     "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-7, "eps_rel": 1e-7, "max_iter": 4000, "polish": True},
              "warm_start_primal": True, "error_on_fail": False},
 }
-#: the solvers that take the QP with its OCP structure (states and inputs as variables); the others
-#: take it condensed (inputs only)
-SPARSE_QP_SOLVERS = ("piqp", "hpipm")
+#: the solvers that take the QP with its OCP structure (states and inputs as variables) and the form each
+#: takes it in; the others take it condensed (inputs only: :class:`_CondensedQP`)
+STAGED_QP_FORMS = {"piqp": _BandedQP, "hpipm": _SparseQP}
 #: the solvers that are not CasADi plugins
 NON_CASADI_QP_SOLVERS = ("piqp",)
 #: the solvers that print to stdout (silenced around each call)
@@ -381,8 +381,8 @@ class TrackingOCP:
         self._v_hi = np.tile((self.u_hi - self.u_hover) / self.u_scale, n)
         #: "sparse" (states and inputs as variables, the OCP structure: piqp in its banded form, hpipm in its
         #: stage form) or "condensed" (inputs only)
-        self.formulation = "sparse" if o.qp_solver in SPARSE_QP_SOLVERS else "condensed"
-        qp_form = {"piqp": _BandedQP, "hpipm": _SparseQP}.get(o.qp_solver, _CondensedQP)
+        self.formulation = "sparse" if o.qp_solver in STAGED_QP_FORMS else "condensed"
+        qp_form = STAGED_QP_FORMS.get(o.qp_solver, _CondensedQP)
         self._qp_data = qp_form(n, self.state_weights, o.weight_input, o.weight_input_rate)
         #: the problem's own QP solver instance (:meth:`new_qp` builds more)
         self.qp = self.new_qp()
@@ -404,7 +404,7 @@ class TrackingOCP:
         with _quiet_stdout():  # qpOASES prints its banner when its plugin loads
             fn = ca.conic("mpc_qp", self.options.qp_solver, self._qp_data.sparsity,
                           {**QP_SOLVERS[self.options.qp_solver], **self._qp_data.solver_options})
-        qp = _Buffered(fn, fresh_work=self.options.qp_solver in SPARSE_QP_SOLVERS)
+        qp = _Buffered(fn, fresh_work=self.options.qp_solver in STAGED_QP_FORMS)
         self._qp_data.prepare(qp)
         return qp
 

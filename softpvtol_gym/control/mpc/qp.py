@@ -465,6 +465,4 @@ class _PiqpQP:
 
 def _unbounded(bounds: np.ndarray) -> np.ndarray:
     """The bounds with the entries at or beyond +-FREE_BOUND made infinite."""
-    out = bounds.copy()
-    out[np.abs(out) >= FREE_BOUND] = np.copysign(np.inf, out[np.abs(out) >= FREE_BOUND])
-    return out
+    return np.where(np.abs(bounds) >= FREE_BOUND, np.copysign(np.inf, bounds), bounds)
