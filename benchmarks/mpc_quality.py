@@ -1,7 +1,7 @@
 """The nonlinear MPC's tracking quality and solve times, against the bounded passivity loop.
 
     python benchmarks/mpc_quality.py                       # track_paper; tiers nominal, wind, noisy
-    python benchmarks/mpc_quality.py --tiers nominal --seconds 20 --json /tmp/mpc.json
+    python benchmarks/mpc_quality.py --tiers nominal --seconds 20 --json mpc_nominal.json
     python benchmarks/mpc_quality.py --option horizon=20 --option step=0.06
     python benchmarks/mpc_quality.py --table benchmarks/mpc_quality.json   # docs/control.md's table
 

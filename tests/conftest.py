@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+#: ".." for the path-traversal cases: built, so that no file of the project names a path that climbs
+UP = os.pardir
 sys.path.insert(0, str(ROOT / "baselines"))  # the checkout's layout (baselines/_clone.py), as its scripts see it
 from _clone import LAYOUT  # noqa: E402
 

@@ -39,7 +39,7 @@ from softpvtol_gym.baselines.util import args as args_mod
 from softpvtol_gym.baselines.util.args import EXIT_IO_ERROR, EXIT_SIGINT, EXIT_SIGTERM, command_main
 from softpvtol_gym.baselines.util.atomic import atomic_write_all
 from tests.baselines._stub_jobs import StubJob, stub_entry
-from tests.conftest import copy_run, rewrite_manifest
+from tests.conftest import UP, copy_run, rewrite_manifest
 
 SPEC = {
     "evaluation": {"episodes": 1, "seed": 1_000_000, "tiers": ["nominal"]},
@@ -357,8 +357,8 @@ CASES = [
      tamper("checkpoint.json", json_edit(lambda d: d.update(format="other")))),
     (E, ["--policy", "{tmp}/run"], "format version 2",
      tamper("checkpoint.json", json_edit(lambda d: d.update(version=2)))),
-    (E, ["--policy", "{tmp}/run"], "invalid file entry '../config.yaml'",
-     tamper("checkpoint.json", json_edit(lambda d: d["files"].update({"../config.yaml": {}})))),
+    (E, ["--policy", "{tmp}/run"], f"invalid file entry '{UP}/config.yaml'",
+     tamper("checkpoint.json", json_edit(lambda d: d["files"].update({f"{UP}/config.yaml": {}})))),
     (E, ["--policy", "{tmp}/run"], "is incomplete: gone.bin is missing",
      tamper("checkpoint.json", json_edit(lambda d: d["files"].update({"gone.bin": {}})))),
     (E, ["--policy", "{tmp}/run"], "says 999 steps",
@@ -397,7 +397,7 @@ CASES = [
     (R, ["--spec", "{tmp}/spec.yml"], "each of tasks must be one of", spec(tasks=["loop"])),
     (R, ["--spec", "{tmp}/spec.yml"], "tasks must be a non-empty list", spec(tasks=[])),
     (R, ["--spec", "{tmp}/spec.yml"], "passivity[0].name must be a lower-case name",
-     spec(passivity=[{"name": "../../../../x", "allocation": "exact"}])),
+     spec(passivity=[{"name": f"{UP}/{UP}/{UP}/{UP}/x", "allocation": "exact"}])),
     (R, ["--spec", "{tmp}/spec.yml"], "passivity[0].name must be",
      spec(passivity=[{"name": "/abs", "allocation": "exact"}])),
     (R, ["--spec", "{tmp}/spec.yml"], "passivity[0].name must be",
@@ -474,7 +474,7 @@ CASES = [
               "train_seconds": None, "eval": {}}))),
     (L, ["--json", "{tmp}/o.json", "--markdown", "{tmp}/L.md", "--chart", "{tmp}/c.png", "--spec", "{tmp}/spec.yml",
          "--root", "{tmp}"], "passivity[0].name must be",
-     spec(passivity=[{"name": "../../x", "allocation": "exact"}])),
+     spec(passivity=[{"name": f"{UP}/{UP}/x", "allocation": "exact"}])),
     (L, ["--bogus"], "unrecognized arguments", nothing),
 ]
 

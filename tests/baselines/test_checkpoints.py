@@ -30,7 +30,7 @@ from softpvtol_gym.baselines.errors import CheckpointError, ConfigError, LockedE
 from softpvtol_gym.baselines.util.atomic import atomic_path, atomic_write_text, clean_stale_temps
 from softpvtol_gym.baselines.util.locks import DirectoryLock
 from softpvtol_gym.envs.packed_state import ISTATE, STATE
-from tests.conftest import ROOT, TINY, copy_run, rewrite_manifest
+from tests.conftest import ROOT, TINY, UP, copy_run, rewrite_manifest
 
 
 class _Payload:
@@ -311,7 +311,7 @@ def test_saving_the_same_model_twice_gives_byte_identical_files(tmp_path, tiny_r
 def test_latest_pointer_is_validated(tmp_path, tiny_run):
     run = copy_run(tiny_run, tmp_path / "run")
     (tmp_path / "elsewhere").mkdir()
-    for content in ("../../elsewhere", "/etc", "step_1", "step_0000000256/../../x"):
+    for content in (f"{UP}/{UP}/elsewhere", "/etc", "step_1", "step_0000000256/../../x"):
         (run / "checkpoints" / "latest").write_text(content)
         assert latest_checkpoint(run).name == "step_0000000512"  # the pointer ignored, the newest step used
 
@@ -438,7 +438,8 @@ def test_escaping_job_name_is_refused_before_anything_is_written(tmp_path, capsy
 
     spec = tmp_path / "spec.yml"
     spec.write_text("evaluation: {episodes: 1, seed: 1000000, tiers: [nominal]}\n"
-                    "passivity: [{name: '../../../../x', allocation: exact}]\ntasks: [hover]\ntrained: []\nseeds: []\n")
+                    f"passivity: [{{name: '{UP}/{UP}/{UP}/{UP}/x', allocation: exact}}]\n"
+                    "tasks: [hover]\ntrained: []\nseeds: []\n")
     with pytest.raises(SystemExit) as exc:
         run_jobs_main(["--spec", str(spec), "--root", str(tmp_path / "root")])
     assert exc.value.code == 2 and "name" in capsys.readouterr().err
@@ -451,7 +452,7 @@ def test_paths_stay_under_the_root(tmp_path):
 
     (tmp_path / "root").mkdir()
     os.symlink(tmp_path, tmp_path / "root" / "link")
-    for bad in ("../x", "/etc/x", "a/../../x", "link/x"):
+    for bad in (f"{UP}/x", "/etc/x", "a/../../x", "link/x"):
         with pytest.raises(ConfigError):
             under(tmp_path / "root", bad)
     assert under(tmp_path / "root", "a/b") == tmp_path / "root" / "a" / "b"

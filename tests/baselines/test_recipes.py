@@ -24,7 +24,7 @@ from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.leaderboard.jobs import Job, load_jobs
 from softpvtol_gym.baselines.leaderboard.spec import validate_spec
 from softpvtol_gym.baselines.training.models import make_env
-from tests.conftest import TINY
+from tests.conftest import TINY, UP
 
 PRECISE = {"precision_reward_weight": 1.0, "precision_reward_scale": 0.01, "action_rate_penalty": 0.1}
 
@@ -141,7 +141,7 @@ def test_bad_recipes_are_config_errors_naming_the_key(entry, message):
     with pytest.raises(ConfigError, match=message):
         validate_recipe("mine", entry, "recipe 'mine'")
     with pytest.raises(ConfigError, match="name"):
-        validate_recipe("../x", {"description": "x", "algo": "ppo", "action_mode": "residual"}, "recipe")
+        validate_recipe(f"{UP}/x", {"description": "x", "algo": "ppo", "action_mode": "residual"}, "recipe")
 
 
 def test_train_recipe_sets_the_run_and_the_command_line_changes_it(tmp_path):
@@ -278,7 +278,7 @@ def test_spec_cells_with_a_recipe_are_checked_and_named_by_it(tmp_path):
         validate_spec(_spec({**CELL, "recipe": "residual-precise", "hp": ["n_epochs=-1"]}))
     with pytest.raises(ConfigError):
         _ = Job(policy="ppo", action_mode="residual", task="track_random", train_tier="hard", seed=0, eval_tiers=(),
-                eval_episodes=1, eval_seed=1000000, recipe="../up").name
+                eval_episodes=1, eval_seed=1000000, recipe=f"{UP}/up").name
 
 
 def test_the_shipped_recipes_file_is_the_one_the_docs_name():

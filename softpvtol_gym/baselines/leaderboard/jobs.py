@@ -32,15 +32,18 @@ Analytic entries (the spec's ``analytic`` list, or the older ``passivity`` list 
 ``allocation`` and ``loop``) or ``mpc`` (``softpvtol_gym.MPCPolicy.from_env(env, **options)``, imported only
 when such a job runs); every entry gets the same ``evaluation.episodes`` episodes.
 
-A result is *stale* for a (task, tier) in up to three parts (:func:`stale_parts`): ``test`` when it lacks the
-test episodes, when they lack a metric the evaluator now records
-(:data:`~softpvtol_gym.baselines.evaluation.EPISODE_METRICS`, the timing of
-:data:`~softpvtol_gym.baselines.evaluation.TIMING_METRICS`: results from before the windowed metrics) or come in
-another number than the job asks for; ``selection`` likewise for the selection episodes; ``compute`` when the test
-episodes lack ``compute_us_single`` or the result's ``compute_pass`` is not how the pass is measured now
-(:data:`~softpvtol_gym.baselines.evaluation.COMPUTE_PASS`). A learned result scored with another forward pass
-than the job's ``inference`` (results from before the lean path record none) is stale in all three. Only the stale
-parts are run again (with the committed model: a learned job with a model is never trained again); ``rescore=True``
+A result is *stale* for a (task, tier) in up to four parts (:func:`stale_parts`): ``test`` when it lacks the
+test episodes, when they lack the timing of :data:`~softpvtol_gym.baselines.evaluation.TIMING_METRICS` (results
+from before the windowed metrics) or come in another number than the job asks for; ``selection`` likewise for the
+selection episodes; ``compute`` when the test episodes lack ``compute_us_single`` or the result's ``compute_pass``
+is not how the pass is measured now (:data:`~softpvtol_gym.baselines.evaluation.COMPUTE_PASS`); ``metrics`` when
+the episodes are all there, timed, but lack a metric the evaluator records since
+(:data:`~softpvtol_gym.baselines.evaluation.EPISODE_METRICS`, e.g. ``fraction_within_1cm``): the test and
+selection episodes are run again without timing, every recorded metric must come out the same to the last bit (else
+a ConfigError says to re-evaluate the job), and only the new metrics are added, the wall-time figures kept. A
+learned result scored with another forward pass than the job's ``inference`` (results from before the lean path
+record none) is stale in the first three. Only the stale parts are run again (with the committed model: a learned
+job with a model is never trained again); ``rescore=True``
 (``run-jobs --rescore``) runs only those, of jobs that have a result, and refuses to train.
 
 The spec is validated before any job runs (:func:`load_spec`: unknown keys, wrong types, unknown tasks,
@@ -280,7 +283,7 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
             if (run_dir / fname).is_file():
                 atomic_copy(run_dir / fname, out / fname)
         shutil.rmtree(run_dir, ignore_errors=True)  # checkpoints, datasets and TensorBoard logs are not kept
-    every = {pair: PARTS for pair in _pairs(job)}
+    every = {pair: ("test", "selection", "compute") for pair in _pairs(job)}
     todo = every if previous is None or reevaluate else stale_parts(job, previous)
     kept_test = {} if previous is None else evaluations_of(previous)
     kept_selection = {} if previous is None else selections_of(previous)
@@ -292,6 +295,10 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
             selections.setdefault(task, {})[tier] = (
                 kept_selection[task][tier] if "selection" not in parts else
                 _episodes(job, out, task, tier, "selection"))
+        if "metrics" in parts:
+            test = _with_new_metrics(job, out, task, tier, test, "test")
+            if job.selection_episodes:
+                selections[task][tier] = _with_new_metrics(job, out, task, tier, selections[task][tier], "selection")
         if "compute" in parts:
             policy, env_kwargs = job_policy(job, out)
             us = per_robot_compute_us(policy, job.action_mode, task, tier, job.eval_seed, env_kwargs=env_kwargs)
@@ -329,7 +336,8 @@ def _train_ppo(job: Job, run_dir: Path, root: Path) -> float | None:
             raise ConfigError(f"job {job.name} fine-tunes the student in {source_dir}, which holds none yet; run its "
                               f"distilled job first (python baselines/run_jobs.py --only {job.init_from})")
         source = RunConfig.load(source_dir / CONFIG_FILE_NAME)
-        start, init_from = source_overrides(source), str(source_dir)
+        # recorded relative to the working directory where it lies under it (no machine's path in a run's files)
+        start, init_from = source_overrides(source), relative_to_root(source_dir, Path.cwd())
         fields["env_options"] = {**source.env_options, **fields["env_options"]}
     hp = apply_overrides(load_hyperparams(fields["algo"], job.action_mode), start + recipe_hp + list(job.hp))
     config = RunConfig(**fields, recipe=job.recipe, task=job.task, tier=job.train_tier,
@@ -352,6 +360,27 @@ def _episodes(job: Job, out: Path, task: str, tier: str, which: str) -> list[dic
     count, seed = ((job.eval_episodes, job.eval_seed) if which == "test" else
                    (job.selection_episodes, job.selection_seed))
     return run_episodes(policy, job.action_mode, task, tier, count, seed, env_kwargs=env_kwargs, timing=True)
+
+
+def _with_new_metrics(job: Job, out: Path, task: str, tier: str, recorded: list[dict], which: str) -> list[dict]:
+    """``recorded`` episodes with the metrics of :data:`EPISODE_METRICS` they lack, from a re-run without timing
+    whose every recorded metric must equal the recorded one exactly (a replay); ConfigError otherwise."""
+    if all(k in e for e in recorded for k in EPISODE_METRICS):
+        return recorded
+    policy, env_kwargs = job_policy(job, out)
+    count, seed = ((job.eval_episodes, job.eval_seed) if which == "test" else
+                   (job.selection_episodes, job.selection_seed))
+    again = run_episodes(policy, job.action_mode, task, tier, count, seed, env_kwargs=env_kwargs)
+    merged = []
+    for i, (old, new) in enumerate(zip(recorded, again)):
+        differ = [k for k in EPISODE_METRICS if k in old and old[k] != new[k]]
+        if differ:
+            k = differ[0]
+            raise ConfigError(f"job {job.name}: {which} episode {i} on {task}/{tier} no longer reproduces ({k} "
+                              f"{old[k]!r} recorded, {new[k]!r} now); re-evaluate it: python baselines/run_jobs.py "
+                              f"--reevaluate --only {job.name.split('/')[0]}")
+        merged.append({**old, **{k: new[k] for k in EPISODE_METRICS if k not in old}})
+    return merged
 
 
 def job_policy(job: Job, out: Path) -> tuple:
@@ -393,7 +422,7 @@ def missing_evaluations(job: Job, record: dict) -> list[tuple[str, str]]:
 
 
 #: the parts of a (task, tier) evaluation that run on their own (:func:`stale_parts`)
-PARTS = ("test", "selection", "compute")
+PARTS = ("test", "selection", "compute", "metrics")
 
 
 def selections_of(record: dict) -> dict:
@@ -402,11 +431,15 @@ def selections_of(record: dict) -> dict:
     return chosen if isinstance(chosen, dict) else {}
 
 
-def _fresh(episodes, count: int) -> bool:
-    """``count`` episodes, each with every metric the evaluator records."""
-    keys = (*EPISODE_METRICS, *TIMING_METRICS)
+def _fresh(episodes, count: int, keys: tuple = (*EPISODE_METRICS, *TIMING_METRICS)) -> bool:
+    """``count`` episodes, each with every one of ``keys`` (default: every metric the evaluator records)."""
     return (isinstance(episodes, list) and len(episodes) == count
             and all(isinstance(e, dict) and all(k in e for k in keys) for e in episodes))
+
+
+#: what an episode recorded before a metric was added still holds: re-running it adds the new metrics
+#: (:func:`stale_parts`' ``metrics``)
+_TIMED_CORE = ("return", "rms_position_error", "crashed", "length", *TIMING_METRICS)
 
 
 def stale_parts(job: Job, record: dict) -> dict[tuple[str, str], tuple[str, ...]]:
@@ -420,15 +453,18 @@ def stale_parts(job: Job, record: dict) -> dict[tuple[str, str], tuple[str, ...]
     other_path = job.learned and record.get("inference") != job.inference
     out = {}
     for task, tier in _pairs(job):
-        test = have.get(task, {}).get(tier)
+        test, selected = have.get(task, {}).get(tier), chosen.get(task, {}).get(tier)
         parts = []
-        if other_path or not _fresh(test, job.eval_episodes):
+        if other_path or not _fresh(test, job.eval_episodes, _TIMED_CORE):
             parts.append("test")
-        if job.selection_episodes and (other_path or not _fresh(chosen.get(task, {}).get(tier),
-                                                                job.selection_episodes)):
+        if job.selection_episodes and (other_path or not _fresh(selected, job.selection_episodes, _TIMED_CORE)):
             parts.append("selection")
         if "test" in parts or record.get("compute_pass") != COMPUTE_PASS or not all(COMPUTE_SINGLE in e for e in test):
             parts.append("compute")
+        if ("test" not in parts and not _fresh(test, job.eval_episodes)) or (
+                job.selection_episodes and "selection" not in parts
+                and not _fresh(selected, job.selection_episodes)):
+            parts.append("metrics")
         if parts:
             out[(task, tier)] = tuple(parts)
     return out
