@@ -2,7 +2,11 @@
 
 Episodes are fixed and seeded: evaluation episode i of a call with ``seed`` is sub-env i of the
 native vector env reset with ``seed`` (so it gets seed + i), the same for every policy. Training seeds
-live below :data:`EVAL_SEED_OFFSET`; evaluation seeds start at it, so the two never overlap.
+live below :data:`EVAL_SEED_OFFSET`; evaluation seeds start at it, so the two never overlap. Three ranges of
+evaluation seeds, each used for one thing only: the leaderboard's *test* episodes (:data:`EVAL_SEED_OFFSET`
++ i, 1,000,000 + i), its *selection* episodes, on which each side's strongest entry is chosen (2,000,000 + i),
+and the *tuning* range (:data:`TUNING_SEED` + i, 3,000,000 + i) on which every sweep, tolerance and gain choice
+of the project is made, so that nothing is tuned on the episodes it is reported on.
 
 Per-episode metrics (all computed on the true, noise-free state until the episode ends). The position
 error of control step k (k = 0, 1, ...) is e_k = |(x, z) - (x_ref, z_ref)| after that step, at time
@@ -19,6 +23,9 @@ t = (k + 1) dt:
 * ``rms_attitude_error`` [rad]: RMS over steps of the wrapped theta - theta_ref;
 * ``control_effort``: mean over steps of mean(a_n^2), the env's effort measure (see the env's
   Rewards section: applied actuators normalised by their limits, relative to hover thrust), clipped at 1;
+* ``fraction_within_1cm``: the share of the episode's time limit (its L control steps) with e_k below
+  :data:`TOLERANCE_M` (1 cm): whether the controller is good enough, not only how exact. The steps a crashed
+  episode did not live count as outside, so a crash lowers it and it is never missing;
 * ``crashed``: the episode terminated (any termination reason) before its time limit;
 * ``length``: number of control steps;
 * ``compute_us_per_step`` [us] (only with ``timing=True``): the policy's own time per control step: the
@@ -51,10 +58,14 @@ import numpy as np
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
 EVAL_SEED_OFFSET = 1_000_000
+#: the first seed of the tuning range (sweeps, tolerances, gains): disjoint from the test and selection episodes
+TUNING_SEED = 3_000_000
 #: the metrics of every episode (a crashed window is None; see the module docstring)
 WINDOW_METRICS = ("rms_position_error_transient", "rms_position_error_steady", "max_position_error_final_5s")
 EPISODE_METRICS = ("return", "rms_position_error", *WINDOW_METRICS, "rms_attitude_error", "control_effort",
-                   "crashed", "length")
+                   "fraction_within_1cm", "crashed", "length")
+#: the position tolerance of ``fraction_within_1cm`` [m]
+TOLERANCE_M = 0.01
 #: measured only with ``run_episodes(..., timing=True)``: wall time, not reproducible
 TIMING_METRICS = ("compute_us_per_step", "compute_us_per_step_p99", "compute_us_per_step_max")
 #: the per-robot compute of a leaderboard episode [us]: its run's figure on its task and tier
@@ -78,18 +89,20 @@ def window_steps(max_steps: int, dt: float) -> dict[str, tuple[int, int]]:
 
 
 def run_episodes(policy, action_mode: str, task: str, tier: str, episodes: int, seed: int,
-                 env_kwargs: dict | None = None, timing: bool = False) -> list[dict]:
+                 env_kwargs: dict | None = None, timing: bool = False, reset_options: dict | None = None) -> list[dict]:
     """Run ``policy.predict`` (deterministic) on ``episodes`` seeded episodes in parallel; one dict of
-    :data:`EPISODE_METRICS` per episode (and :data:`TIMING_METRICS` with ``timing=True``)."""
+    :data:`EPISODE_METRICS` per episode (and :data:`TIMING_METRICS` with ``timing=True``). ``reset_options``:
+    the env's ``reset(options=...)`` for every episode (e.g. ``{"q0": ...}``, a start of one's own)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode=action_mode, task=task, tier=tier, **(env_kwargs or {}))
     sim = env.sim
-    windows = window_steps(int(sim.max_steps), float(sim.dt))
+    limit = int(sim.max_steps)
+    windows = window_steps(limit, float(sim.dt))
     (t0, t1), (s0, s1), (f0, f1) = windows["transient"], windows["steady"], windows["final_5s"]
-    obs, _ = env.reset(seed=seed)
+    obs, _ = env.reset(seed=seed, options=reset_options)
     n = episodes
-    ret, sq_pos, sq_att, effort, length, sq_tr, sq_st, max_fin = (np.zeros(n) for _ in range(8))
+    ret, sq_pos, sq_att, effort, length, sq_tr, sq_st, max_fin, within = (np.zeros(n) for _ in range(9))
     done, crashed, start = np.zeros(n, bool), np.zeros(n, bool), np.ones(n, bool)
     seconds = []  # wall time of each predict call
     while not done.all():
@@ -112,6 +125,7 @@ def run_episodes(policy, action_mode: str, task: str, tier: str, episodes: int, 
         fin = live & (k >= f0) & (k < f1)
         max_fin[fin] = np.maximum(max_fin[fin], np.sqrt(sq[fin]))
         sq_att[live] += e_att[live] ** 2
+        within[live & (sq < TOLERANCE_M ** 2)] += 1
         effort[live] += -info["reward_terms"]["effort"][live] / _EFFORT_WEIGHT
         length[live] += 1
         crashed |= term & live
@@ -138,6 +152,7 @@ def run_episodes(policy, action_mode: str, task: str, tier: str, episodes: int, 
             "max_position_error_final_5s": window(i, max_fin[i], f1),
             "rms_attitude_error": float(np.sqrt(sq_att[i] / steps[i])),
             "control_effort": float(effort[i] / steps[i]),
+            "fraction_within_1cm": float(within[i] / limit),
             "crashed": bool(crashed[i]),
             "length": int(length[i]),
         }

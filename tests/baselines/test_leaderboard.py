@@ -29,8 +29,9 @@ from softpvtol_gym.baselines.leaderboard.jobs import (
     stale_evaluations,
     stale_jobs,
 )
-from softpvtol_gym.baselines.leaderboard.render import render_chart, render_markdown
+from softpvtol_gym.baselines.leaderboard.render import fmt_window, render_chart, render_markdown
 from softpvtol_gym.baselines.leaderboard.stats import (
+    WHOLE,
     _matrix,
     _seeded_interval_estimates,
     _three_metrics,
@@ -382,9 +383,12 @@ def test_crashed_windows_count_as_worse_than_any_value_not_as_missing():
         validate_data(data, "test")
 
 
-def _window_row(entry, policy, steady, ci, crash=0.0, whole=1.0):
+def _window_row(entry, policy, steady, ci, crash=0.0, whole=1.0, episodes=20):
+    """A synthetic aggregate row on hover/wind: ``crash`` of ``episodes`` episodes crashed."""
     return {"task": "hover", "tier": "wind", "entry": entry, "policy": policy, "crash_rate": crash,
+            "crashes": round(crash * episodes), "crash_episodes": episodes, "runs": 1, "episodes": episodes,
             "rms_position_error_iqm": whole, "rms_position_error_ci": [whole - 0.1, whole + 0.1],
+            f"{WHOLE}_iqm": whole, f"{WHOLE}_ci": [whole - 0.1, whole + 0.1],
             f"{STEADY}_iqm": steady, f"{STEADY}_ci": ci}
 
 
@@ -392,21 +396,83 @@ def test_the_headline_compares_the_strongest_learned_and_model_based_entry_per_w
     meta = {"tasks": ["hover"], "tiers": ["wind"]}
 
     def verdicts(rows):
-        return {r["window"]: (r["winner"], r["model_based"]["entry"], r["learned"]["entry"])
+        return {r["window"]: (r["winner"], r["model_based"]["entry"], r["learned"]["entry"], r["decided_by"])
                 for r in window_headline({"meta": meta, "aggregates": rows})}
 
     rows = [_window_row("passivity-bounded", "passivity-bounded", 0.6, [0.5, 0.7]),
             _window_row("passivity-integral", "passivity-integral", 0.01, [0.008, 0.012], whole=0.9),
-            _window_row("PPO-a", "ppo", 0.02, [0.015, 0.03], whole=0.2),
-            _window_row("PPO-b", "ppo", None, [0.5, None], crash=0.2, whole=0.1)]  # crashes: never the strongest there
+            _window_row("PPO-a", "ppo", 0.02, [0.015, 0.03], whole=0.2, episodes=100),
+            _window_row("PPO-b", "ppo", None, [0.5, None], crash=0.2, whole=0.1, episodes=100)]
     v = verdicts(rows)
-    assert v["steady"] == ("model-based", "passivity-integral", "PPO-a")
-    assert v["whole"][0] == "neither"  # PPO-b is lower but crashes more; its CI is below: no clear winner
+    assert v["steady"] == ("model-based", "passivity-integral", "PPO-a", "error")
+    # PPO-b has the lowest whole-episode IQM but crashes: the fewest crashes choose PPO-a, which is lower
+    assert v["whole"] == ("learned", "passivity-integral", "PPO-a", "error")
     rows[1][f"{STEADY}_ci"] = [0.008, 0.016]  # overlapping CIs
-    assert verdicts(rows)["steady"][0] == "neither"
-    rows = [r for r in rows if r["entry"] != "PPO-b"]
-    assert verdicts(rows)["whole"] == ("learned", "passivity-integral", "PPO-a")
+    assert verdicts(rows)["steady"][0::3] == ("neither", "overlap")
     assert "transient" not in verdicts(rows)  # rows without a window's statistics leave it out
+
+
+def test_significantly_more_crashes_lose_the_cell_and_a_few_do_not():
+    meta = {"tasks": ["hover"], "tiers": ["wind"]}
+    mpc = _window_row("mpc", "mpc", 0.01, [0.008, 0.012], crash=0.3)  # 6 of 20
+    ppo = _window_row("PPO-a", "ppo", 0.02, [0.015, 0.03], whole=0.5, crash=0.01, episodes=100)  # 1 of 100
+    (steady,) = [r for r in window_headline({"meta": meta, "aggregates": [mpc, ppo]}) if r["window"] == "steady"]
+    assert (steady["winner"], steady["decided_by"]) == ("learned", "crashes")
+    assert steady["crash_p"]["model_based_more"] < 0.05 < steady["crash_p"]["learned_more"]
+    mpc = _window_row("mpc", "mpc", 0.01, [0.008, 0.012], crash=0.05)  # 1 of 20 against 1 of 100: no evidence
+    (steady,) = [r for r in window_headline({"meta": meta, "aggregates": [mpc, ppo]}) if r["window"] == "steady"]
+    assert (steady["winner"], steady["decided_by"]) == ("model-based", "error")
+
+
+def test_the_crash_test_is_fishers_exact_test_on_the_counts():
+    from scipy.stats import fisher_exact
+
+    from softpvtol_gym.baselines.leaderboard.headline import more_crashes
+
+    a = {"crashes": 5, "crash_episodes": 20}
+    b = {"crashes": 1, "crash_episodes": 100}
+    assert more_crashes(a, b) == pytest.approx(fisher_exact([[5, 15], [1, 99]], alternative="greater").pvalue)
+    assert more_crashes(b, a) == 1.0  # not even the point estimate is higher
+    assert more_crashes({"crashes": 0, "crash_episodes": 20}, {"crashes": 0, "crash_episodes": 100}) == 1.0
+    assert more_crashes({"crashes": 1, "crash_episodes": 20}, {"crashes": 0, "crash_episodes": 100}) > 0.05
+
+
+def test_a_deterministic_cell_is_decided_only_beyond_its_roundoff_sensitivity():
+    meta = {"tasks": ["hover"], "tiers": ["wind"]}
+    mpc = _window_row("mpc", "mpc", 0.01, [0.01, 0.01], episodes=1) | {"deterministic": True, "ci_values": 1,
+                                                                        "runs": 1}
+    ppo = _window_row("PPO-a", "ppo", 0.02, [0.015, 0.03], episodes=5) | {"deterministic": True}
+
+    def steady(rows):
+        (r,) = [r for r in window_headline({"meta": meta, "aggregates": rows}) if r["window"] == "steady"]
+        return r["winner"], r["decided_by"]
+
+    assert steady([mpc, ppo]) == ("neither", "no_roundoff_probe")
+    mpc["roundoff_sensitivity"] = {STEADY: 1e-4, WHOLE: 1e-4}
+    assert steady([mpc, ppo]) == ("model-based", "error")
+    mpc["roundoff_sensitivity"] = {STEADY: 0.05, WHOLE: 0.05}  # the start's last bits move it more than the gap
+    assert steady([mpc, ppo]) == ("neither", "knife_edge")
+    mpc["roundoff_sensitivity"] = {STEADY: None, WHOLE: None}  # a probe crashed where the episode did not
+    assert steady([mpc, ppo]) == ("neither", "knife_edge")
+    assert "(n = 1)" in fmt_window(mpc, STEADY) and "[" not in fmt_window(mpc, STEADY)
+
+
+def test_the_tolerance_verdict_prefers_more_time_within_1cm():
+    from softpvtol_gym.baselines.leaderboard.headline import tolerance_headline
+
+    meta = {"tasks": ["hover"], "tiers": ["wind"]}
+    rows = [_window_row("passivity-integral", "passivity-integral", 0.01, [0.008, 0.012]),
+            _window_row("mpc", "mpc", 0.01, [0.008, 0.012], crash=0.1),
+            _window_row("PPO-a", "ppo", 0.02, [0.015, 0.03], episodes=100)]
+    for r, share, ci in zip(rows, (0.60, 0.95, 0.85), ([0.55, 0.65], [0.9, 0.97], [0.8, 0.9])):
+        r |= {"fraction_within_1cm": share, "fraction_within_1cm_ci": ci,
+              "selection": {"crash_rate": r["crash_rate"], "fraction_within_1cm": share}}
+    (cell,) = tolerance_headline({"meta": meta, "aggregates": rows})
+    # the MPC reaches the tolerance more often but crashed on the selection episodes: the integral loop is chosen
+    assert (cell["model_based"]["entry"], cell["learned"]["entry"]) == ("passivity-integral", "PPO-a")
+    assert (cell["winner"], cell["decided_by"]) == ("learned", "error")
+    rows[2]["fraction_within_1cm_ci"] = [0.5, 0.9]
+    assert tolerance_headline({"meta": meta, "aggregates": rows})[0]["winner"] == "neither"
 
 
 # ---------------------------------------------------------------------------------------- spec
@@ -549,9 +615,19 @@ def test_stale_parts_name_exactly_what_a_result_lacks():
     assert stale_parts(dataclasses.replace(job, inference="torch"), record | {"inference": "torch"}) == {}
     # an analytic job has no forward pass to check; a job without selection episodes ignores them
     analytic = dataclasses.replace(job, policy="passivity-bounded", train_tier=None, selection_episodes=0)
+    # identical test episodes (a deterministic task and tier): an analytic job's round-off probe is due
+    assert stale_parts(analytic, {"job": {"task": "hover"}, "compute_pass": COMPUTE_PASS,
+                                  "eval": {"nominal": scored, "model_gap": scored}}) == {
+        ("hover", t): ("roundoff",) for t in ("nominal", "model_gap")}
+    probes = [ep(0.1 + 1e-9 * i) for i in range(4)]
     analytic_record = {"job": {"task": "hover"}, "compute_pass": COMPUTE_PASS,
-                       "eval": {"nominal": scored, "model_gap": scored}}
+                       "eval": {"nominal": scored, "model_gap": scored},
+                       "roundoff": {"hover": {"nominal": probes, "model_gap": probes}}}
     assert stale_parts(analytic, analytic_record) == {}
+    # an episode recorded before a metric was added: re-run to add it (the recorded ones must reproduce)
+    old = [{k: v for k, v in e.items() if k != "fraction_within_1cm"} for e in scored]
+    assert stale_parts(analytic, analytic_record | {"eval": {"nominal": old, "model_gap": scored}}) == {
+        ("hover", "nominal"): ("metrics",)}
     # a per-robot compute measured another way (or before the way was recorded): only that pass again
     compute_only = {("hover", t): ("compute",) for t in ("nominal", "model_gap")}
     assert stale_parts(analytic, analytic_record | {"compute_pass": "evenly spaced observations"}) == compute_only
@@ -591,7 +667,7 @@ def test_the_headline_chooses_on_selection_episodes_and_reports_the_test_episode
             _window_row("passivity-integral", "passivity-integral", 0.5, [0.45, 0.55]),
             _window_row("PPO-a", "ppo", 0.02, [0.015, 0.03], whole=0.2)]
     for r, chosen in zip(rows, (0.1, 0.9, 0.02)):  # on the selection episodes the bounded loop looked best
-        r["selection"] = {"episodes": 10, "rms_position_error_iqm": r["rms_position_error_iqm"],
+        r["selection"] = {"episodes": 10, "crash_rate": 0.0, f"{WHOLE}_iqm": r[f"{WHOLE}_iqm"],
                           f"{STEADY}_iqm": chosen}
     (steady,) = [r for r in window_headline({"meta": meta, "aggregates": rows}) if r["window"] == "steady"]
     assert steady["model_based"]["entry"] == "passivity-bounded" and steady["selected_on"] == "selection"
@@ -642,3 +718,31 @@ def test_bad_selection_and_inference_settings_are_refused(tmp_path, evaluation, 
     path.write_text(f"evaluation: {evaluation}\ntasks: [hover]\ntrained: []\nseeds: [0]\n")
     with pytest.raises(ConfigError, match=message):
         load_jobs(path)
+
+
+def test_a_deterministic_analytic_job_gets_its_roundoff_probe_and_new_metrics_replay(tmp_path):
+    """track_paper nominal (one reference, one start): the job's two test episodes are one outcome, so its result
+    holds the round-off probe; an episode recorded without ``fraction_within_1cm`` gets it from a replay that must
+    reproduce every recorded metric."""
+    from softpvtol_gym.baselines.leaderboard.jobs import EVAL_FILE, ROUNDOFF_STARTS, stale_parts
+
+    job = Job(policy="passivity-bounded", action_mode="actuators", task="track_paper", train_tier=None, seed=0,
+              eval_tiers=("nominal",), eval_episodes=2, eval_seed=1_000_000, allocation="exact", loop="bounded")
+    record = run_job(job, tmp_path)
+    test, probes = record["eval"]["nominal"], record["roundoff"]["track_paper"]["nominal"]
+    assert len(probes) == len(ROUNDOFF_STARTS) and not any(p["crashed"] for p in probes)
+    moved = [abs(p["rms_position_error"] - test[0]["rms_position_error"]) for p in probes]
+    assert 0 < max(moved) < 1e-6  # the start moved by 1e-9 m: the episode moves, a little
+    path = job.folder(tmp_path) / EVAL_FILE
+    stored = json.loads(path.read_text())
+    for e in stored["eval"]["nominal"]:
+        del e["fraction_within_1cm"]
+    path.write_text(json.dumps(stored))
+    assert stale_parts(job, stored) == {("track_paper", "nominal"): ("metrics",)}
+    again = run_job(job, tmp_path)
+    assert again["eval"]["nominal"] == test  # the metric added, the wall-time figures kept
+    for e in stored["eval"]["nominal"]:
+        e["return"] += 1.0  # a recorded metric the code no longer reproduces
+    path.write_text(json.dumps(stored))
+    with pytest.raises(ConfigError, match="no longer reproduces"):
+        run_job(job, tmp_path)

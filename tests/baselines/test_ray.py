@@ -229,7 +229,8 @@ BAD_TUNE_INPUT = [
     (TINY_SPACE, ["--workers", "0"], "must be >= 1"),
     (TINY_SPACE, ["--address", "auto", "--workers", "2"], "--workers with --address"),
     (TINY_SPACE, ["--trials", "0"], "must be >= 1"),
-    (TINY_SPACE, ["--eval-seed", "5"], "must be >= 1,000,000"),
+    (TINY_SPACE, ["--eval-seed", "5"], "must be >= 3,000,000"),
+    (TINY_SPACE, ["--eval-seed", "1000000"], "must be >= 3,000,000"),
 ]
 
 

@@ -17,9 +17,10 @@ periodic evaluation) on ``--eval-episodes`` seeded episodes, and the metric (``-
 maximised, or mean RMS position error, minimised) is reported to Tune. ASHA compares trials at those
 stages and stops the weaker ones (reduction factor 2, first decision after one stage).
 
-The evaluation episodes are seeded from ``--eval-seed`` (default 3,000,000): held out from training
-(training seeds are below 500,000) and from the episodes ``train.py`` and the leaderboard report (from
-1,000,000), so that choosing the best configuration does not bias the reported comparison.
+The evaluation episodes are seeded from ``--eval-seed`` (default and least 3,000,000, the project's tuning range):
+held out from training (training seeds are below 500,000) and from the episodes ``train.py`` and the leaderboard
+report and select on (1,000,000 + i and 2,000,000 + i), so that choosing the best configuration does not bias the
+reported comparison.
 
 The best configuration is written (atomically; ``--out`` must not exist unless ``--force``) as YAML, data
 only: the full hyperparameter entry, the searched values as ``train.py --hp`` arguments, the objective,
@@ -59,7 +60,7 @@ from softpvtol_gym.baselines.config.hyperparams import (
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.config.validation import valid_hyperparameter_keys, validate_hyperparams
 from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, run_episodes, summarize
+from softpvtol_gym.baselines.evaluation import TUNING_SEED, run_episodes, summarize
 from softpvtol_gym.baselines.leaderboard.ray_executor import start_ray
 from softpvtol_gym.baselines.training.loop import train
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
@@ -82,7 +83,7 @@ from softpvtol_gym.tasks import registered_tasks
 #: the search space shipped with the package (``--space`` passes another)
 SPACE_FILE = data_file("tune_space.yml")
 #: validation episodes: seeds from here on (training < 500,000; train.py and the leaderboard from 1,000,000)
-TUNE_EVAL_SEED = 3_000_000
+TUNE_EVAL_SEED = TUNING_SEED
 DISTRIBUTIONS = ("loguniform", "uniform", "randint", "choice")
 #: keys a search may not span: they are not learning hyperparameters, or the run sets them
 UNSEARCHABLE = ("policy", "n_timesteps", "normalize", "policy_kwargs")
@@ -302,9 +303,9 @@ def build_parser(prog: str = "tune.py") -> Parser:
                     help="training seed of every trial, and the sampler's seed (default 0)")
     ap.add_argument("--eval-episodes", type=int_arg(1, MAX_EPISODES), default=10,
                     help="held-out episodes per evaluation (default 10)")
-    ap.add_argument("--eval-seed", type=int_arg(EVAL_SEED_OFFSET), default=TUNE_EVAL_SEED,
-                    help=f"seed of the first evaluation episode (default {TUNE_EVAL_SEED:,}; at least "
-                         f"{EVAL_SEED_OFFSET:,})")
+    ap.add_argument("--eval-seed", type=int_arg(TUNING_SEED), default=TUNE_EVAL_SEED,
+                    help=f"seed of the first evaluation episode (default {TUNE_EVAL_SEED:,}; at least {TUNING_SEED:,}: "
+                         "the tuning range, apart from the leaderboard's test and selection episodes)")
     ap.add_argument("--metric", default="mean_return", choices=sorted(METRICS),
                     help="objective: mean_return (maximised, default) or mean_rms_position_error (minimised)")
     ap.add_argument("--space", type=Path, default=SPACE_FILE,

@@ -32,7 +32,7 @@ Analytic entries (the spec's ``analytic`` list, or the older ``passivity`` list 
 ``allocation`` and ``loop``) or ``mpc`` (``softpvtol_gym.MPCPolicy.from_env(env, **options)``, imported only
 when such a job runs); every entry gets the same ``evaluation.episodes`` episodes.
 
-A result is *stale* for a (task, tier) in up to four parts (:func:`stale_parts`): ``test`` when it lacks the
+A result is *stale* for a (task, tier) in up to five parts (:func:`stale_parts`): ``test`` when it lacks the
 test episodes, when they lack the timing of :data:`~softpvtol_gym.baselines.evaluation.TIMING_METRICS` (results
 from before the windowed metrics) or come in another number than the job asks for; ``selection`` likewise for the
 selection episodes; ``compute`` when the test episodes lack ``compute_us_single`` or the result's ``compute_pass``
@@ -40,7 +40,11 @@ is not how the pass is measured now (:data:`~softpvtol_gym.baselines.evaluation.
 the episodes are all there, timed, but lack a metric the evaluator records since
 (:data:`~softpvtol_gym.baselines.evaluation.EPISODE_METRICS`, e.g. ``fraction_within_1cm``): the test and
 selection episodes are run again without timing, every recorded metric must come out the same to the last bit (else
-a ConfigError says to re-evaluate the job), and only the new metrics are added, the wall-time figures kept. A
+a ConfigError says to re-evaluate the job), and only the new metrics are added, the wall-time figures kept;
+``roundoff`` when an analytic job's test episodes there are all one outcome (a deterministic task and tier) and the
+result lacks its round-off probe (:func:`roundoff_episodes`: the same episode from starts moved by
+:data:`ROUNDOFF_SHIFT_M`, under ``roundoff``: task -> tier -> episodes), which tells the leaderboard whether a
+difference there is larger than what round-off alone can move. A
 learned result scored with another forward pass than the job's ``inference`` (results from before the lean path
 record none) is stale in the first three. Only the stale parts are run again (with the committed model: a learned
 job with a model is never trained again); ``rescore=True``
@@ -81,6 +85,7 @@ from softpvtol_gym.baselines.evaluation import (
     COMPUTE_SINGLE,
     EPISODE_METRICS,
     TIMING_METRICS,
+    identical_episodes,
     per_robot_compute_us,
     run_episodes,
 )
@@ -283,11 +288,12 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
             if (run_dir / fname).is_file():
                 atomic_copy(run_dir / fname, out / fname)
         shutil.rmtree(run_dir, ignore_errors=True)  # checkpoints, datasets and TensorBoard logs are not kept
-    every = {pair: ("test", "selection", "compute") for pair in _pairs(job)}
+    every = {pair: ("test", "selection", "compute", "roundoff") for pair in _pairs(job)}
     todo = every if previous is None or reevaluate else stale_parts(job, previous)
     kept_test = {} if previous is None else evaluations_of(previous)
     kept_selection = {} if previous is None else selections_of(previous)
     evaluations, selections = {}, {}
+    roundoff = {} if previous is None else {t: dict(v) for t, v in previous.get("roundoff", {}).items()}
     for task, tier in _pairs(job):  # a part that is not stale is kept as it is
         parts = todo.get((task, tier), ())
         test = kept_test[task][tier] if "test" not in parts else _episodes(job, out, task, tier, "test")
@@ -304,6 +310,10 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
             us = per_robot_compute_us(policy, job.action_mode, task, tier, job.eval_seed, env_kwargs=env_kwargs)
             test = [{**e, COMPUTE_SINGLE: us} for e in test]
         evaluations.setdefault(task, {})[tier] = test
+        if "roundoff" in parts:
+            roundoff.setdefault(task, {}).pop(tier, None)
+            if len(test) > 1 and identical_episodes(test):
+                roundoff[task][tier] = roundoff_episodes(job, out, task, tier)
     record = {
         "job": dataclasses.asdict(job),
         "checkpoint": _checkpoint_field(out, base) if job.learned else None,
@@ -316,6 +326,9 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
         record["eval_other_tasks"] = {task: evaluations[task] for task in job.other_eval_tasks}
     if job.selection_episodes:
         record["selection"] = selections
+    roundoff = {t: v for t, v in roundoff.items() if v}
+    if roundoff:
+        record["roundoff"] = roundoff
     atomic_write_text(out / EVAL_FILE, json.dumps(record, indent=1))
     record["wall_seconds"] = time.perf_counter() - t0
     return record
@@ -383,6 +396,29 @@ def _with_new_metrics(job: Job, out: Path, task: str, tier: str, recorded: list[
     return merged
 
 
+#: the round-off probe's starts: (state index, sign) of the shift (x -, x +, z -, z +)
+ROUNDOFF_STARTS = ((0, -1.0), (0, 1.0), (1, -1.0), (1, 1.0))
+
+
+def roundoff_episodes(job: Job, out: Path, task: str, tier: str) -> list[dict]:
+    """The round-off probe of a deterministic (task, tier): test episode 0 again, once per start of
+    :data:`ROUNDOFF_STARTS` (its initial configuration q0 with x or z moved by -/+ :data:`ROUNDOFF_SHIFT_M`), each
+    with a fresh policy; one dict of :data:`EPISODE_METRICS` per start."""
+    probe = SoftPVTOLVectorEnv(num_envs=1, action_mode=job.action_mode, task=task, tier=tier,
+                               **job_policy(job, out)[1])
+    probe.reset(seed=job.eval_seed)
+    q0 = probe.sim.q[0].copy()
+    probe.close()
+    episodes = []
+    for index, sign in ROUNDOFF_STARTS:
+        start = q0.copy()
+        start[index] += sign * ROUNDOFF_SHIFT_M
+        policy, env_kwargs = job_policy(job, out)
+        episodes += run_episodes(policy, job.action_mode, task, tier, 1, job.eval_seed, env_kwargs=env_kwargs,
+                                 reset_options={"q0": start})
+    return episodes
+
+
 def job_policy(job: Job, out: Path) -> tuple:
     """(a fresh policy, env_kwargs) of a job: a learned job's model from its folder ``out`` with the job's
     ``inference``, on the base loop it was trained on; an analytic job's controller (:func:`analytic_policy`)."""
@@ -422,7 +458,11 @@ def missing_evaluations(job: Job, record: dict) -> list[tuple[str, str]]:
 
 
 #: the parts of a (task, tier) evaluation that run on their own (:func:`stale_parts`)
-PARTS = ("test", "selection", "compute", "metrics")
+PARTS = ("test", "selection", "compute", "metrics", "roundoff")
+#: the round-off probe of a deterministic episode: its start (x, then z) moved by -/+ this much [m], one episode
+#: each: far below any sensor noise or parameter error of a tier, far above float64's spacing at 1 m (2e-16), so it
+#: shows how much the closed loop amplifies the last bits (a knife edge), not a different task
+ROUNDOFF_SHIFT_M = 1e-9
 
 
 def selections_of(record: dict) -> dict:
@@ -465,6 +505,11 @@ def stale_parts(job: Job, record: dict) -> dict[tuple[str, str], tuple[str, ...]
                 job.selection_episodes and "selection" not in parts
                 and not _fresh(selected, job.selection_episodes)):
             parts.append("metrics")
+        if not job.learned and ("test" in parts or (
+                len(test) > 1 and identical_episodes(test)
+                and not _fresh(record.get("roundoff", {}).get(task, {}).get(tier), len(ROUNDOFF_STARTS),
+                               EPISODE_METRICS))):
+            parts.append("roundoff")
         if parts:
             out[(task, tier)] = tuple(parts)
     return out

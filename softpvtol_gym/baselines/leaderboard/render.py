@@ -9,9 +9,16 @@ import numpy as np
 
 from softpvtol_gym.baselines.evaluation import COMPUTE_OBSERVATIONS, COMPUTE_SINGLE, WINDOW_METRICS
 from softpvtol_gym.baselines.leaderboard.base_loops import WORSE, WORSE_NOTE, base_loop_comparisons, worse_windows
-from softpvtol_gym.baselines.leaderboard.headline import headline, window_headline
+from softpvtol_gym.baselines.leaderboard.headline import crash_counts, headline, tolerance_headline, window_headline
 from softpvtol_gym.baselines.leaderboard.spec import is_learned
-from softpvtol_gym.baselines.leaderboard.stats import MIN_CI_VALUES, REFERENCE, WINDOWS, learned_name
+from softpvtol_gym.baselines.leaderboard.stats import (
+    MIN_CI_VALUES,
+    REFERENCE,
+    TOLERANCE_KEY,
+    WHOLE,
+    WINDOWS,
+    learned_name,
+)
 from softpvtol_gym.baselines.util.atomic import atomic_path
 from softpvtol_gym.baselines.util.blocks import markers
 
@@ -54,12 +61,16 @@ def marks(row: dict) -> str:
 
 
 def fmt_window(row: dict, metric: str) -> str:
-    """``IQM [lo, hi]`` of one metric of a row (crashed windows: "crash"), with its marks (:func:`marks`); "—"
-    where the row lacks it."""
-    if f"{metric}_iqm" not in row:
+    """``IQM [lo, hi]`` of one metric of a row (crashed windows: "crash"; ``fraction_within_1cm``: its mean), with
+    its marks (:func:`marks`); a row of one value (one run of a deterministic task and tier) as ``value (n = 1)``,
+    without a CI; "—" where the row lacks it."""
+    key = metric if metric == TOLERANCE_KEY else f"{metric}_iqm"
+    if key not in row:
         return "—"
+    if "runs" in row and ci_values(row) == 1:
+        return f"{num(row[key])} (n = 1)" + marks(row)
     ci = row[f"{metric}_ci"]
-    return f"{num(row[f'{metric}_iqm'])} [{num(ci[0])}, {num(ci[1])}]" + marks(row)
+    return f"{num(row[key])} [{num(ci[0])}, {num(ci[1])}]" + marks(row)
 
 
 def _us(v: float | None) -> str:
@@ -79,8 +90,26 @@ def fmt_us(row: dict, spread: bool = False) -> str:
     return text
 
 
-WINNER = {"learned": "**learned**", "model-based": "**model-based**",
-          "neither": "neither (CIs overlap or more crashes)"}
+WINNER = {"learned": "**learned**", "model-based": "**model-based**", "neither": "neither"}
+#: what decided a cell (:func:`~.headline.verdict`)
+DECIDED_BY = {"crashes": "crashes (Fisher p < 0.05)", "error": "error (CIs disjoint)", "overlap": "CIs overlap",
+              "knife_edge": "within round-off", "no_roundoff_probe": "no round-off probe"}
+
+
+def rules_sentence(data: dict) -> str:
+    """The verdict's rules as the page states them (from the JSON's meta where it records them)."""
+    meta = data["meta"]
+    alpha = meta.get("crash_alpha", 0.05)
+    return ("Each side's strongest entry is the one with the fewest crashes on the selection episodes, then the "
+            f"lowest IQM there (`selection_rule`: `{meta.get('selection_rule', 'iqm')}`). A side wins a cell where "
+            "the other crashes significantly more often (one-sided Fisher exact test on the crash counts, "
+            f"p < {alpha:g}: decided by crashes); else where its 95 % CI lies entirely below the other's (decided by "
+            "error); else neither. Crash counts are over every episode of a row (a learned entry: runs x episodes, "
+            "an analytic one: its episodes), and the exact test is valid for unequal counts. On a deterministic task "
+            "and tier (‡: every episode the same outcome) an analytic entry is one value (n = 1, no CI), and a win "
+            "there must also exceed how far round-off alone moves the metric (the job's round-off probe: the "
+            f"episode again from starts moved by {meta.get('roundoff_shift_m', 1e-9):g} m in x and z; a cell within "
+            "it is a knife edge, decided by neither side).")
 
 
 def headline_markdown(data: dict, heading: bool = True) -> list[str]:
@@ -94,12 +123,11 @@ def headline_markdown(data: dict, heading: bool = True) -> list[str]:
     lines = [
         *(["## Headline: learned vs model-based control, per time window", ""] if heading else []),
         "Per task, tier and time window: the strongest learned entry against the strongest model-based controller "
-        "(each the entry with the lowest IQM there; `window_headline()` in "
-        "`softpvtol_gym/baselines/leaderboard/headline.py`). A side wins where its 95 % CI lies entirely below the "
-        "other's and its crash rate is no higher. Windows: whole episode, first quarter (transient), last half "
-        "(steady), and the max error over the last 5 s; a window an episode crashed in counts as worse than any "
-        "value. ‡: a deterministic task and tier (identical episodes): one value per run (its mean), the CI over "
-        f"training seeds only (zero width for an analytic entry). {FEW_VALUES_NOTE} "
+        "(`window_headline()` in `softpvtol_gym/baselines/leaderboard/headline.py`). " + rules_sentence(data)
+        + " Windows: whole episode, first quarter (transient), last half (steady), and the max error over the last "
+        "5 s; a window an episode crashed in, and the whole episode of a crashed episode, count as worse than any "
+        "value. ‡: a deterministic task and tier: one value per run (its mean), a learned entry's CI over training "
+        f"seeds only. {FEW_VALUES_NOTE} "
         + _selection_sentence(data, rows)
         + " µs/robot: the per-robot compute, the median µs of the entry's `predict` on one observation at a time "
         f"(`compute_us_single`, a pass of its own over the first {COMPUTE_OBSERVATIONS:,} observations of a test "
@@ -110,16 +138,57 @@ def headline_markdown(data: dict, heading: bool = True) -> list[str]:
         f"control {counts['learned']}, neither {counts['neither']}.**"
         + (f" Model-based wins: {', '.join(mb)}." if mb else " Model-based control wins nowhere."),
         "",
-        "| task | tier | window | strongest model-based | its error [m] | µs/robot | strongest learned | its error "
-        "[m] | µs/robot | winner |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| task | tier | window | strongest model-based | its error [m] | crashes | µs/robot | strongest learned | "
+        "its error [m] | crashes | µs/robot | winner | decided by |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         a, b = r["model_based"], r["learned"]
         lines.append(f"| {r['task']} | {r['tier']} | {r['what']} | {a['entry']} | {fmt_window(a, r['metric'])} | "
-                     f"{fmt_single(a)} | {b['entry']} | {fmt_window(b, r['metric'])} | {fmt_single(b)} | "
-                     f"{WINNER[r['winner']]} |")
+                     f"{fmt_crashes(a)} | {fmt_single(a)} | {b['entry']} | {fmt_window(b, r['metric'])} | "
+                     f"{fmt_crashes(b)} | {fmt_single(b)} | {WINNER[r['winner']]} | "
+                     f"{DECIDED_BY.get(r.get('decided_by'), '—')} |")
+    return lines + [""] + tolerance_markdown(data)
+
+
+def fmt_crashes(row: dict) -> str:
+    """``crashed / episodes`` of a row."""
+    crashed, n = crash_counts(row)
+    return f"{crashed}/{n}"
+
+
+def tolerance_markdown(data: dict) -> list[str]:
+    """The tolerance verdict (:func:`~.headline.tolerance_headline`): per task and tier, which side keeps the
+    position within 1 cm of the reference more of the time, with both sides' mean actuator effort."""
+    rows = tolerance_headline(data)
+    if not rows:
+        return []
+    counts = {w: sum(r["winner"] == w for r in rows) for w in ("model-based", "learned", "neither")}
+    lines = [
+        "### Good enough: time within 1 cm", "",
+        "Per task and tier, the share of the episode's time limit with the position error below "
+        f"{data['meta'].get('tolerance_m', 0.01) * 100:g} cm (`fraction_within_1cm`, the mean over episodes; a crashed "
+        "episode's remaining time counts as outside), the strongest entry of each side chosen on the selection "
+        "episodes by fewest crashes, then the highest share (`tolerance_headline()`). A side wins where its 95 % CI "
+        "lies entirely above the other's (on a deterministic task and tier: by more than round-off moves it). "
+        "Effort: the mean over steps of the applied actuators' squared, normalised size (`control_effort`, the "
+        "env's effort measure), outside the verdict.", "",
+        f"**Time within 1 cm: model-based control wins {counts['model-based']} of {len(rows)} (task, tier) cells, "
+        f"learned control {counts['learned']}, neither {counts['neither']}.**", "",
+        "| task | tier | strongest model-based | within 1 cm | effort | strongest learned | within 1 cm | effort | "
+        "winner | decided by |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        a, b = r["model_based"], r["learned"]
+        lines.append(f"| {r['task']} | {r['tier']} | {a['entry']} | {fmt_window(a, r['metric'])} | {fmt_effort(a)} | "
+                     f"{b['entry']} | {fmt_window(b, r['metric'])} | {fmt_effort(b)} | {WINNER[r['winner']]} | "
+                     f"{DECIDED_BY.get(r['decided_by'], '—')} |")
     return lines + [""]
+
+
+def fmt_effort(row: dict) -> str:
+    return "—" if "control_effort_mean" not in row else f"{row['control_effort_mean']:.3f}"
 
 
 def _selection_sentence(data: dict, rows: list[dict]) -> str:
@@ -216,10 +285,16 @@ def summary_markdown(data: dict, page: str = "docs/leaderboard.md") -> str:
     compute = (" Per-robot compute (median µs of `predict` on one observation): strongest model-based "
                f"{min(us['model_based']):.0f}-{max(us['model_based']):.0f}, strongest learned "
                f"{min(us['learned']):.0f}-{max(us['learned']):.0f}." if us["model_based"] and us["learned"] else "")
-    lines = [f"Learned vs the strongest model-based controller per task, tier and time window (95 % CIs disjoint and "
-             f"no more crashes to win): **model-based wins {counts['model-based']} of {len(rows)} cells, learned "
-             f"{counts['learned']}, neither {counts['neither']}**.{compute} Per task and window, the tiers each side "
-             f"wins ([full leaderboard]({page})):", "",
+    tolerance = tolerance_headline(data)
+    within = ("" if not tolerance else
+              f" Time within 1 cm of the reference: model-based wins "
+              f"{sum(r['winner'] == 'model-based' for r in tolerance)} of {len(tolerance)} (task, tier) cells, "
+              f"learned {sum(r['winner'] == 'learned' for r in tolerance)}.")
+    lines = [f"Learned vs the strongest model-based controller per task, tier and time window (each side's entry "
+             f"chosen on held-out episodes by fewest crashes, then error; a side wins with significantly fewer "
+             f"crashes or a 95 % CI entirely below the other's): **model-based wins {counts['model-based']} of "
+             f"{len(rows)} cells, learned {counts['learned']}, neither {counts['neither']}**.{within}{compute} Per "
+             f"task and window, the tiers each side wins ([full leaderboard]({page})):", "",
              "| task | " + " | ".join(what for _, _, what in windows) + " |", "|---" * (len(windows) + 1) + "|"]
 
     def cell(items):
@@ -254,12 +329,14 @@ def render_markdown(data: dict, chart: str = "../results/leaderboard.png") -> st
         + f". Learned entries have {meta['seeds']} training seeds "
         "each. Point estimates: IQM (interquartile mean) over runs x episodes of the RMS position error [m] (whole "
         "episode, first quarter, last half) and of the max position error over the last 5 s [m], IQM of the return, "
-        "and the mean crash rate. Brackets: 95 % stratified-bootstrap CIs over runs and episodes "
+        "the mean crash rate, and the means of the share of the time limit within 1 cm of the reference and of the "
+        "actuator effort. Brackets: 95 % stratified-bootstrap CIs over runs and episodes "
         f"(rliable, {meta['bootstrap_reps']} replications; {meta['poi_bootstrap_reps']} for P(better)). "
-        "A window that an episode crashed in counts as worse than any value (\"crash\": the IQM or the CI bound "
+        "A window that an episode crashed in (and the whole episode of a crashed episode) counts as worse than any "
+        "value (\"crash\": the IQM or the CI bound "
         "reaches crashed windows). ‡: a deterministic task and tier (an entry there has identical episodes: one "
         "reference, one initial state): each run counts once, as the mean of its episodes, so the CI is over "
-        "training seeds only, and an analytic entry has one value (a CI of zero width). P(better): rliable's "
+        "training seeds only, and an analytic entry has one value (n = 1, no CI). P(better): rliable's "
         "probability that the entry has a "
         f"lower RMS position error than `{REFERENCE}` on an episode, with a CI over training seeds only "
         "(rliable's pair bootstrap does not resample episodes). µs/step: the median wall time of the policy's own "
@@ -291,8 +368,8 @@ def render_markdown(data: dict, chart: str = "../results/leaderboard.png") -> st
         rows = by_task.get(task, [])
         lines += [f"## {task}", "",
                   "| tier | policy | runs x episodes | RMS position error [m] | RMS, first quarter [m] | RMS, last "
-                  "half [m] | max, last 5 s [m] | crash rate | return | µs/step | µs/robot | P(better than "
-                  f"{REFERENCE}) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "half [m] | max, last 5 s [m] | within 1 cm | effort | crash rate | return | µs/step | µs/robot | "
+                  f"P(better than {REFERENCE}) |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in sorted(rows, key=lambda r: (tier_order.index(r["tier"]), _entry_order(r["entry"]))):
             p = fmt_ci(r["prob_improvement"], r["prob_improvement_ci"], 2) if "prob_improvement" in r else "—"
             hurt = bad.get((r["task"], r["tier"], r["entry"]), set())
@@ -300,9 +377,10 @@ def render_markdown(data: dict, chart: str = "../results/leaderboard.png") -> st
             def flag(metric: str, hurt=hurt) -> str:
                 return f" {WORSE}" if metric in hurt else ""
 
-            err = fmt_ci(r["rms_position_error_iqm"], r["rms_position_error_ci"], 3) + marks(r) \
-                + flag("rms_position_error")
-            windows = " | ".join(fmt_window(r, m) + flag(m) for m in WINDOW_METRICS)
+            err = (fmt_window(r, WHOLE) if f"{WHOLE}_iqm" in r else
+                   fmt_ci(r["rms_position_error_iqm"], r["rms_position_error_ci"], 3) + marks(r)) + flag(WHOLE)
+            windows = " | ".join(fmt_window(r, m) + flag(m) for m in (*WINDOW_METRICS, TOLERANCE_KEY))
+            windows += f" | {fmt_effort(r)}"
             crash = fmt_ci(r["crash_rate"], r["crash_rate_ci"], 2) + marks(r).replace(" ‡", "")
             ret = fmt_ci(r["return_iqm"], r["return_ci"], 0) + marks(r).replace(" ‡", "")
             lines.append(f"| {r['tier']} | {r['entry']} | {r['runs']} x {r.get('episodes', '?')} | {err} | {windows} | "

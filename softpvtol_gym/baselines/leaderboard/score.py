@@ -18,6 +18,7 @@ from pathlib import Path
 from softpvtol_gym.baselines.config.hyperparams import MAX_EPISODES
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import COMPUTE_SINGLE, per_robot_compute_us, run_episodes
+from softpvtol_gym.baselines.leaderboard.headline import verdict
 from softpvtol_gym.baselines.leaderboard.render import fmt_single, fmt_window
 from softpvtol_gym.baselines.leaderboard.spec import SPEC_FILE, load_spec
 from softpvtol_gym.baselines.leaderboard.stats import WINDOWS, aggregate, read_data
@@ -100,8 +101,9 @@ def _key(v) -> float:
 def rank(rows: list[dict], board: dict) -> list[dict]:
     """Per (task, tier, window) of :data:`~.stats.WINDOWS` that ``board`` (a leaderboard JSON) holds: the scored
     policy's row, its ``rank`` by IQM among the committed entries there (1: lowest error; ties rank it first),
-    ``of`` (entries + 1), the strongest committed entry (``best``), and ``verdict``: "better" or "worse" where the
-    two 95 % CIs are disjoint and the better side's crash rate is no higher, else "overlap"."""
+    ``of`` (entries + 1), the strongest committed entry (``best``), and ``verdict``: "better" or "worse" by the
+    headline's rules (:func:`~.headline.verdict`: significantly more crashes lose, else disjoint 95 % CIs decide),
+    else "overlap"."""
     out = []
     for row in rows:
         here = [r for r in board["aggregates"] if (r["task"], r["tier"]) == (row["task"], row["tier"])]
@@ -111,17 +113,11 @@ def rank(rows: list[dict], board: dict) -> list[dict]:
                 continue
             mine = _key(row[f"{metric}_iqm"])
             best = min(sorted(others, key=lambda r: r["entry"]), key=lambda r: _key(r[f"{metric}_iqm"]))
-            lo, hi = (_key(v) for v in row[f"{metric}_ci"])
-            b_lo, b_hi = (_key(v) for v in best[f"{metric}_ci"])
-            if hi < b_lo and row["crash_rate"] <= best["crash_rate"]:
-                verdict = "better"
-            elif b_hi < lo and best["crash_rate"] <= row["crash_rate"]:
-                verdict = "worse"
-            else:
-                verdict = "overlap"
+            winner, _ = verdict(best, row, metric)  # the headline's rules: crashes (Fisher), then the CIs
+            verdict_ = {"learned": "better", "model-based": "worse"}.get(winner, "overlap")
             out.append({"task": row["task"], "tier": row["tier"], "window": window, "metric": metric, "what": what,
                         "rank": 1 + sum(_key(r[f"{metric}_iqm"]) < mine for r in others), "of": len(others) + 1,
-                        "row": row, "best": best, "verdict": verdict})
+                        "row": row, "best": best, "verdict": verdict_})
     return out
 
 

@@ -1,15 +1,23 @@
 """Leaderboard statistics (rliable): the job results collected into cells, IQMs with stratified-bootstrap CIs,
 and the JSON that holds them (built and validated; its headline: :mod:`~.headline`).
 
-Per (task, tier, entry) row: the IQM and 95 % CI of the whole-episode RMS position error, of the return and of
-the crash rate, and of each window of :data:`~softpvtol_gym.baselines.evaluation.WINDOW_METRICS`
-(``<metric>_iqm``, ``<metric>_ci``), plus ``compute_us_per_step_median`` (the median over the row's episodes
-of their median per-step time: the per-env share of a batch), ``compute_us_per_step_p99`` / ``_max`` (the worst
-episode's) and ``compute_us_single`` (the per-robot compute: the median over the row's runs of each run's figure,
-measured in a pass of its own on one observation at a time). ``ci_values``: how many values the CIs resample
-(runs x episodes, or runs on a deterministic task and tier); a CI from fewer than :data:`MIN_CI_VALUES` is
-marked on the page. ``selection``: the IQM of each headline metric on the held-out selection episodes, on which
-:func:`~.headline.window_headline` chooses each side's strongest entry before it reports it on the test episodes.
+Per (task, tier, entry) row: the IQM and 95 % CI of the whole-episode RMS position error (``rms_position_error``:
+over the steps each episode lived, so a crashed episode's value is its RMS up to the crash, descriptive only), of
+the return and of the crash rate, and of each window of :data:`WINDOWS` (``<metric>_iqm``, ``<metric>_ci``; the
+whole episode's verdict metric ``rms_position_error_whole`` scores a crashed episode +inf, like every window);
+the crash counts the crash verdict tests (``crashes`` of ``crash_episodes``: runs x episodes, or runs on a
+deterministic task and tier); the mean and 95 % CI of ``fraction_within_1cm`` (the share of the time limit within
+1 cm of the reference) and of ``control_effort`` (``control_effort_mean``); on a deterministic task and tier,
+``roundoff_sensitivity``: how far each headline metric moves when the start is moved by round-off-level amounts
+(the job's ``roundoff`` episodes, :data:`~.jobs.ROUNDOFF_SHIFT_M`); plus ``compute_us_per_step_median`` (the
+median over the row's episodes of their median per-step time: the per-env share of a batch),
+``compute_us_per_step_p99`` / ``_max`` (the worst episode's) and ``compute_us_single`` (the per-robot compute: the
+median over the row's runs of each run's figure, measured in a pass of its own on one observation at a time).
+``ci_values``: how many values the CIs resample (runs x episodes, or runs on a deterministic task and tier); a CI
+from fewer than :data:`MIN_CI_VALUES` is marked on the page. ``selection``: the crash rate, the IQM of each
+headline metric and the mean ``fraction_within_1cm`` on the held-out selection episodes, on which
+:func:`~.headline.window_headline` chooses each side's strongest entry (fewest crashes first, then the best IQM:
+:data:`SELECTION_RULE`) before it reports it on the test episodes.
 Two rules keep the CIs honest:
 
 * Crashed windows (None in an episode) are scored +inf: worse than any value, never dropped. The IQM trims
@@ -40,6 +48,7 @@ from softpvtol_gym.baselines.evaluation import (
     COMPUTE_SINGLE,
     EPISODE_METRICS,
     TIMING_METRICS,
+    TOLERANCE_M,
     WINDOW_METRICS,
     identical_episodes,
     summarize,
@@ -47,6 +56,7 @@ from softpvtol_gym.baselines.evaluation import (
 )
 from softpvtol_gym.baselines.leaderboard.jobs import (
     EVAL_FILE,
+    ROUNDOFF_SHIFT_M,
     RUNS_DIR,
     SPEC_FILE,
     evaluations_of,
@@ -59,6 +69,11 @@ from softpvtol_gym.baselines.leaderboard.jobs import (
 from softpvtol_gym.baselines.leaderboard.spec import is_learned, selection_seed
 from softpvtol_gym.baselines.util.safe_load import loads_json
 
+#: how each side's strongest entry is chosen on the selection episodes: the lowest crash rate, then the best IQM
+SELECTION_RULE = "crashes_then_iqm"
+#: the crash verdict: a one-sided Fisher exact test on the crash counts of the two rows, at this level
+CRASH_TEST, CRASH_ALPHA = "fisher_exact_one_sided", 0.05
+TOLERANCE_KEY = "fraction_within_1cm"
 REFERENCE = "passivity-bounded"   # the strongest analytic loop, the env's default (docs/control.md)
 BOOTSTRAP_REPS = 2000
 POI_BOOTSTRAP_REPS = 300  # rliable's probability of improvement runs scipy per episode: slow
@@ -69,8 +84,11 @@ COMMAND = "python baselines/run_jobs.py && python baselines/leaderboard.py"
 #: the per-episode metrics every result must hold (results without the windows and the timing are
 #: stale, re-scored by ``run-jobs --rescore``)
 BASE_METRICS = tuple(k for k in EPISODE_METRICS if k not in WINDOW_METRICS)
+#: the whole episode's verdict metric: ``rms_position_error`` with a crashed episode scored +inf (worse than any
+#: finished one), computed from the episodes here, not recorded
+WHOLE = "rms_position_error_whole"
 #: the windows of the headline: (name, per-episode metric, what it is)
-WINDOWS = (("whole", "rms_position_error", "RMS, whole episode"),
+WINDOWS = (("whole", WHOLE, "RMS, whole episode"),
            ("transient", "rms_position_error_transient", "RMS, first quarter"),
            ("steady", "rms_position_error_steady", "RMS, last half"),
            ("final_5s", "max_position_error_final_5s", "max, last 5 s"))
@@ -133,6 +151,7 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, inference: str | None
                     "train_seconds": rec["train_seconds"],
                     "eval_seed": j["eval_seed"], "episodes": episodes, "summary": _summary(episodes),
                     "selection": selections_of(rec).get(task, {}).get(tier, []),
+                    "roundoff": rec.get("roundoff", {}).get(task, {}).get(tier, []),
                 })
     return cells, missing
 
@@ -209,10 +228,28 @@ def _matrix(cells: list[dict], key: str, sign: float = 1.0, per_run: bool = Fals
     1), each run's mean over its episodes (a deterministic task and tier: the episodes are one observation)."""
     rows = []
     for c in sorted(cells, key=lambda c: c["seed"]):
-        x = sign * (window_scores(c["episodes"], key) if key in WINDOW_METRICS else
-                    np.array([float(e[key]) for e in c["episodes"]]))
+        x = sign * episode_scores(c["episodes"], key)
         rows.append([x.mean()] if per_run else x)
     return np.asarray(rows, dtype=float)
+
+
+def episode_scores(episodes: list[dict], key: str) -> np.ndarray:
+    """One score per episode: a window metric with a crashed window +inf, :data:`WHOLE` (the whole-episode RMS
+    with a crashed episode +inf), or the recorded value of ``key``."""
+    if key == WHOLE:
+        return np.array([np.inf if e["crashed"] else float(e["rms_position_error"]) for e in episodes], dtype=float)
+    if key in WINDOW_METRICS:
+        return window_scores(episodes, key)
+    return np.array([float(e[key]) for e in episodes], dtype=float)
+
+
+def mean_intervals(scores: np.ndarray, reps: int = BOOTSTRAP_REPS) -> tuple[np.ndarray, np.ndarray]:
+    """(means, 95 % CIs (2 x k)) of a (runs x episodes x k) array, from the stratified bootstrap of
+    :func:`stratified_replicates`."""
+    k = scores.shape[-1]
+    replicates = stratified_replicates(scores, lambda x: x.reshape(-1, k).mean(axis=0), reps)
+    return scores.reshape(-1, k).mean(axis=0), np.stack([np.percentile(replicates, 2.5, axis=0),
+                                                         np.percentile(replicates, 97.5, axis=0)])
 
 
 def deterministic_pairs(cells: list[dict]) -> set[tuple[str, str]]:
@@ -331,12 +368,23 @@ def aggregate(cells: list[dict], deterministic: set | None = None) -> list[dict]
         for k, name in enumerate(("rms_position_error_iqm", "return_iqm", "crash_rate")):
             row[name] = float(point["x"][k])
             row[name.replace("_iqm", "") + "_ci"] = [float(ci["x"][0, k]), float(ci["x"][1, k])]
-        windows = [k for k in WINDOW_METRICS if all(k in e for c in group for e in c["episodes"])]
+        crashed = _matrix(group, "crashed", per_run=det)
+        row["crashes"], row["crash_episodes"] = int(round(crashed.sum())), int(crashed.size)
+        windows = [WHOLE] + [k for k in WINDOW_METRICS if all(k in e for c in group for e in c["episodes"])]
         if windows:
             w_point, w_ci = window_intervals(np.stack([_matrix(group, k, per_run=det) for k in windows], axis=-1))
             for j, key in enumerate(windows):
                 row[f"{key}_iqm"] = _finite_or_none(w_point[j])
                 row[f"{key}_ci"] = [_finite_or_none(w_ci[0, j]), _finite_or_none(w_ci[1, j])]
+        means = [k for k in (TOLERANCE_KEY, "control_effort") if all(k in e for c in group for e in c["episodes"])]
+        if means:
+            m_point, m_ci = mean_intervals(np.stack([_matrix(group, k, per_run=det) for k in means], axis=-1))
+            for j, key in enumerate(means):
+                name = key if key == TOLERANCE_KEY else f"{key}_mean"
+                row[name] = float(m_point[j])
+                row[f"{key}_ci"] = [float(m_ci[0, j]), float(m_ci[1, j])]
+        if det and all(c.get("roundoff") for c in group):
+            row["roundoff_sensitivity"] = roundoff_sensitivity(group)
         timing = {k: [e[k] for c in group for e in c["episodes"] if k in e] for k in TIMING_METRICS}
         row["compute_us_per_step_median"] = float(np.median(timing[TIMING_METRICS[0]])) if timing[
             TIMING_METRICS[0]] else None
@@ -361,12 +409,40 @@ def aggregate(cells: list[dict], deterministic: set | None = None) -> list[dict]
 
 
 def selection_iqms(group: list[dict], per_run: bool = False) -> dict:
-    """The IQM of each headline metric (:data:`WINDOWS`) over the selection episodes of one entry's cells (a
-    crashed window: None where it reaches the IQM), and their number per run."""
+    """Over the selection episodes of one entry's cells: the IQM of each headline metric (:data:`WINDOWS`; a crashed
+    window: None where it reaches the IQM), the crash rate, the mean ``fraction_within_1cm`` (where recorded), and
+    their number per run."""
     metrics = [metric for _, metric, _ in WINDOWS]
     selection = [{**c, "episodes": c["selection"]} for c in group]
     iqm = _iqms(np.stack([_matrix(selection, k, per_run=per_run) for k in metrics], axis=-1))
-    return {"episodes": len(group[0]["selection"]), **{f"{k}_iqm": _finite_or_none(v) for k, v in zip(metrics, iqm)}}
+    out = {"episodes": len(group[0]["selection"]), "crash_rate": float(_matrix(selection, "crashed").mean()),
+           **{f"{k}_iqm": _finite_or_none(v) for k, v in zip(metrics, iqm)}}
+    if all(TOLERANCE_KEY in e for c in selection for e in c["episodes"]):
+        out[TOLERANCE_KEY] = float(_matrix(selection, TOLERANCE_KEY, per_run=per_run).mean())
+    return out
+
+
+def roundoff_sensitivity(group: list[dict]) -> dict:
+    """How far each headline metric (:data:`WINDOWS`) and ``fraction_within_1cm`` of a deterministic row moves
+    when its start moves by round-off-level amounts: the largest |probe - recorded| over the runs' ``roundoff``
+    episodes (a probe that crashes where the recorded episode did not, or the reverse: None, unbounded)."""
+    out = {}
+    for key in [metric for _, metric, _ in WINDOWS] + [TOLERANCE_KEY]:
+        spread = 0.0
+        for c in group:
+            if not all(key in e or key == WHOLE for e in [c["episodes"][0], *c["roundoff"]]):
+                spread = None
+                break
+            base = episode_scores(c["episodes"][:1], key)[0]
+            probes = episode_scores(c["roundoff"], key)
+            if np.isinf(base) or np.isinf(probes).any():
+                if not (np.isinf(base) and np.isinf(probes).all()):
+                    spread = None
+                    break
+                continue
+            spread = max(spread, float(np.max(np.abs(probes - base))))
+        out[key] = spread
+    return out
 
 
 # ------------------------------------------------------------------------------------------ main
@@ -394,7 +470,9 @@ def build(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, base: Path = Path("."),
             "inference": inference or s["evaluation"].get("inference", "lean"), "min_ci_values": MIN_CI_VALUES,
             "seeds": len(s["seeds"]), "bootstrap_reps": BOOTSTRAP_REPS, "poi_bootstrap_reps": POI_BOOTSTRAP_REPS,
             "bootstrap_seed": BOOTSTRAP_SEED, "compute_pass": COMPUTE_PASS,
-            "reference": REFERENCE, "missing_jobs": missing, "version": 5}
+            "reference": REFERENCE, "missing_jobs": missing, "selection_rule": SELECTION_RULE,
+            "crash_test": CRASH_TEST, "crash_alpha": CRASH_ALPHA, "tolerance_m": TOLERANCE_M,
+            "roundoff_shift_m": ROUNDOFF_SHIFT_M, "version": 6}
     return {"meta": meta, "aggregates": aggregate(cells), "cells": cells}
 
 
@@ -453,7 +531,7 @@ def validate_data(data, source: str) -> dict:
             ci = r.get(key)
             if not (isinstance(ci, list) and len(ci) == 2 and all(number(v) for v in ci)):
                 bad(f"{where}.{key} must be a list of two finite numbers, got {ci!r}")
-        for metric in WINDOW_METRICS:  # windowed rows; null: crashed (an IQM) or unbounded (a CI bound)
+        for metric in (WHOLE, *WINDOW_METRICS):  # windowed rows; null: crashed (an IQM) or unbounded (a CI bound)
             if f"{metric}_iqm" not in r:
                 continue
             ci = r.get(f"{metric}_ci")
@@ -474,6 +552,11 @@ def validate_data(data, source: str) -> dict:
                     f"{[f'{m}_iqm' for _, m, _ in WINDOWS]}, got {chosen!r}")
         if not isinstance(r.get("deterministic", False), bool):
             bad(f"{where}.deterministic must be true or false")
+        if TOLERANCE_KEY in r and not (number(r[TOLERANCE_KEY]) and 0 <= r[TOLERANCE_KEY] <= 1):
+            bad(f"{where}.{TOLERANCE_KEY} must be a share in [0, 1], got {r[TOLERANCE_KEY]!r}")
+        for key in ("crashes", "crash_episodes"):
+            if key in r and (not isinstance(r[key], int) or isinstance(r[key], bool) or r[key] < 0):
+                bad(f"{where}.{key} must be an integer >= 0, got {r[key]!r}")
     return data
 
 

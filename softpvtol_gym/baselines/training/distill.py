@@ -50,7 +50,7 @@ from softpvtol_gym.baselines.config.hyperparams import (
 )
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import ConfigError
-from softpvtol_gym.baselines.evaluation import run_episodes, summarize
+from softpvtol_gym.baselines.evaluation import TUNING_SEED, run_episodes, summarize
 from softpvtol_gym.baselines.training.imitation import action_gap, actor_parameters
 from softpvtol_gym.baselines.training.loop import prepare, torch_threads
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
@@ -68,7 +68,7 @@ __all__ = ["DistillConfig", "distill", "teacher_policy", "collect", "distill_tab
 DISTILL_FILE = "distill.json"
 DATASET_DIR = "datasets"
 #: the first seed of the per-round evaluation episodes (test episodes start at 1,000,000, selection at 2,000,000)
-DISTILL_EVAL_SEED = 3_000_000
+DISTILL_EVAL_SEED = TUNING_SEED
 #: collection episodes of run seed s start at s * SEED_STRIDE (below the training seed limit)
 SEED_STRIDE = 10_000
 MAX_EPISODES_PER_ROUND = 1_000
