@@ -5,7 +5,8 @@
 
 Each variant is :class:`softpvtol_gym.PassivityPolicy` in actuators mode with one set of controller
 settings, evaluated with :func:`softpvtol_gym.baselines.evaluation.run_episodes` (the leaderboard's
-evaluator: its windowed metrics) on the same seeded episodes (5 per cell, seeds 1,000,000 + i) of
+evaluator: its windowed metrics) on the same seeded episodes (5 per cell, the tuning range: seeds 3,000,000 + i,
+apart from the leaderboard's test and selection episodes) of
 hover, track_paper and track_random under every built-in tier. Per cell: the mean over episodes of the
 RMS position error over the first quarter of the episode (transient) and over its last half (steady),
 over the episodes that finished (a crashed episode is counted in the crash rate instead). Writes
@@ -26,6 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from softpvtol_gym.baselines.evaluation import TUNING_SEED  # noqa: E402
 from softpvtol_gym.baselines.util.atomic import atomic_write_text  # noqa: E402
 from softpvtol_gym.baselines.util.blocks import markers, read_block, write_block  # noqa: E402
 
@@ -33,7 +35,7 @@ OUT = ROOT / "benchmarks" / "integral_sweep.json"
 DOC = ROOT / "docs" / "control.md"
 TASKS = ("hover", "track_paper", "track_random")
 TIERS = ("nominal", "mismatch", "wind", "noisy", "hard", "model_gap")
-EPISODES, SEED = 5, 1_000_000
+EPISODES, SEED = 5, TUNING_SEED
 BLOCK, SOURCE = "integral-sweep", "benchmarks/integral_sweep.json"
 RAISED = {"lam": (2.0, 2.0, 5.0, 10.0, 10.0), "k": (14.0, 14.0, 10.5, 21.0, 21.0)}
 

@@ -202,6 +202,8 @@ def check_result(rec: dict, path: Path) -> dict:
                 if not isinstance(e, dict):
                     bad(f"{where}.{tier}[{i}] must be an object")
                 for key in BASE_METRICS:
+                    if key not in e and key == TOLERANCE_KEY:
+                        continue  # recorded before the metric existed: stale, re-scored (collect reports it)
                     if key not in e:
                         bad(f"{where}.{tier}[{i}].{key} is missing")
                     if not _number(e[key], allow_bool=key == "crashed"):
