@@ -20,10 +20,10 @@ from scipy import stats
 
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import EPISODE_METRICS, run_episodes
+from softpvtol_gym.baselines.leaderboard.episodes import analytic_policy
 from softpvtol_gym.baselines.leaderboard.headline import window_headline
 from softpvtol_gym.baselines.leaderboard.jobs import (
     Job,
-    analytic_policy,
     load_jobs,
     run_job,
     stale_evaluations,
@@ -197,7 +197,7 @@ def test_committed_analytic_cells_reproduce_with_the_current_code(entry, task, t
     """An analytic entry's committed episodes are what the current controller code gives (a change of a
     controller must re-evaluate its cells: python baselines/run_jobs.py --reevaluate --only <entry>)."""
     from softpvtol_gym.baselines.evaluation import run_episodes
-    from softpvtol_gym.baselines.leaderboard.jobs import analytic_policy, load_jobs
+    from softpvtol_gym.baselines.leaderboard.jobs import load_jobs
 
     (job,) = [j for j in load_jobs() if j.policy == entry and j.task == task]
     cell = next(c for c in DATA["cells"] if c["entry"] == entry and c["task"] == task and c["tier"] == tier)
@@ -724,7 +724,8 @@ def test_a_deterministic_analytic_job_gets_its_roundoff_probe_and_new_metrics_re
     """track_paper nominal (one reference, one start): the job's two test episodes are one outcome, so its result
     holds the round-off probe; an episode recorded without ``fraction_within_1cm`` gets it from a replay that must
     reproduce every recorded metric."""
-    from softpvtol_gym.baselines.leaderboard.jobs import EVAL_FILE, ROUNDOFF_STARTS, stale_parts
+    from softpvtol_gym.baselines.leaderboard.episodes import ROUNDOFF_STARTS
+    from softpvtol_gym.baselines.leaderboard.jobs import EVAL_FILE, stale_parts
 
     job = Job(policy="passivity-bounded", action_mode="actuators", task="track_paper", train_tier=None, seed=0,
               eval_tiers=("nominal",), eval_episodes=2, eval_seed=1_000_000, allocation="exact", loop="bounded")

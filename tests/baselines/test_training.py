@@ -192,9 +192,18 @@ def test_evaluate_cli_writes_episode_json(tmp_path, capsys):
     assert set(data["episodes"][0]) == {"return", "rms_position_error", "rms_attitude_error", "control_effort",
                                         "crashed", "length", "rms_position_error_transient",
                                         "rms_position_error_steady", "max_position_error_final_5s",
-                                        "compute_us_per_step", "compute_us_per_step_p99", "compute_us_per_step_max"}
+                                        "compute_us_per_step", "compute_us_per_step_p99", "compute_us_per_step_max",
+                                        "fraction_within_1cm"}
+    assert all(0 <= e["fraction_within_1cm"] <= 1 for e in data["episodes"])
     assert data["summary"]["episodes"] == 2 and 0 <= data["summary"]["crash_rate"] <= 1
     assert_exit_2(evaluate_main, ["--policy", "passivity", "--episodes", "2", "--json", str(out)], "exists", capsys)
+
+
+@pytest.mark.parametrize("option", [["--controller-loop", "integral"], ["--allocation", "paper"]])
+def test_evaluate_refuses_a_loop_option_for_an_actuator_checkpoint(option, capsys):
+    run_dir = ROOT / "results/leaderboard_runs/distilled-integral-small_track_random_nominal/seed_0"
+    assert_exit_2(evaluate_main, ["--policy", str(run_dir), "--episodes", "1", *option],
+                  "acts on the actuators, so it would change nothing", capsys)
 
 
 @pytest.mark.parametrize(

@@ -3,9 +3,9 @@
 Every text file of the checkout (``git ls-files``; without git, every file but the ignored ones: a virtual
 environment, caches, build output) is scanned, docs, code, tests, configuration and committed results alike:
 
-* a relative path that climbs (``../x``) must name something inside the repository: it is resolved from every
-  directory of the tree (a doc links from ``docs/``, a renderer writes a link for a page in another folder) and
-  at least one of those must stay inside the root and exist;
+* a relative path that climbs (a leading ``..`` component) must name something inside the repository: it is
+  resolved from every directory of the tree (a doc links from ``docs/``, a renderer writes a link for a page in
+  another folder) and at least one of those must stay inside the root and exist;
 * no absolute path of a machine: what lies in a home, scratch or mount directory (``/home``, ``/root``,
   ``/Users``, ``/work``, ``/tmp``, ``/mnt``, ``/shared``, ``/scratch``) or in a Windows user folder.
 

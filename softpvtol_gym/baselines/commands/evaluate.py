@@ -140,9 +140,15 @@ def _main(argv, layout: Layout, prog: str) -> int:
                      f"checkpoint (it is a policy of its own, acting on the actuators), got {path}; leave "
                      f"--controller-loop out (the checkpoint's own base loop, {config.controller_loop}) or pass one "
                      f"of {', '.join(RESIDUAL_BASE_LOOPS)}")
+        if mode == "actuators" and env_kwargs:
+            given = " ".join(f"--{k.replace('_', '-')} {v}" for k, v in env_kwargs.items())
+            ap.error(f"{given} sets the residual base loop and the virtual mode's allocation; the checkpoint "
+                     f"{path} acts on the actuators, so it would change nothing; leave it out")
         source = str(path)
-        if args.controller_loop is None and args.allocation is None:
-            env_kwargs = config.eval_env_kwargs()  # the base loop the checkpoint was trained on
+        # the env the checkpoint was trained on (its base loop, its observation options), with the given loop
+        env_kwargs = {**config.eval_env_kwargs(), **env_kwargs}
+        if "allocation" in env_kwargs and "controller_loop" in env_kwargs and args.controller_loop is None:
+            del env_kwargs["controller_loop"]  # --allocation alone: the loop follows the allocation given
     result = evaluate(policy, mode, task, tier, args.episodes, args.seed, env_kwargs=env_kwargs, timing=True)
     s = result["summary"]
     cfg = EnvConfig(action_mode=mode, **env_kwargs)

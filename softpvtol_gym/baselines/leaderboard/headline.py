@@ -5,6 +5,7 @@ and window)."""
 from __future__ import annotations
 
 import numpy as np
+from scipy.stats import fisher_exact
 
 from softpvtol_gym.baselines.leaderboard.spec import is_learned
 from softpvtol_gym.baselines.leaderboard.stats import CRASH_ALPHA, TOLERANCE_KEY, WINDOWS, learned_name
@@ -77,7 +78,6 @@ def crash_counts(row: dict) -> tuple[int, int]:
 def more_crashes(a: dict, b: dict) -> float:
     """The p-value of "row ``a`` crashes more often than row ``b``": a one-sided Fisher exact test on their crash
     counts (:func:`crash_counts`), exact for any two counts, equal or not (scipy, with rliable)."""
-    from scipy.stats import fisher_exact
 
     (ca, na), (cb, nb) = crash_counts(a), crash_counts(b)
     if ca * nb <= cb * na:  # not even the point estimate is higher

@@ -42,13 +42,12 @@ the episodes are all there, timed, but lack a metric the evaluator records since
 selection episodes are run again without timing, every recorded metric must come out the same to the last bit (else
 a ConfigError says to re-evaluate the job), and only the new metrics are added, the wall-time figures kept;
 ``roundoff`` when an analytic job's test episodes there are all one outcome (a deterministic task and tier) and the
-result lacks its round-off probe (:func:`roundoff_episodes`: the same episode from starts moved by
-:data:`ROUNDOFF_SHIFT_M`, under ``roundoff``: task -> tier -> episodes), which tells the leaderboard whether a
-difference there is larger than what round-off alone can move. A
-learned result scored with another forward pass than the job's ``inference`` (results from before the lean path
-record none) is stale in the first three. Only the stale parts are run again (with the committed model: a learned
-job with a model is never trained again); ``rescore=True``
-(``run-jobs --rescore``) runs only those, of jobs that have a result, and refuses to train.
+result lacks its round-off probe (:func:`~.episodes.roundoff_episodes`: the same episode from starts moved by
+:data:`~.episodes.ROUNDOFF_SHIFT_M`, under ``roundoff``: task -> tier -> episodes), which tells the leaderboard
+whether a difference there is larger than what round-off alone can move. A learned result scored with another
+forward pass than the job's ``inference`` (results from before the lean path record none) is stale in the first
+three. Only the stale parts are run again (with the committed model: a learned job with a model is never trained
+again); ``rescore=True`` (``run-jobs --rescore``) runs only those, of jobs that have a result, and refuses to train.
 
 The spec is validated before any job runs (:func:`load_spec`: unknown keys, wrong types, unknown tasks,
 tiers, kinds or action modes, episode counts out of range are errors naming the key); job names are safe
@@ -68,8 +67,6 @@ import uuid
 from concurrent.futures import Executor, as_completed
 from pathlib import Path
 
-import softpvtol_gym
-from softpvtol_gym import PassivityPolicy
 from softpvtol_gym.baselines.checkpoints.manifest import MANIFEST_FILE, MODEL_FILE, MODEL_FILES
 from softpvtol_gym.baselines.checkpoints.store import legacy_files
 from softpvtol_gym.baselines.config.hyperparams import (
@@ -87,11 +84,16 @@ from softpvtol_gym.baselines.evaluation import (
     TIMING_METRICS,
     identical_episodes,
     per_robot_compute_us,
-    run_episodes,
 )
 from softpvtol_gym.baselines.leaderboard.distilled import RECORD_FILES, recorded_seconds, train_distilled
+from softpvtol_gym.baselines.leaderboard.episodes import (
+    ROUNDOFF_STARTS,
+    job_episodes,
+    job_policy,
+    roundoff_episodes,
+    with_new_metrics,
+)
 from softpvtol_gym.baselines.leaderboard.spec import (
-    ANALYTIC_KINDS,
     INFERENCE,
     SPEC_FILE,
     analytic_entries,
@@ -102,12 +104,10 @@ from softpvtol_gym.baselines.leaderboard.spec import (
 )
 from softpvtol_gym.baselines.training.imitation import source_overrides
 from softpvtol_gym.baselines.training.loop import EVALUATIONS_FILE, train
-from softpvtol_gym.baselines.training.policy import LearnedPolicy
 from softpvtol_gym.baselines.util.args import interrupted, io_error_message
 from softpvtol_gym.baselines.util.atomic import atomic_copy, atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout, check_slug, relative_to_root, under
 from softpvtol_gym.baselines.util.safe_load import loads_json
-from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
 #: the jobs' run directories by default: ``./results/leaderboard_runs`` (a checkout's scripts pass
 #: ``results/leaderboard_runs``)
@@ -296,15 +296,15 @@ def run_job(job: Job, root: Path = RUNS_DIR, reevaluate: bool = False, base: Pat
     roundoff = {} if previous is None else {t: dict(v) for t, v in previous.get("roundoff", {}).items()}
     for task, tier in _pairs(job):  # a part that is not stale is kept as it is
         parts = todo.get((task, tier), ())
-        test = kept_test[task][tier] if "test" not in parts else _episodes(job, out, task, tier, "test")
+        test = kept_test[task][tier] if "test" not in parts else job_episodes(job, out, task, tier, "test")
         if job.selection_episodes:
             selections.setdefault(task, {})[tier] = (
                 kept_selection[task][tier] if "selection" not in parts else
-                _episodes(job, out, task, tier, "selection"))
+                job_episodes(job, out, task, tier, "selection"))
         if "metrics" in parts:
-            test = _with_new_metrics(job, out, task, tier, test, "test")
+            test = with_new_metrics(job, out, task, tier, test, "test")
             if job.selection_episodes:
-                selections[task][tier] = _with_new_metrics(job, out, task, tier, selections[task][tier], "selection")
+                selections[task][tier] = with_new_metrics(job, out, task, tier, selections[task][tier], "selection")
         if "compute" in parts:
             policy, env_kwargs = job_policy(job, out)
             us = per_robot_compute_us(policy, job.action_mode, task, tier, job.eval_seed, env_kwargs=env_kwargs)
@@ -367,92 +367,6 @@ def _pairs(job: Job) -> list[tuple[str, str]]:
     return [(task, tier) for task in job.eval_tasks for tier in job.eval_tiers]
 
 
-def _episodes(job: Job, out: Path, task: str, tier: str, which: str) -> list[dict]:
-    """The ``which`` ("test" or "selection") episodes of ``job`` on a task and tier, with a policy of their own."""
-    policy, env_kwargs = job_policy(job, out)
-    count, seed = ((job.eval_episodes, job.eval_seed) if which == "test" else
-                   (job.selection_episodes, job.selection_seed))
-    return run_episodes(policy, job.action_mode, task, tier, count, seed, env_kwargs=env_kwargs, timing=True)
-
-
-#: metrics a replay may reproduce to the last bits only: the attitude error goes through numpy's vectorised
-#: sin, cos and arctan2, whose last bit can differ between numpy builds and array layouts; the trajectory (every
-#: other metric) must still be the same to the bit
-_LAST_BIT_METRICS = ("rms_attitude_error",)
-
-
-def _with_new_metrics(job: Job, out: Path, task: str, tier: str, recorded: list[dict], which: str) -> list[dict]:
-    """``recorded`` episodes with the metrics of :data:`EPISODE_METRICS` they lack, from a re-run without timing
-    whose every recorded metric must equal the recorded one exactly (a replay; :data:`_LAST_BIT_METRICS` to a
-    relative 1e-12); ConfigError otherwise. The recorded values are kept."""
-    if all(k in e for e in recorded for k in EPISODE_METRICS):
-        return recorded
-    policy, env_kwargs = job_policy(job, out)
-    count, seed = ((job.eval_episodes, job.eval_seed) if which == "test" else
-                   (job.selection_episodes, job.selection_seed))
-    again = run_episodes(policy, job.action_mode, task, tier, count, seed, env_kwargs=env_kwargs)
-    merged = []
-    for i, (old, new) in enumerate(zip(recorded, again)):
-        differ = [k for k in EPISODE_METRICS if k in old and old[k] != new[k] and not (
-            k in _LAST_BIT_METRICS and abs(old[k] - new[k]) <= 1e-12 * abs(old[k]))]
-        if differ:
-            k = differ[0]
-            raise ConfigError(f"job {job.name}: {which} episode {i} on {task}/{tier} no longer reproduces ({k} "
-                              f"{old[k]!r} recorded, {new[k]!r} now); re-evaluate it: python baselines/run_jobs.py "
-                              f"--reevaluate --only {job.name.split('/')[0]}")
-        merged.append({**old, **{k: new[k] for k in EPISODE_METRICS if k not in old}})
-    return merged
-
-
-#: the round-off probe's starts: (state index, sign) of the shift (x -, x +, z -, z +)
-ROUNDOFF_STARTS = ((0, -1.0), (0, 1.0), (1, -1.0), (1, 1.0))
-
-
-def roundoff_episodes(job: Job, out: Path, task: str, tier: str) -> list[dict]:
-    """The round-off probe of a deterministic (task, tier): test episode 0 again, once per start of
-    :data:`ROUNDOFF_STARTS` (its initial configuration q0 with x or z moved by -/+ :data:`ROUNDOFF_SHIFT_M`), each
-    with a fresh policy; one dict of :data:`EPISODE_METRICS` per start."""
-    probe = SoftPVTOLVectorEnv(num_envs=1, action_mode=job.action_mode, task=task, tier=tier,
-                               **job_policy(job, out)[1])
-    probe.reset(seed=job.eval_seed)
-    q0 = probe.sim.q[0].copy()
-    probe.close()
-    episodes = []
-    for index, sign in ROUNDOFF_STARTS:
-        start = q0.copy()
-        start[index] += sign * ROUNDOFF_SHIFT_M
-        policy, env_kwargs = job_policy(job, out)
-        episodes += run_episodes(policy, job.action_mode, task, tier, 1, job.eval_seed, env_kwargs=env_kwargs,
-                                 reset_options={"q0": start})
-    return episodes
-
-
-def job_policy(job: Job, out: Path) -> tuple:
-    """(a fresh policy, env_kwargs) of a job: a learned job's model from its folder ``out`` with the job's
-    ``inference``, on the base loop it was trained on; an analytic job's controller (:func:`analytic_policy`)."""
-    if job.learned:
-        policy, run_config = LearnedPolicy.load(out, inference=job.inference)
-        return policy, run_config.eval_env_kwargs()
-    return analytic_policy(job)
-
-
-def analytic_policy(job: Job) -> tuple:
-    """(policy, env_kwargs) of an analytic job: a PassivityPolicy with the job's allocation and loop, or
-    ``softpvtol_gym.MPCPolicy.from_env(env, **options)`` (imported here: the MPC needs the ``mpc`` extra)."""
-    if job.kind == "passivity":
-        env_kwargs = {"allocation": job.allocation, "controller_loop": job.loop or job.allocation}
-        probe = SoftPVTOLVectorEnv(num_envs=1, action_mode=job.action_mode, task=job.task, **env_kwargs)
-        return PassivityPolicy.from_env(probe), env_kwargs
-    if job.kind == "mpc":
-        probe = SoftPVTOLVectorEnv(num_envs=1, action_mode=job.action_mode, task=job.task)
-        options = {k: list(v) if isinstance(v, tuple) else v for k, v in job.options}
-        try:
-            return softpvtol_gym.MPCPolicy.from_env(probe, **options), {}
-        except ImportError as exc:  # the mpc extra (CasADi) is missing: the message names it
-            raise ConfigError(f"job {job.name}: {exc}; or remove the mpc entry from the spec") from None
-    raise ConfigError(f"job {job.name}: unknown analytic kind {job.kind!r}; expected one of {list(ANALYTIC_KINDS)}")
-
-
 def evaluations_of(record: dict) -> dict:
     """task -> tier -> episodes of a job record (its own task's ``eval`` and ``eval_other_tasks``)."""
     own = record["job"]["task"]
@@ -467,12 +381,6 @@ def missing_evaluations(job: Job, record: dict) -> list[tuple[str, str]]:
 
 #: the parts of a (task, tier) evaluation that run on their own (:func:`stale_parts`)
 PARTS = ("test", "selection", "compute", "metrics", "roundoff")
-#: the round-off probe of a deterministic episode: its start (x, then z) moved by -/+ this much [m], one episode
-#: each: far below any sensor noise or parameter error of a tier, far above float64's spacing at 1 m (2e-16), so it
-#: shows how much the closed loop amplifies the last bits (a knife edge), not a different task
-ROUNDOFF_SHIFT_M = 1e-9
-
-
 def selections_of(record: dict) -> dict:
     """task -> tier -> selection episodes of a job record (empty for results without them)."""
     chosen = record.get("selection", {})

@@ -9,7 +9,7 @@ the crash counts the crash verdict tests (``crashes`` of ``crash_episodes``: run
 deterministic task and tier); the mean and 95 % CI of ``fraction_within_1cm`` (the share of the time limit within
 1 cm of the reference) and of ``control_effort`` (``control_effort_mean``); on a deterministic task and tier,
 ``roundoff_sensitivity``: how far each headline metric moves when the start is moved by round-off-level amounts
-(the job's ``roundoff`` episodes, :data:`~.jobs.ROUNDOFF_SHIFT_M`); plus ``compute_us_per_step_median`` (the
+(the job's ``roundoff`` episodes, :data:`~.episodes.ROUNDOFF_SHIFT_M`); plus ``compute_us_per_step_median`` (the
 median over the row's episodes of their median per-step time: the per-env share of a batch),
 ``compute_us_per_step_p99`` / ``_max`` (the worst episode's) and ``compute_us_single`` (the per-robot compute: the
 median over the row's runs of each run's figure, measured in a pass of its own on one observation at a time).
@@ -54,9 +54,9 @@ from softpvtol_gym.baselines.evaluation import (
     summarize,
     window_scores,
 )
+from softpvtol_gym.baselines.leaderboard.episodes import ROUNDOFF_SHIFT_M
 from softpvtol_gym.baselines.leaderboard.jobs import (
     EVAL_FILE,
-    ROUNDOFF_SHIFT_M,
     RUNS_DIR,
     SPEC_FILE,
     evaluations_of,
