@@ -64,8 +64,8 @@ def _import_file(path_name: str):
     module = importlib.util.module_from_spec(spec)
     try:
         spec.loader.exec_module(module)
-    except Exception as exc:  # noqa: BLE001 - the user's code: its error in one line
-        raise ConfigError(f"--policy: importing {path} failed: {type(exc).__name__}: {exc}") from None
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - the user's code: its error in one line
+        raise ConfigError(f"--policy: importing {path} failed: it {failure_words(exc)}") from None
     return module
 
 
@@ -80,8 +80,8 @@ def _import_module(module_name: str):
             raise ConfigError(f"--policy: module {module_name!r} not found (it must be importable from the current "
                               f"directory {cwd}, or pass a path to a .py file)") from None
         raise ConfigError(f"--policy: importing {module_name} failed: {exc}") from None
-    except Exception as exc:  # noqa: BLE001 - the user's code: its error in one line
-        raise ConfigError(f"--policy: importing {module_name} failed: {type(exc).__name__}: {exc}") from None
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - the user's code: its error in one line
+        raise ConfigError(f"--policy: importing {module_name} failed: it {failure_words(exc)}") from None
 
 
 def as_policy(obj, env, where: str = "the policy factory") -> CheckedPolicy:
@@ -101,29 +101,51 @@ def as_policy(obj, env, where: str = "the policy factory") -> CheckedPolicy:
 
 
 class CheckedPolicy:
-    """A stable-baselines3 ``predict`` over a user's policy; the first call of each observation shape (a batch, one
-    observation) checks the action's shape (ConfigError naming it), later calls pass through."""
+    """A stable-baselines3 ``predict`` over a user's policy; every call checks what it returns (real numbers, the
+    shape, finite) and turns an error of the policy's own, ``sys.exit`` included, into a ConfigError of one line
+    naming it."""
 
     def __init__(self, call, returns_state: bool, action_dim: int, where: str):
         self._call, self._returns_state, self.action_dim, self._where = call, returns_state, action_dim, where
-        self._checked: set[int] = set()
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        if self._returns_state:
-            out = self._call(observation, state=state, episode_start=episode_start, deterministic=deterministic)
-            action = out[0] if isinstance(out, tuple) else out
-        else:
-            action = self._call(observation)
-        ndim = np.ndim(observation)
-        if ndim not in self._checked:
-            action = self._check(action, np.shape(observation))
-            self._checked.add(ndim)
-        return action, None
+        try:
+            if self._returns_state:
+                out = self._call(observation, state=state, episode_start=episode_start, deterministic=deterministic)
+                action = out[0] if isinstance(out, tuple) else out
+            else:
+                action = self._call(observation)
+        except (Exception, SystemExit) as exc:  # noqa: BLE001 - the user's code: its error in one line
+            raise ConfigError(f"{self._where}: the policy {failure_words(exc)} on observations of shape "
+                              f"{np.shape(observation)}") from None
+        return self._check(action, np.shape(observation)), None
 
     def _check(self, action, obs_shape: tuple) -> np.ndarray:
-        action = np.asarray(action, dtype=float)
+        try:
+            values = np.asarray(action, dtype=float)
+        except (TypeError, ValueError):
+            values = None
+        if values is None or np.asarray(action).dtype.kind in "bc":
+            raise ConfigError(f"{self._where}: the policy returned {_short(action)} for observations of shape "
+                              f"{obs_shape}; expected real numbers, an array of {self.action_dim} actions per env")
         want = (obs_shape[0], self.action_dim) if len(obs_shape) == 2 else (self.action_dim,)
-        if action.shape != want and not (len(obs_shape) == 1 and action.shape == (1, self.action_dim)):
-            raise ConfigError(f"{self._where}: the policy returned actions of shape {action.shape} for observations "
+        if values.shape != want and not (len(obs_shape) == 1 and values.shape == (1, self.action_dim)):
+            raise ConfigError(f"{self._where}: the policy returned actions of shape {values.shape} for observations "
                               f"of shape {obs_shape}; expected {want} (one row of {self.action_dim} actions per env)")
-        return action.reshape(want)
+        if not np.isfinite(values).all():
+            bad = values.reshape(-1)[~np.isfinite(values.reshape(-1))][0]
+            raise ConfigError(f"{self._where}: the policy returned a non-finite action ({bad}) for observations of "
+                              f"shape {obs_shape}; expected finite actions")
+        return values.reshape(want)
+
+
+def failure_words(exc: BaseException) -> str:
+    """What a user's code did, in a few words: ``raised ValueError: ...`` or ``called sys.exit(0)``."""
+    if isinstance(exc, SystemExit):
+        return f"called sys.exit({exc.code!r})"
+    return f"raised {type(exc).__name__}: {exc}".replace("\n", " ")
+
+
+def _short(value) -> str:
+    text = repr(value).replace("\n", " ")
+    return f"{type(value).__name__} {text[:80]}{'...' if len(text) > 80 else ''}"

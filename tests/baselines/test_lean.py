@@ -231,8 +231,35 @@ def test_learned_policy_picks_its_inference(committed):
         LearnedPolicy(policy.model, policy.vecnorm, inference="fast")
     with pytest.raises(ValueError, match="deterministic action only, got deterministic=False"):
         lean.predict(obs[:2], deterministic=False)
-    with pytest.raises(ValueError, match=r"observations must have shape \(18,\) or \(n, 18\), got \(3, 17\)"):
+    with pytest.raises(ValueError, match=r"observations must be an array of shape \(18,\) or \(n, 18\) with n >= 1, "
+                                         r"got shape \(3, 17\)"):
         lean.predict(obs[:3, :17])
+
+
+def _with(obs, index, value):
+    bad = obs.astype(np.float64)
+    bad[index] = value
+    return bad
+
+
+@pytest.mark.parametrize("inference", ["lean", "torch"])
+@pytest.mark.parametrize("make, message", [
+    (lambda o: _with(o, 3, np.nan), r"must be finite \(as float32\), got nan at 3"),
+    (lambda o: _with(o, 0, np.inf), r"must be finite \(as float32\), got inf at 0"),
+    (lambda o: _with(o, 5, 1e300), r"must be finite \(as float32\), got 1e\+300 at 5"),
+    (lambda o: np.stack([o, _with(o, 2, -np.inf)]), r"got -inf at \(1, 2\)"),
+    (lambda o: np.zeros((0, 18)), r"with n >= 1, got shape \(0, 18\)"),
+    (lambda o: o.astype(complex), r"of real numbers, got dtype complex128"),
+    (lambda o: o > 0, r"of real numbers, got dtype bool"),
+    (lambda o: [str(v) for v in o], r"of real numbers, got dtype <U"),
+    (lambda o: [[1.0], [1.0, 2.0]], r"\(real numbers\), got \[\[1.0\], \[1.0, 2.0\]\]"),
+])
+def test_learned_policies_refuse_observations_they_cannot_act_on(committed, inference, make, message):
+    policy, _, obs = committed["actuators"]
+    learned = LearnedPolicy(policy.model, policy.vecnorm, inference=inference)
+    with pytest.raises(ValueError, match=message):
+        learned.predict(make(obs[0]))
+    assert np.isfinite(learned.predict(obs[0])[0]).all()  # a good one still acts
 
 
 def test_evaluate_command_takes_inference(tmp_path, committed):

@@ -7,6 +7,7 @@ entries; every bad spec or bad policy is one line saying what was received and w
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -38,6 +39,30 @@ def short_actions(env):
 
 def nothing(env):
     return 42
+
+
+def raises(env):
+    def act(obs):
+        raise RuntimeError("my controller diverged")
+    return act
+
+
+def exits(env):
+    def act(obs):
+        raise SystemExit(0)
+    return act
+
+
+def nan_actions(env):
+    return lambda obs: np.full((len(obs), 4), np.nan)
+
+
+def words(env):
+    return lambda obs: "hover please"
+
+
+def exits_on_build(env):
+    raise SystemExit(0)
 """
 
 
@@ -76,6 +101,16 @@ def test_a_bad_policy_is_refused_naming_what_it_returned():
     with pytest.raises(ConfigError, match=r"actions of shape \(2, 3\) for observations of shape \(2, \d+\); expected "
                                           r"\(2, 4\)"):
         policy.predict(np.zeros((2, env.single_observation_space.shape[0])))
+    obs = np.zeros((2, env.single_observation_space.shape[0]))
+    for make, message in (
+            (lambda o: 1 / 0, r"the policy raised ZeroDivisionError: division by zero on observations of shape \(2, "),
+            (lambda o: np.full((2, 4), np.inf), r"returned a non-finite action \(inf\)"),
+            (lambda o: np.full((2, 4), np.nan), r"returned a non-finite action \(nan\)"),
+            (lambda o: "up", r"returned str 'up' for observations of shape \(2, \d+\); expected real numbers"),
+            (lambda o: np.ones((2, 4), bool), r"returned ndarray .*expected real numbers"),
+            (lambda o: sys.exit(0), r"the policy called sys.exit\(0\) on observations")):
+        with pytest.raises(ConfigError, match=message):
+            as_policy(make, env).predict(obs)
     one = as_policy(lambda obs: np.ones(4), env)
     action, state = one.predict(np.zeros(env.single_observation_space.shape[0]))
     assert action.shape == (4,) and state is None
@@ -118,7 +153,14 @@ def test_the_command_scores_a_file_module_writes_json_and_refuses_bad_input(user
     assert len(data["episodes"]["hover"]["wind"]) == 2 and len(data["ranking"]) == 4
     for argv, message in ((["--policy", "my_controllers:nothing"], "returned a int, which has no predict"),
                           (["--policy", "my_controllers:short_actions"], "actions of shape (2, 3)"),
-                          (["--policy", "my_controllers"], "--policy must be MODULE:FACTORY")):
+                          (["--policy", "my_controllers"], "--policy must be MODULE:FACTORY"),
+                          (["--policy", "my_controllers:raises"], "the policy raised RuntimeError: my controller "
+                                                                  "diverged on observations of shape (2,"),
+                          (["--policy", "my_controllers:exits"], "the policy called sys.exit(0)"),
+                          (["--policy", "my_controllers:exits_on_build"], "failed on hover/nominal: it called "
+                                                                          "sys.exit(0)"),
+                          (["--policy", "my_controllers:nan_actions"], "returned a non-finite action (nan)"),
+                          (["--policy", "my_controllers:words"], "returned str 'hover please'")):
         with pytest.raises(SystemExit) as exc:
             main([*argv, "--task", "hover", "--tier", "nominal", "--episodes", "2",
                   "--leaderboard", str(LEADERBOARD_JSON)])

@@ -22,7 +22,7 @@ from softpvtol_gym.baselines.leaderboard.headline import verdict
 from softpvtol_gym.baselines.leaderboard.render import fmt_single, fmt_window
 from softpvtol_gym.baselines.leaderboard.spec import SPEC_FILE, load_spec
 from softpvtol_gym.baselines.leaderboard.stats import WINDOWS, aggregate, read_data
-from softpvtol_gym.baselines.user_policy import as_policy
+from softpvtol_gym.baselines.user_policy import as_policy, failure_words
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.envs.actions import ACTION_MODES
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
@@ -89,8 +89,8 @@ def _policy(factory, action_mode: str, task: str, tier: str):
         made = factory(env)
     except ConfigError:
         raise
-    except Exception as exc:  # noqa: BLE001 - the user's code: its error in one line
-        raise ConfigError(f"the policy factory failed on {task}/{tier}: {type(exc).__name__}: {exc}") from None
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - the user's code: its error in one line
+        raise ConfigError(f"the policy factory failed on {task}/{tier}: it {failure_words(exc)}") from None
     return as_policy(made, env, f"the policy factory (on {task}/{tier}, {action_mode} mode)")
 
 

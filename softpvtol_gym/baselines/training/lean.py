@@ -43,7 +43,7 @@ from numba import njit
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.training.stacking import ObservationStack, frame_stack_wrapper
 
-__all__ = ["LeanMLPPolicy", "OPS"]
+__all__ = ["LeanMLPPolicy", "OPS", "checked_observations"]
 
 _jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 
@@ -64,6 +64,15 @@ def _normalized(x, mean, scale, clip):
     elif v > clip:
         v = clip
     return np.float64(np.float32(v))
+
+
+@_jit
+def _all_finite(values):
+    """Whether every entry of a 1-D array is finite (one compiled pass)."""
+    for v in values:
+        if not np.isfinite(v):
+            return False
+    return True
 
 
 @_jit
@@ -298,13 +307,10 @@ class LeanMLPPolicy:
         if not deterministic:
             raise ValueError("LeanMLPPolicy computes the deterministic action only, got deterministic=False; sample "
                              "with LearnedPolicy(model, vecnorm, inference='torch')")
-        obs = np.asarray(observation, dtype=np.float32)
+        obs = checked_observations(observation, self.obs_dim)
         single = obs.ndim == 1
         if single:
             obs = obs.reshape(1, -1)
-        if obs.ndim != 2 or obs.shape[1] != self.obs_dim:
-            raise ValueError(f"observations must have shape ({self.obs_dim},) or (n, {self.obs_dim}), got "
-                             f"{np.shape(observation)}")
         if not obs.flags.c_contiguous:
             obs = np.ascontiguousarray(obs)
         out = np.empty((obs.shape[0], self.action_dim), dtype=self.action_dtype)
@@ -316,6 +322,29 @@ class LeanMLPPolicy:
             act_rows(self._stack.push(normed, episode_start), *self._identity, self._zero, *self._net, self.squash,
                      self.low, self.high, out)
         return (out[0] if single else out), state
+
+
+def checked_observations(observation, obs_dim: int) -> np.ndarray:
+    """``observation`` as float32 (obs_dim,) or (n >= 1, obs_dim), refusing what a learned policy cannot act on
+    (as the analytic policies do): values that are not real numbers (bool, complex, strings, ragged lists), another
+    shape, NaN or inf (also after the cast to float32); a ValueError that says what was received."""
+    expected = f"an array of shape ({obs_dim},) or (n, {obs_dim}) with n >= 1"
+    try:
+        raw = np.asarray(observation)
+    except (TypeError, ValueError):  # ragged nested lists
+        raise ValueError(f"observations must be {expected} (real numbers), got {observation!r:.200}") from None
+    if raw.dtype.kind not in "fiu":
+        raise ValueError(f"observations must be {expected} of real numbers, got dtype {raw.dtype}: "
+                         f"{observation!r:.200}")
+    if raw.ndim not in (1, 2) or raw.shape[-1] != obs_dim or raw.size == 0:
+        raise ValueError(f"observations must be {expected}, got shape {raw.shape}")
+    obs = raw.astype(np.float32, copy=False)
+    if not _all_finite(obs.reshape(-1)):
+        bad = np.argwhere(~np.isfinite(obs.reshape(-1, obs_dim)))[0]
+        value = raw.reshape(-1, obs_dim)[bad[0], bad[1]]
+        raise ValueError(f"observations must be finite (as float32), got {float(value)!r} at "
+                         f"{bad[1] if raw.ndim == 1 else tuple(int(i) for i in bad)}")
+    return obs
 
 
 def is_zero_at_zero(policy) -> bool:

@@ -15,7 +15,7 @@ from softpvtol_gym.baselines.checkpoints.store import (
 from softpvtol_gym.baselines.config.hyperparams import frame_stack
 from softpvtol_gym.baselines.config.run_config import RunConfig
 from softpvtol_gym.baselines.errors import CheckpointError
-from softpvtol_gym.baselines.training.lean import LeanMLPPolicy, is_zero_at_zero
+from softpvtol_gym.baselines.training.lean import LeanMLPPolicy, checked_observations, is_zero_at_zero
 from softpvtol_gym.baselines.training.stacking import ObservationStack, frame_stack_wrapper
 
 #: how a LearnedPolicy computes its actions: ``lean`` (:class:`~.lean.LeanMLPPolicy`: a compiled float64 pass
@@ -77,7 +77,7 @@ class LearnedPolicy:
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         if self.lean is not None:
             return self.lean.predict(observation, state, episode_start, deterministic)
-        obs = np.asarray(observation, dtype=np.float32)
+        obs = checked_observations(observation, self._stack.width // self._stack.k)
         if self.vecnorm is not None and self.vecnorm.norm_obs:
             obs = self.vecnorm.normalize_obs(obs)
         if self.frame_stack > 1:  # (one observation (obs_dim,): a batch of one sub-env)
