@@ -160,7 +160,9 @@ def test_the_command_scores_a_file_module_writes_json_and_refuses_bad_input(user
                           (["--policy", "my_controllers:exits_on_build"], "failed on hover/nominal: it called "
                                                                           "sys.exit(0)"),
                           (["--policy", "my_controllers:nan_actions"], "returned a non-finite action (nan)"),
-                          (["--policy", "my_controllers:words"], "returned str 'hover please'")):
+                          (["--policy", "my_controllers:words"], "returned str 'hover please'"),
+                          (["--policy", "my_controllers:passivity", "--tier", "nominal"],
+                           "--tier nominal is given twice")):
         with pytest.raises(SystemExit) as exc:
             main([*argv, "--task", "hover", "--tier", "nominal", "--episodes", "2",
                   "--leaderboard", str(LEADERBOARD_JSON)])

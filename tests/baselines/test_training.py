@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -148,11 +149,32 @@ def test_killed_run_resumes_bit_for_bit(tmp_path):
         (["--hp", "n_epochs"], "key=value"),
         (["--seed", "-1"], "--seed must be in"),
         (["--resume"], "does not exist"),
+        (["--hp", "n_epochs=5", "--hp", "n_epochs=6"], "--hp n_epochs is given twice (n_epochs=5, n_epochs=6)"),
+        (["--env", "residual_scale=0.4", "--env", "residual_scale=0.5"], "--env residual_scale is given twice"),
+        (["--bc-weight", "2"], "--bc-weight sets the imitation term, which needs --bc-teacher"),
+        (["--bc-epochs", "2"], "--bc-epochs sets the imitation term"),
+        (["--action-mode", "actuators", "--controller-loop", "integral"],
+         "the run's action mode is actuators, which has none"),
+        (["--action-mode", "virtual", "--controller-loop", "integral"], "the run's action mode is virtual"),
     ],
 )
 def test_bad_train_input_exits_2_and_writes_nothing(args, message, tmp_path, capsys):
     assert_exit_2(train_main, [*args, "--out", str(tmp_path / "x")], message, capsys)
     assert not (tmp_path / "x").exists()
+
+
+def test_an_empty_out_is_refused_not_the_current_directory(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert_exit_2(train_main, ["--timesteps", "64", "--out", ""], "argument --out: expected a path, got ''", capsys)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_help_recipes_exist(capsys):
+    from softpvtol_gym.baselines.commands import train as train_command
+    from softpvtol_gym.baselines.config.recipes import load_recipe
+
+    named = re.findall(r"--recipe ([\w-]+)", train_command.__doc__)
+    assert named and all(load_recipe(name) for name in named)
 
 
 def test_device_option(tmp_path, capsys):
@@ -197,6 +219,11 @@ def test_evaluate_cli_writes_episode_json(tmp_path, capsys):
     assert all(0 <= e["fraction_within_1cm"] <= 1 for e in data["episodes"])
     assert data["summary"]["episodes"] == 2 and 0 <= data["summary"]["crash_rate"] <= 1
     assert_exit_2(evaluate_main, ["--policy", "passivity", "--episodes", "2", "--json", str(out)], "exists", capsys)
+
+
+def test_evaluate_refuses_a_repeated_mpc_option(capsys):
+    assert_exit_2(evaluate_main, ["--policy", "mpc", "--mpc-option", "horizon=5", "--mpc-option", "horizon=6"],
+                  "--mpc-option horizon is given twice (horizon=5, horizon=6); give it once", capsys)
 
 
 @pytest.mark.parametrize("option", [["--controller-loop", "integral"], ["--allocation", "paper"]])

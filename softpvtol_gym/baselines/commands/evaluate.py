@@ -37,7 +37,7 @@ from pathlib import Path
 from softpvtol_gym import PassivityPolicy
 from softpvtol_gym.baselines.evaluation import EVAL_SEED_OFFSET, evaluate
 from softpvtol_gym.baselines.training.policy import INFERENCE, LearnedPolicy
-from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main, int_arg
+from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main, int_arg, refuse_repeated
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.control import LOOPS
@@ -101,6 +101,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
             and LOOPS[args.controller_loop]["allocation"] != args.allocation:
         ap.error(f"--controller-loop {args.controller_loop} uses the {LOOPS[args.controller_loop]['allocation']} "
                  f"allocation, not --allocation {args.allocation}; pass one of them")
+    refuse_repeated(ap, "--mpc-option", args.mpc_option)
     if args.mpc_option and args.policy != "mpc":
         ap.error(f"--mpc-option is for --policy mpc, got --policy {args.policy}; leave it out or pass --policy mpc")
     env_kwargs = {k: v for k, v in (("allocation", args.allocation), ("controller_loop", args.controller_loop))

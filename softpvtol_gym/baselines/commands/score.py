@@ -29,7 +29,7 @@ from softpvtol_gym.baselines.config.hyperparams import MAX_EPISODES
 from softpvtol_gym.baselines.leaderboard.score import ENTRY, ranking_markdown, score
 from softpvtol_gym.baselines.leaderboard.spec import SPEC_FILE
 from softpvtol_gym.baselines.user_policy import load_factory
-from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main, int_arg
+from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main, int_arg, refuse_repeated
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.envs.actions import ACTION_MODES
@@ -53,6 +53,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
     ap.add_argument("--json", type=Path, default=None, help="write the result here (refuses to overwrite)")
     ap.add_argument("--force", action="store_true", help="overwrite --json if it exists")
     args = ap.parse_args(argv)
+    refuse_repeated(ap, "--task", args.task, keyed=False)
+    refuse_repeated(ap, "--tier", args.tier, keyed=False)
     if args.json is not None:
         check_output_file(args.json, args.force)
     factory = load_factory(args.policy)

@@ -9,7 +9,7 @@ source checkout ``python train.py``, with the same options).
     python train.py --hp frame_stack=4       # the policy sees the last 4 observations (SB3's VecFrameStack)
     python train.py --env residual_scale=0.4 # an env option, for training and evaluation (docs/baselines.md)
     python train.py --train-env precision_reward_weight=1   # a training-only env option (reward terms, starts)
-    python train.py --recipe residual-gated-integral --task track_random   # a named recipe (recipes.yml)
+    python train.py --recipe residual-integral-gated --task track_random   # a named recipe (recipes.yml)
     python train.py --init-from runs/student --tier wind --bc-teacher integral   # fine-tune a distilled student
 
 Hyperparameters come from ``softpvtol_gym/baselines/data/hyperparams/<algo>.yml`` (the entry of the mode's env id:
@@ -66,6 +66,8 @@ from softpvtol_gym.baselines.util.args import (
     float_arg,
     int_arg,
     interrupted,
+    path_arg,
+    refuse_repeated,
 )
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 from softpvtol_gym.baselines.util.locks import DirectoryLock
@@ -93,7 +95,7 @@ def build_parser(prog: str = "train.py") -> Parser:
                     help=f"training seed in [0, {TRAIN_SEED_LIMIT:,}), default 0")
     ap.add_argument("--n-envs", type=int_arg(), default=None,
                     help=f"default: n_envs of the YAML entry (at most {MAX_N_ENVS:,})")
-    ap.add_argument("--out", type=Path, default=None,
+    ap.add_argument("--out", type=path_arg, default=None,
                     help="run directory (default runs/<algo>_<mode>_<task>_<tier>_s<seed>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out from its newest checkpoint")
     ap.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE", help="override a YAML hyperparameter")
@@ -121,11 +123,11 @@ def build_parser(prog: str = "train.py") -> Parser:
     ap.add_argument("--bc-teacher", default=None, choices=TEACHERS,
                     help="with --init-from: an imitation term toward this teacher after each PPO update, its weight "
                          "decaying linearly to 0 (docs/baselines.md, 'Fine-tuning a student')")
-    ap.add_argument("--bc-weight", type=float_arg(0.0, 1e6, lo_open=True), default=1.0,
+    ap.add_argument("--bc-weight", type=float_arg(0.0, 1e6, lo_open=True), default=None,
                     help="the imitation term's initial weight (default 1)")
     ap.add_argument("--bc-decay-steps", type=int_arg(1), default=None,
                     help="steps over which the weight decays to 0 (default: half of --timesteps)")
-    ap.add_argument("--bc-epochs", type=int_arg(1, 100), default=1,
+    ap.add_argument("--bc-epochs", type=int_arg(1, 100), default=None,
                     help="passes of the imitation term over each rollout (default 1)")
     ap.add_argument("--checkpoint-freq", type=int_arg(), default=None, help="env steps between checkpoints (100,000)")
     ap.add_argument("--eval-freq", type=int_arg(), default=None,
@@ -160,6 +162,8 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
     if args.seed is not None and not 0 <= args.seed < TRAIN_SEED_LIMIT:
         ap.error(f"--seed must be in [0, {TRAIN_SEED_LIMIT}) (evaluation seeds start at {EVAL_SEED_OFFSET}), "
                  f"got {args.seed}")
+    for flag, items in (("--hp", args.hp), ("--env", args.env_options), ("--train-env", args.train_env_options)):
+        refuse_repeated(ap, flag, items)
     given = {k: getattr(args, k) for k in DEFAULTS if getattr(args, k) is not None}
     recipe = load_recipe(args.recipe) if args.recipe is not None else None
     base = dict(DEFAULTS)
@@ -254,6 +258,10 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
                        init_from=saved.init_from if saved is not None else (
                            None if args.init_from is None else str(args.init_from)),
                        imitation=saved.imitation if saved is not None else _imitation(args, timesteps, ap))
+    if args.controller_loop is not None and config.action_mode != "residual":
+        ap.error(f"--controller-loop sets the analytic loop under the residual action; the run's action mode is "
+                 f"{config.action_mode}, which has none (it would only change the passivity comparison); leave it "
+                 f"out, or train --action-mode residual")
     if saved is not None and config.controller_loop != saved.controller_loop:
         raise ConfigError(f"--resume: controller_loop of the run in {out} is {saved.controller_loop!r}, the command "
                           f"asks for {config.controller_loop!r}; resume with the run's own settings")
@@ -262,6 +270,11 @@ def make_config(args, ap: Parser) -> tuple[RunConfig, Path]:
 
 def _source_config(args, ap: Parser) -> RunConfig | None:
     """The config of the ``--init-from`` run (None without it; with --resume the saved run's own is used)."""
+    if args.bc_teacher is None:
+        for flag in ("bc_weight", "bc_decay_steps", "bc_epochs"):
+            if getattr(args, flag) is not None:
+                ap.error(f"--{flag.replace('_', '-')} sets the imitation term, which needs --bc-teacher (and "
+                         f"--init-from RUN); pass both, or leave it out")
     if args.init_from is None:
         if args.bc_teacher is not None:
             ap.error("--bc-teacher needs --init-from RUN (the imitation term fine-tunes a run's policy)")
@@ -275,8 +288,9 @@ def _source_config(args, ap: Parser) -> RunConfig | None:
 def _imitation(args, timesteps: int, ap: Parser) -> dict | None:
     if args.bc_teacher is None:
         return None
-    return {"teacher": args.bc_teacher, "weight": float(args.bc_weight),
-            "decay_steps": args.bc_decay_steps or max(1, timesteps // 2), "epochs": args.bc_epochs}
+    return {"teacher": args.bc_teacher, "weight": 1.0 if args.bc_weight is None else float(args.bc_weight),
+            "decay_steps": args.bc_decay_steps or max(1, timesteps // 2),
+            "epochs": 1 if args.bc_epochs is None else args.bc_epochs}
 
 
 def _parse_curriculum(raw: str | None, ap: Parser) -> list | None:

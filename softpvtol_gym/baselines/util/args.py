@@ -190,6 +190,28 @@ def float_arg(lo: float | None = None, hi: float | None = None, lo_open: bool = 
     return parse
 
 
+def path_arg(text: str) -> Path:
+    """An argparse type: a non-empty path (an empty string would be the current directory, which no one means)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"expected a path, got {text!r}")
+    return Path(text)
+
+
+path_arg.__name__ = "path"
+
+
+def refuse_repeated(parser: argparse.ArgumentParser, flag: str, items: list[str] | None, keyed: bool = True) -> None:
+    """``parser.error`` if a repeatable option names the same key twice (``keyed``: items ``KEY=VALUE``, compared by
+    KEY; else by the whole item): the second would silently replace or repeat the first."""
+    seen: dict[str, str] = {}
+    for item in items or []:
+        key = item.partition("=")[0].strip() if keyed else item
+        if key in seen:
+            what = f"{flag} {key} is given twice ({seen[key]}, {item})" if keyed else f"{flag} {item} is given twice"
+            parser.error(f"{what}; give it once")
+        seen[key] = item
+
+
 def check_output_file(path: Path, force: bool, option: str = "--json") -> None:
     """ConfigError unless ``path`` can be written as a file (checked before any work is done); an OSError naming
     ``path`` (exit 74) if the disk or the quota is full."""
