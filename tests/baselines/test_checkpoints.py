@@ -855,10 +855,24 @@ def test_bounded_loaders_directly():
                        (lambda: loads_json("{}" + " " * 100, "f.json", max_bytes=10), "bytes"),
                        (lambda: loads_yaml(DEEP_YAML, "f.yml"), "nested more than"),
                        (lambda: loads_yaml(ALIAS_BOMB, "f.yml"), "once its aliases are expanded"),
-                       (lambda: loads_yaml("a: !!python/object:os.system x\n", "f.yml"), "f.yml")):
+                       (lambda: loads_yaml("a: !!python/object:os.system x\n", "f.yml"), "f.yml"),
+                       (lambda: loads_yaml(b"task: caf\xe9\n", "f.yml"), "is not UTF-8 text"),
+                       (lambda: loads_json(b'{"task": "caf\xe9"}', "f.json"), "is not valid JSON")):
         with pytest.raises(UnsafeInputError, match=what) as exc:
             call()
         assert str(exc.value).startswith("f.") and "\n" not in str(exc.value)
+
+
+def test_a_config_that_is_not_utf8_is_one_error_even_with_a_matching_manifest(tmp_path):
+    from softpvtol_gym.baselines.training.policy import LearnedPolicy
+
+    run = copy_run(ROOT / "results/leaderboard_runs/distilled-integral-small_track_random_nominal/seed_0",
+                   tmp_path / "run")
+    config = run / "config.yaml"
+    config.write_bytes(config.read_bytes().replace(b"actuators", b"actuat\xe9rs", 1))
+    rewrite_manifest(run)
+    with pytest.raises(CheckpointError, match=r"config\.yaml is not UTF-8 text \('utf-8' codec can't decode"):
+        LearnedPolicy.load(run)
 
 
 # ------------------------------------------------------------------------------ network sizes, tune

@@ -163,6 +163,15 @@ def test_bad_train_input_exits_2_and_writes_nothing(args, message, tmp_path, cap
     assert not (tmp_path / "x").exists()
 
 
+def test_resume_refuses_a_run_whose_config_cannot_be_read(tmp_path, capsys):
+    (tmp_path / "model.safetensors").write_bytes(b"keep")
+    (tmp_path / "config.yaml").write_bytes(b"action_mode: actuators\ntask: caf\xe9\n")
+    assert_exit_2(train_main, ["--resume", "--timesteps", "64", "--out", str(tmp_path)],
+                  "has no readable config (cannot read run config", capsys)
+    assert (tmp_path / "model.safetensors").read_bytes() == b"keep"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["config.yaml", "model.safetensors"]
+
+
 def test_an_empty_out_is_refused_not_the_current_directory(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     assert_exit_2(train_main, ["--timesteps", "64", "--out", ""], "argument --out: expected a path, got ''", capsys)

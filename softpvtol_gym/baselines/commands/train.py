@@ -142,14 +142,19 @@ def build_parser(prog: str = "train.py") -> Parser:
 
 
 def _saved_config(out: Path) -> RunConfig | None:
-    """The config of an existing run (its config.yaml, else its newest checkpoint's), or None."""
-
+    """The config of an existing run (its config.yaml, else its newest checkpoint's), or None if it has none (a run
+    killed before it wrote one); a ConfigError if it has configs and none of them can be read (resuming would
+    train a new run over the folder's files)."""
+    failed = None
     for path in [out / CONFIG_FILE_NAME, *(c / CONFIG_FILE_NAME for c in checkpoint_candidates(out))]:
         if path.is_file():
             try:
                 return RunConfig.load(path)
-            except ConfigError:
-                continue
+            except ConfigError as exc:
+                failed = failed or exc
+    if failed is not None:
+        raise ConfigError(f"--resume: the run in {out} has no readable config ({failed}); nothing was changed: "
+                          f"fix or remove it, or train into another --out")
     return None
 
 

@@ -122,6 +122,11 @@ def loads_yaml(text: bytes | str, source: str, *, error=UnsafeInputError, max_by
     """``yaml.safe_load(text)`` within the bounds of the module docstring; ``error(message)`` otherwise
     (with the line and column of a syntax error)."""
     _check_size(text, source, max_bytes, error)
+    if isinstance(text, bytes):
+        try:
+            text = text.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise error(f"{source} is not UTF-8 text ({exc}); expected a YAML file") from None
     loader = _BoundedSafeLoader(text)
     loader.max_depth = max_depth
     try:
