@@ -41,9 +41,13 @@ from softpvtol_gym.baselines.util.paths import Layout
 Q0 = np.array([5.0, 0.0, 0.2 * np.pi, 0.01 * np.pi, -0.15 * np.pi])
 
 
+#: the longest simulation the command accepts [s]: the paper simulates 40 s; the trajectories are kept in memory
+MAX_T_FINAL_S = 1000.0
+
 def _main(argv, layout: Layout, prog: str) -> int:
     ap = Parser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--t-final", type=float_arg(0.0, lo_open=True), default=10.0)
+    ap.add_argument("--t-final", type=float_arg(0.0, MAX_T_FINAL_S, lo_open=True), default=10.0,
+                    help=f"simulated time [s] (default 10; at most {MAX_T_FINAL_S:g})")
     ap.add_argument("--passes", type=int_arg(1), default=50, help="fixed-point passes of the algebraic loop")
     ap.add_argument("--json", type=Path, default=layout.results / "model_figures.json", help="default: %(default)s")
     ap.add_argument("--force", action="store_true", help="let a run with other settings overwrite the default report")

@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 from softpvtol_gym import PassivityPolicy
+from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.evaluation import evaluate
 from softpvtol_gym.baselines.util.args import (
     Parser,
@@ -28,7 +29,7 @@ from softpvtol_gym.baselines.util.args import (
     refuse_overwrite,
 )
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
-from softpvtol_gym.baselines.util.blocks import write_block
+from softpvtol_gym.baselines.util.blocks import check_page, write_block
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.envs.tiers import registered_tiers
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
@@ -69,16 +70,33 @@ def _main(argv, layout: Layout, prog: str) -> int:
     ap.add_argument("--json", type=Path, default=default_json, help="the report (default: %(default)s)")
     ap.add_argument("--render-only", action="store_true",
                     help="run nothing: print the table of the report in --json and refresh the generated block")
-    ap.add_argument("--page", type=Path, default=layout.doc("control.md"),
-                    help="Markdown file whose generated table block is refreshed (default: %(default)s)")
+    ap.add_argument("--page", type=Path, default=None,
+                    help=f"Markdown file whose generated table block is refreshed from the default report (default: "
+                         f"{layout.doc('control.md')}, where it has the block)")
     ap.add_argument("--force", action="store_true",
                     help="let a run with other settings overwrite the default report")
     args = ap.parse_args(argv)
+    # the page's block shows the default run (10 episodes from seed 100) of the default report only
+    default_run = (args.render_only or (args.episodes == 10 and args.seed == 100)) and (
+        args.json.resolve() == default_json.resolve())
+    page = args.page or layout.doc("control.md")
+    if args.page is not None:
+        check_page(args.page, [(BLOCK, README_SOURCE)])
+        if not default_run:
+            ap.error(f"--page {args.page}: the page's table shows the default report ({default_json}, 10 episodes "
+                     f"from seed 100) only; leave --page out for this run")
     if not args.render_only:
         refuse_overwrite(ap, args, ("episodes", "seed"), [(args.json, default_json, "--json")])
         check_output_file(args.json, force=True, option="--json")  # before running any episode
     if args.render_only:
         report = read_json_report(args.json, "passivity metrics report")
+        cells = report.get("cells")
+        if not isinstance(cells, dict) or not cells or not all(
+                isinstance(k, str) and k.count("/") == 1 and isinstance(c, dict)
+                and isinstance(c.get("rms_position_error_m"), (int, float))
+                and isinstance(c.get("crash_rate"), (int, float)) for k, c in cells.items()):
+            raise ConfigError(f"passivity metrics report {args.json} lacks its 'cells' (task/tier -> "
+                              f"rms_position_error_m, crash_rate); write it with softpvtol passivity-metrics")
     else:
         cells, t0 = {}, time.perf_counter()
         for task in registered_tasks():
@@ -95,11 +113,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
     table = metrics_table(report)
     if args.render_only:
         print(table)
-    # the page's block shows the default run (10 episodes from seed 100) of the default report only
-    default_run = args.render_only or (args.episodes == 10 and args.seed == 100)
-    if args.page is not None and default_run and args.json.resolve() == default_json.resolve():
-        if write_block(BLOCK, README_SOURCE, table, args.page):
-            print(f"updated the table in {args.page}")
+    if page is not None and default_run and page.is_file() and write_block(BLOCK, README_SOURCE, table, page):
+        print(f"updated the table in {page}")
     return 0
 
 

@@ -43,7 +43,7 @@ from softpvtol_gym.baselines.util.args import (
     refuse_overwrite,
 )
 from softpvtol_gym.baselines.util.atomic import atomic_path, atomic_write_text
-from softpvtol_gym.baselines.util.blocks import write_block
+from softpvtol_gym.baselines.util.blocks import check_page, write_block
 from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.control import PassivityGains, simulate_closed_loop
 
@@ -53,6 +53,9 @@ STEADY_LOOPS = ("ideal", "improved", "bounded")
 STEADY_DTS = (0.01, 0.005, 0.002)
 STEADY_T_FINAL, STEADY_WINDOW = 80.0, (60.0, 80.0)
 
+
+#: the longest simulation the command accepts [s]: the paper simulates 40 s; the trajectories are kept in memory
+MAX_T_FINAL_S = 1000.0
 
 def steady_initial_states(n_perturbed: int = 5, seed: int = 0) -> list[tuple[float, ...]]:
     """The paper's q(0) and ``n_perturbed`` others: x, z +- 0.5 m, theta +- 0.1 rad, curvatures +- 0.05 rad
@@ -332,6 +335,10 @@ def run(out: Path, t_final: float = 40.0, plots: bool = True, steady: bool = Tru
     return report
 
 
+#: the page's generated blocks: (name, source)
+PAGE_BLOCKS = [("reproduce_paper.py loops", README_SOURCE), ("reproduce_paper.py steady state", README_SOURCE)]
+
+
 def _write_blocks(report: dict, page: Path) -> bool:
     """Refresh the loops and steady-state tables in ``page``; False if it has neither block."""
     wrote = write_block("reproduce_paper.py loops", README_SOURCE, loops_table(report), page)
@@ -345,15 +352,16 @@ def _main(argv, layout: Layout, prog: str) -> int:
     parser = Parser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, default=default_out,
                         help="output folder (PNG figures + metrics.json; default: %(default)s)")
-    parser.add_argument("--t-final", type=float_arg(0.0, lo_open=True), default=40.0,
-                        help="simulated time [s] (paper: 40)")
+    parser.add_argument("--t-final", type=float_arg(0.0, MAX_T_FINAL_S, lo_open=True), default=40.0,
+                        help=f"simulated time [s] (paper: 40; at most {MAX_T_FINAL_S:g})")
     parser.add_argument("--no-plots", action="store_true", help="write metrics.json only")
     parser.add_argument("--no-steady", action="store_true", help="skip the 80 s steady-state study (minutes)")
     parser.add_argument("--render-only", action="store_true",
                         help="simulate nothing: print the tables of --out/metrics.json and refresh the generated "
                              "blocks")
-    parser.add_argument("--page", type=Path, default=layout.doc("control.md"),
-                        help="Markdown file whose generated table blocks are refreshed (default: %(default)s)")
+    parser.add_argument("--page", type=Path, default=None,
+                        help=f"Markdown file whose generated table blocks are refreshed from the default run (default: "
+                             f"{layout.doc('control.md')}, where it has them)")
     parser.add_argument("--force", action="store_true",
                         help="let a run with other settings overwrite the default output folder's metrics.json")
     args = parser.parse_args(argv)
@@ -361,8 +369,17 @@ def _main(argv, layout: Layout, prog: str) -> int:
         refuse_overwrite(parser, args, ("t_final", "no_steady"),
                          [(args.out / "metrics.json", default_out / "metrics.json", "--out")])
         check_output_dir(args.out, "--out")  # before simulating anything
-    if args.page is not None and args.page.exists():
-        check_output_file(args.page, force=True, option="--page")
+    # the page's tables show the default run (40 s with the steady-state study, in the default folder) only
+    default_run = (args.render_only or (args.t_final == 40.0 and not args.no_steady)) and (
+        args.out.resolve() == default_out.resolve())
+    page = args.page or layout.doc("control.md")
+    if args.page is not None:
+        check_page(args.page, PAGE_BLOCKS)
+        if not default_run:
+            parser.error(f"--page {args.page}: the page's tables show the default run ({default_out}, 40 s, with "
+                         f"the steady-state study) only; leave --page out for this run")
+    if page is not None and page.exists():
+        check_output_file(page, force=True, option="--page")
     if args.render_only:
         report = read_json_report(args.out / "metrics.json", "paper reproduction metrics")
         if "loops" not in report or "steady_state" not in report:
@@ -383,10 +400,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
             print("steady state, worst over 6 initial states: max |x|,|z| error / RMS position error over 60-80 s [m]")
             print(steady_state_table(report["steady_state"]))
         print(f"wrote {args.out}")
-    default_run = args.render_only or (args.t_final == 40.0 and "steady_state" in report)
-    if args.page is not None and default_run and args.out.resolve() == default_out.resolve():
-        if _write_blocks(report, args.page):
-            print(f"updated the tables in {args.page}")
+    if page is not None and default_run and page.is_file() and _write_blocks(report, page):
+        print(f"updated the tables in {page}")
     return 0
 
 

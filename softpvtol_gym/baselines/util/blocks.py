@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.util.atomic import atomic_write_text
 
 
@@ -36,3 +37,19 @@ def write_block(name: str, source: str, table: str, path: Path) -> bool:
     a, b = text.index(start) + len(start), text.index(end)
     atomic_write_text(path, text[:a] + "\n" + table.strip() + "\n" + text[b:])
     return True
+
+
+def check_page(path: Path, blocks: list[tuple[str, str]], option: str = "--page") -> None:
+    """ConfigError unless ``path`` (a page a user named) is a Markdown file holding every block of ``blocks``
+    ((name, source) pairs): checked before any work, so that a page that would not be refreshed is not a silent
+    exit 0."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{option} {path}: {'is a directory' if path.is_dir() else 'no such file'}; expected a "
+                          f"Markdown file with the generated block")
+    text = path.read_text(encoding="utf-8", errors="replace")
+    missing = [name for name, source in blocks if not all(m in text for m in markers(name, source))]
+    if missing:
+        start, end = markers(*blocks[0])
+        raise ConfigError(f"{option} {path} has no generated block {missing[0]!r} (the lines {start} and {end}); "
+                          f"add them where the table goes, or leave {option} out")
