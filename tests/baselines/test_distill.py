@@ -171,6 +171,9 @@ def test_a_teacher_share_mixes_the_teachers_actions_into_the_students_flight_and
     nearly_always, _ = collect(teacher, "hover", "nominal", 2, 7, student=student, teacher_share=1 - 1e-12)
     assert np.array_equal(nearly_always, by_teacher)
     assert DistillConfig(**{**TINY, "teacher_share": 0.5}).teacher_share == 0.5
+    with pytest.raises(ConfigError, match=r"teacher_share=0.5 acts in the DAgger rounds .* rounds=1 is behaviour "
+                                          r"cloning only: it would change nothing"):
+        DistillConfig(**{**TINY, "teacher_share": 0.5, "rounds": 1})
 
 
 def test_a_teacher_with_memory_of_its_inputs_is_told_the_actions_the_student_applied():

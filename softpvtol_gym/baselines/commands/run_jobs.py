@@ -107,6 +107,9 @@ def _checked(ap: Parser, args, layout: Layout, prog: str, rerun: str) -> int:
         ap.error(f"--root {args.root} is a file; expected a directory")
     every = load_jobs(args.spec, inference=args.inference)
     if args.only is not None:
+        if not args.only.strip():
+            ap.error(f"--only {args.only!r} would match every job; give a part of the job names to run (--list "
+                     f"shows them), or leave --only out to run all")
         every = [j for j in every if args.only in j.name]
         if not every:
             ap.error(f"--only {args.only!r} matches no job of {args.spec}")

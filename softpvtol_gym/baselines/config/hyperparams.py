@@ -20,7 +20,7 @@ from typing import Any
 
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.util.paths import data_file
-from softpvtol_gym.baselines.util.safe_load import MAX_BYTES, MAX_DEPTH, loads_yaml, nesting_depth
+from softpvtol_gym.baselines.util.safe_load import MAX_DEPTH, loads_yaml, nesting_depth
 from softpvtol_gym.envs.actions import ACTION_MODES
 from softpvtol_gym.envs.registration import MODE_ENV_IDS
 
@@ -64,23 +64,30 @@ VECNORM_KEYS = ("norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "
 MAX_VALUE_CHARS = 10_000
 
 
+#: the largest YAML file read (a run config, hyperparameters, recipes, a search space, a leaderboard spec): the
+#: project's are kilobytes; a bigger one is a mistake or a crafted file, refused before it is parsed
+MAX_YAML_BYTES = 2**20
+
+
 def read_yaml(path: Path, what: str) -> Any:
-    """``yaml.safe_load`` of a file, with every failure a ConfigError naming the file and the problem."""
+    """``yaml.safe_load`` of a file of at most :data:`MAX_YAML_BYTES`, with every failure a ConfigError naming the
+    file and the problem."""
 
     path = Path(path)
     if path.is_dir():
         raise ConfigError(f"{what} {path} is a directory; expected a YAML file")
     try:
         size = path.stat().st_size
-        if size > MAX_BYTES:
-            raise ConfigError(f"{what} {path} is {size:,} bytes, more than the {MAX_BYTES:,} a YAML file may have")
+        if size > MAX_YAML_BYTES:
+            raise ConfigError(f"{what} {path} is {size:,} bytes, more than the {MAX_YAML_BYTES:,} a YAML file may "
+                              f"have")
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"no {what} at {path}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"cannot read {what} {path}: {exc}") from None
     # bounded: size, nesting, node count with aliases expanded (util.safe_load)
-    return loads_yaml(text, f"{what} {path}", error=ConfigError)
+    return loads_yaml(text, f"{what} {path}", error=ConfigError, max_bytes=MAX_YAML_BYTES)
 
 
 def hyperparams_key(action_mode: str) -> str:

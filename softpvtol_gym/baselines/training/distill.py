@@ -167,6 +167,9 @@ class DistillConfig:
         p = self.teacher_share
         if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 <= p < 1.0:
             raise ConfigError(f"teacher_share must be a probability in [0, 1), got {p!r}")
+        if p and self.rounds == 1:
+            raise ConfigError(f"teacher_share={p!r} acts in the DAgger rounds (round 2 on), and rounds=1 is behaviour "
+                              f"cloning only: it would change nothing; pass rounds >= 2, or leave teacher_share out")
         if not _is_int(self.history) or not 1 <= self.history <= MAX_FRAME_STACK:
             raise ConfigError(f"history must be an integer in [1, {MAX_FRAME_STACK}] (observations the student sees), "
                               f"got {self.history!r}")
