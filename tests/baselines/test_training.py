@@ -207,6 +207,33 @@ def test_device_option(tmp_path, capsys):
     assert json.loads((out / "result.json").read_text())["device"] == resolve_device("auto")
 
 
+#: what may differ between two identical runs: wall times, and TensorBoard's event files (named by time and host)
+TIMING_KEYS = {"train_seconds", "wall_time", "seconds"}
+
+
+def _without_timings(value):
+    if isinstance(value, dict):
+        return {k: _without_timings(v) for k, v in value.items() if k not in TIMING_KEYS}
+    if isinstance(value, list):
+        return [_without_timings(v) for v in value]
+    return value
+
+
+def test_two_identical_runs_write_identical_files(tmp_path):
+    runs = [tmp_path / "a", tmp_path / "b"]
+    for out in runs:
+        assert train_main(["--timesteps", "512", *SHORT, "--eval-freq", "256", "--out", str(out)]) == 0
+    files = [sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file() and "tb" not in p.parts)
+             for out in runs]
+    assert files[0] == files[1] and any(p.name == "model.json" for p in files[0])
+    for rel in files[0]:
+        a, b = ((out / rel).read_bytes() for out in runs)
+        if rel.name in ("evaluations.json", "result.json"):  # their wall times aside
+            assert _without_timings(json.loads(a)) == _without_timings(json.loads(b)), rel
+        else:
+            assert a == b, rel
+
+
 def test_existing_run_is_not_overwritten(tmp_path, capsys):
     (tmp_path / "model.zip").write_bytes(b"keep")  # even a run of the earlier, pickle-based format
     assert_exit_2(train_main, ["--timesteps", "256", *SHORT, "--out", str(tmp_path)], "nothing was overwritten", capsys)

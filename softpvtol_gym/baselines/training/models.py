@@ -94,8 +94,12 @@ def build_model(config: RunConfig, env, tensorboard_log: str | None = None, verb
         with warnings.catch_warnings():
             # the mini-batch size not dividing the rollout is legal (SB3 warns; train.py says so itself)
             warnings.filterwarnings("ignore", message=".*mini-batch size.*")
-            return cls(policy, env, seed=config.seed, device=device, verbose=verbose,
-                       tensorboard_log=tensorboard_log, **algo_kwargs(hp))
+            model = cls(policy, env, seed=config.seed, device=device, verbose=verbose,
+                        tensorboard_log=tensorboard_log, **algo_kwargs(hp))
+        # SB3 seeds the action space only; the observation space's generator (made on first use, recorded in
+        # model.json) is seeded too, so that identical runs write identical files
+        model.observation_space.seed(config.seed)
+        return model
     except (AssertionError, TypeError, ValueError, KeyError) as exc:
         raise ConfigError(f"stable-baselines3 refused the hyperparameters of this {config.algo.upper()} run: "
                           f"{type(exc).__name__}: {exc}") from None
