@@ -264,6 +264,19 @@ def test_env_state_of_another_layout_is_refused():
         restore_env_state(SoftPVTOLSB3VecEnv(num_envs=2, action_mode="residual").venv, meta, arrays, "test")
 
 
+def test_env_state_of_another_configuration_names_the_first_differing_entry():
+    from softpvtol_gym.envs.sb3 import SoftPVTOLSB3VecEnv
+
+    a = SoftPVTOLSB3VecEnv(num_envs=2, action_mode="residual")
+    meta, arrays = env_state(a.venv)
+    arrays = {k: v.copy() for k, v in arrays.items()}
+    arrays["controller._no_residual"].flat[-1] += 1.0  # same dtype and shape, another value
+    message = (r"controller\._no_residual is float64\(1, 5\) with np\.float64\(1\.0\) at \(0, 4\), this run's config "
+               r"gives np\.float64\(0\.0\) there")
+    with pytest.raises(CheckpointError, match=message):
+        restore_env_state(SoftPVTOLSB3VecEnv(num_envs=2, action_mode="residual").venv, meta, arrays, "test")
+
+
 # --------------------------------------------------------------------------- no dead ends
 def test_corrupt_newest_checkpoint_falls_back_to_the_previous_one(tmp_path, tiny_run, capsys):
     run = copy_run(tiny_run, tmp_path / "run")

@@ -128,6 +128,17 @@ def _describe(value) -> str:
     return f"{value!r}"[:80]
 
 
+def _differing(saved, fresh) -> str:
+    """How a saved value differs from the freshly built one: ``X, this run's config gives Y``, with the first
+    differing entry where both are arrays of one dtype and shape (their descriptions would read the same)."""
+    if (isinstance(saved, np.ndarray) and isinstance(fresh, np.ndarray) and saved.dtype == fresh.dtype
+            and saved.shape == fresh.shape):
+        index = next((i for i in np.ndindex(saved.shape) if saved[i].tobytes() != fresh[i].tobytes()), ())
+        return (f"{_describe(saved)} with {saved[index]!r} at {index}, this run's config gives {fresh[index]!r} "
+                f"there")
+    return f"{_describe(saved)}, this run's config gives {_describe(fresh)}"
+
+
 def _same(saved, fresh) -> bool:
     """Exact equality (type, dtype, shape, bits) of a saved value and the freshly built one."""
     if isinstance(fresh, np.ndarray) or isinstance(saved, np.ndarray):
@@ -225,7 +236,7 @@ def _validated_part(part: str, obj, entry, arrays: dict, num_envs: int) -> dict:
             if part == "sim" and kind == "views":
                 continue  # checked against the saved F and I below
             if not _same(value, current):
-                raise _Mismatch(f"{part}.{n} is {_describe(value)}, this run's config gives {_describe(current)} "
+                raise _Mismatch(f"{part}.{n} is {_differing(value, current)} "
                                 f"(derived from config.yaml, not restored: the checkpoint belongs to another "
                                 f"configuration or was edited)")
             continue
