@@ -264,6 +264,23 @@ def test_resume_loads_the_cached_datasets_and_gives_the_same_student(distilled, 
     assert (again / "model.safetensors").read_bytes() == (out / "model.safetensors").read_bytes()
 
 
+@pytest.mark.parametrize("damage", ["truncated", "garbage", "empty", "pickled objects"])
+def test_an_unreadable_cached_dataset_is_collected_again_not_a_traceback(damage, tmp_path, capsys):
+    from softpvtol_gym.baselines.training.distill import _load_dataset, _save_dataset
+
+    path = tmp_path / "round_00_nominal.npz"
+    obs, labels = np.zeros((8, 18), np.float32), np.zeros((8, 4), np.float32)
+    _save_dataset(path, obs, labels)
+    data = path.read_bytes()
+    if damage == "pickled objects":
+        np.savez(path, observations=np.array([{"a": 1}], dtype=object), actions=labels)
+    else:
+        path.write_bytes({"truncated": data[: len(data) // 2], "garbage": b"PK\x03\x04" + b"x" * 100,
+                          "empty": b""}[damage])
+    assert _load_dataset(path, 18) is None
+    assert f"{path} is unreadable" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("changes, words", [
     ({"teacher": "pid"}, "teacher must be one of"),
     ({"rounds": 0}, "rounds must be an integer in"),

@@ -37,6 +37,7 @@ import io
 import json
 import sys
 import time
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -242,7 +243,7 @@ def _load_dataset(path: Path, obs_dim: int, history: int = 1) -> tuple[np.ndarra
     try:
         with np.load(path, allow_pickle=False) as data:
             obs, labels = data["observations"], data["actions"]
-    except (OSError, ValueError, KeyError) as exc:
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # a truncated or crafted file
         _say(f"distill: {path} is unreadable ({exc}); collecting it again")
         return None
     if obs.ndim != 2 or obs.shape[1] != obs_dim * history or labels.shape != (obs.shape[0], 4) or \
