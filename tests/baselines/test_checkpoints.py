@@ -795,6 +795,13 @@ FILE_POISONS = {
     "weight_nan": (lambda r: _edit_tensor(r, "policy/", _nan), "tensor policy/"),
     "weight_huge": (lambda r: _edit_tensor(r, "policy/", _huge), "tensor policy/"),
     "optimizer_state_nan": (lambda r: _edit_tensor(r, "policy.optimizer/state/", _nan), "tensor policy.optimizer/"),
+    "last_obs_wrong_shape": (lambda r: _edit_tensor(r, "attributes/_last_obs", lambda t: t[:, :5].contiguous()),
+                             "attributes/_last_obs is float32(4, 5), this run needs float(4, 18)"),
+    "episode_starts_wrong_shape": (lambda r: _edit_tensor(r, "attributes/_last_episode_starts",
+                                                          lambda t: t.repeat(2)),
+                                   "attributes/_last_episode_starts is bool(8,), this run needs bool(4,)"),
+    "episode_starts_floats": (lambda r: _edit_tensor(r, "attributes/_last_episode_starts", lambda t: t.float()),
+                              "attributes/_last_episode_starts is float32(4,)"),
     "vecnormalize_nan": (lambda r: _edit_vecnorm(r, "mean", "NaN"), "vecnormalize.json is not valid JSON (NaN"),
     "vecnormalize_huge": (lambda r: _edit_vecnorm(r, "var", "1e400"), "obs_rms holds non-finite"),
     "vecnormalize_clip_negative": (lambda r: ((r / "vecnormalize.json").write_text(

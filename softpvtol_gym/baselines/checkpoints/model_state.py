@@ -223,7 +223,7 @@ def load_model_state(model, tensors: dict, meta: dict, source: str) -> None:
     for attr in ARRAY_ATTRIBUTES:
         key = f"attributes/{attr}"
         if key in tensors:
-            setattr(model, attr, tensors[key].numpy().copy())
+            setattr(model, attr, _training_attribute(model, attr, tensors[key].numpy().copy(), source))
             used.add(key)
     extra = sorted(set(tensors) - used)
     if extra:
@@ -237,6 +237,20 @@ def load_model_state(model, tensors: dict, meta: dict, source: str) -> None:
     for space, key in ((model.action_space, "action_space_rng"), (model.observation_space, "observation_space_rng")):
         if meta.get(key) is not None:
             space._np_random = generator_from_state(meta[key], f"{source}: {key}")
+
+
+def _training_attribute(model, attr: str, value: np.ndarray, source: str) -> np.ndarray:
+    """A saved rollout attribute (:data:`ARRAY_ATTRIBUTES`) checked against the model's env: the last
+    observations (n_envs, *observation shape) of floats, the episode starts (n_envs,) of bools; a CheckpointError
+    naming the attribute, what it holds and what the run needs otherwise (it would fail inside SB3 later)."""
+    starts = attr == "_last_episode_starts"
+    want = (model.n_envs,) if starts else (model.n_envs, *model.observation_space.shape)
+    kind_ok = value.dtype == np.bool_ if starts else value.dtype.kind == "f"
+    if value.shape != want or not kind_ok:
+        raise CheckpointError(f"{source}: {MODEL_FILE}'s attributes/{attr} is {value.dtype}{value.shape}, this run "
+                              f"needs {'bool' if starts else 'float'}{want} ({model.n_envs} envs); the checkpoint "
+                              f"belongs to another run or was edited")
+    return value
 
 
 # ------------------------------------------------------------------------------------ VecNormalize
