@@ -203,6 +203,19 @@ T, E, R, L = "train.py", "evaluate.py", "run_jobs.py", "leaderboard.py"
 SHORT = ["--timesteps", "64", "--n-envs", "2", "--hp", "n_steps=32", "--hp", "batch_size=32", "--no-progress-bar",
          "--out", "{tmp}/out"]
 
+
+def short_with(item: str) -> list[str]:
+    """SHORT with one more ``--hp`` override; it replaces SHORT's own for the same key (a key given twice is an
+    error of its own)."""
+    key = item.partition("=")[0]
+    out = list(SHORT)
+    for i in range(len(out) - 1):
+        if out[i] == "--hp" and out[i + 1].partition("=")[0] == key:
+            del out[i:i + 2]
+            break
+    return [*out, "--hp", item]
+
+
 CASES = [
     # ----------------------------------------------------------------------------- train.py
     (T, ["--algo", "dqn", *SHORT], "invalid choice", nothing),
@@ -223,45 +236,45 @@ CASES = [
     (T, [*SHORT, "--eval-freq", "0"], "--eval-freq must be >= 1", nothing),
     (T, [*SHORT, "--eval-episodes", "-1"], "--eval-episodes must be >= 0", nothing),
     (T, [*SHORT, "--eval-episodes", "100000"], "eval_episodes must be an integer in", nothing),
-    (T, [*SHORT, "--hp", "n_epochs"], "key=value", nothing),
-    (T, [*SHORT, "--hp", "=5"], "key=value", nothing),
-    (T, [*SHORT, "--hp", "foo=1"], "unknown hyperparameter 'foo' for PPO", nothing),
-    (T, [*SHORT, "--hp", "n_steps=0"], "n_steps must be an integer >= 1", nothing),
-    (T, [*SHORT, "--hp", "batch_size=0"], "batch_size must be an integer >= 2", nothing),
-    (T, [*SHORT, "--hp", "batch_size=1"], "batch_size must be an integer >= 2", nothing),
-    (T, [*SHORT, "--hp", "learning_rate=-1"], "learning_rate must be a finite number > 0", nothing),
-    (T, [*SHORT, "--hp", "learning_rate=0"], "learning_rate must be a finite number > 0", nothing),
-    (T, [*SHORT, "--hp", "learning_rate=inf"], "learning_rate must be a finite number", nothing),
-    (T, [*SHORT, "--hp", "learning_rate=abc"], "learning_rate must be a finite number", nothing),
-    (T, [*SHORT, "--hp", "learning_rate=[1, 2]"], "learning_rate must be a finite number", nothing),
-    (T, [*SHORT, "--hp", "gamma=nan"], "gamma must be a finite number > 0 and <= 1", nothing),
-    (T, [*SHORT, "--hp", "gamma=0"], "gamma must be a finite number > 0 and <= 1", nothing),
-    (T, [*SHORT, "--hp", "gamma=1.5"], "gamma must be a finite number > 0 and <= 1", nothing),
-    (T, [*SHORT, "--hp", "gamma=true"], "gamma must be a finite number", nothing),
-    (T, [*SHORT, "--hp", "gae_lambda=2"], "gae_lambda must be", nothing),
-    (T, [*SHORT, "--hp", "clip_range=-0.1"], "clip_range must be a finite number > 0", nothing),
-    (T, [*SHORT, "--hp", "clip_range_vf=0"], "clip_range_vf must be null or", nothing),
-    (T, [*SHORT, "--hp", "n_epochs=0"], "n_epochs must be an integer >= 1", nothing),
-    (T, [*SHORT, "--hp", "n_epochs=2.5"], "n_epochs must be an integer", nothing),
-    (T, [*SHORT, "--hp", "ent_coef=-1"], "ent_coef must be a finite number >= 0", nothing),
-    (T, [*SHORT, "--hp", "max_grad_norm=0"], "max_grad_norm must be a finite number > 0", nothing),
-    (T, [*SHORT, "--hp", "target_kl=-1"], "target_kl must be null or", nothing),
-    (T, [*SHORT, "--hp", "normalize=5"], "normalize must be true, false, or a mapping", nothing),
-    (T, [*SHORT, "--hp", "normalize={{foo: 1}}"], "unknown: ['foo']", nothing),
-    (T, [*SHORT, "--hp", "normalize={{gamma: 2}}"], "whose gamma is", nothing),
-    (T, [*SHORT, "--hp", "normalize={{norm_obs: maybe}}"], "whose norm_obs is true or false", nothing),
-    (T, [*SHORT, "--hp", "policy=CnnPolicy"], "policy must be 'MlpPolicy'", nothing),
-    (T, [*SHORT, "--hp", "policy_kwargs=dict(activation_fn=__import__('os'))"], "only hold", nothing),
-    (T, [*SHORT, "--hp", "policy_kwargs=dict(net_arch=[8], bogus=1)"], "stable-baselines3 refused", nothing),
-    (T, [*SHORT, "--hp", "policy_kwargs=dict("], "policy_kwargs must be a dict(...) expression", nothing),
-    (T, [*SHORT, "--hp", "policy_kwargs=5"], "policy_kwargs must be a dict", nothing),
-    (T, [*SHORT, "--hp", "rollout_buffer_class=DictRolloutBuffer"], "rollout_buffer_class must be null", nothing),
-    (T, [*SHORT, "--hp", "n_steps=1", "--n-envs", "1"], "n_steps * n_envs must be > 1", nothing),
-    (T, [*SHORT, "--hp", "n_steps=100000000"], "n_steps * n_envs must be <=", nothing),
-    (T, [*SHORT, "--hp", "n_steps=[1"], "is not valid YAML", nothing),
+    (T, short_with("n_epochs"), "key=value", nothing),
+    (T, short_with("=5"), "key=value", nothing),
+    (T, short_with("foo=1"), "unknown hyperparameter 'foo' for PPO", nothing),
+    (T, short_with("n_steps=0"), "n_steps must be an integer >= 1", nothing),
+    (T, short_with("batch_size=0"), "batch_size must be an integer >= 2", nothing),
+    (T, short_with("batch_size=1"), "batch_size must be an integer >= 2", nothing),
+    (T, short_with("learning_rate=-1"), "learning_rate must be a finite number > 0", nothing),
+    (T, short_with("learning_rate=0"), "learning_rate must be a finite number > 0", nothing),
+    (T, short_with("learning_rate=inf"), "learning_rate must be a finite number", nothing),
+    (T, short_with("learning_rate=abc"), "learning_rate must be a finite number", nothing),
+    (T, short_with("learning_rate=[1, 2]"), "learning_rate must be a finite number", nothing),
+    (T, short_with("gamma=nan"), "gamma must be a finite number > 0 and <= 1", nothing),
+    (T, short_with("gamma=0"), "gamma must be a finite number > 0 and <= 1", nothing),
+    (T, short_with("gamma=1.5"), "gamma must be a finite number > 0 and <= 1", nothing),
+    (T, short_with("gamma=true"), "gamma must be a finite number", nothing),
+    (T, short_with("gae_lambda=2"), "gae_lambda must be", nothing),
+    (T, short_with("clip_range=-0.1"), "clip_range must be a finite number > 0", nothing),
+    (T, short_with("clip_range_vf=0"), "clip_range_vf must be null or", nothing),
+    (T, short_with("n_epochs=0"), "n_epochs must be an integer >= 1", nothing),
+    (T, short_with("n_epochs=2.5"), "n_epochs must be an integer", nothing),
+    (T, short_with("ent_coef=-1"), "ent_coef must be a finite number >= 0", nothing),
+    (T, short_with("max_grad_norm=0"), "max_grad_norm must be a finite number > 0", nothing),
+    (T, short_with("target_kl=-1"), "target_kl must be null or", nothing),
+    (T, short_with("normalize=5"), "normalize must be true, false, or a mapping", nothing),
+    (T, short_with("normalize={{foo: 1}}"), "unknown: ['foo']", nothing),
+    (T, short_with("normalize={{gamma: 2}}"), "whose gamma is", nothing),
+    (T, short_with("normalize={{norm_obs: maybe}}"), "whose norm_obs is true or false", nothing),
+    (T, short_with("policy=CnnPolicy"), "policy must be 'MlpPolicy'", nothing),
+    (T, short_with("policy_kwargs=dict(activation_fn=__import__('os'))"), "only hold", nothing),
+    (T, short_with("policy_kwargs=dict(net_arch=[8], bogus=1)"), "stable-baselines3 refused", nothing),
+    (T, short_with("policy_kwargs=dict("), "policy_kwargs must be a dict(...) expression", nothing),
+    (T, short_with("policy_kwargs=5"), "policy_kwargs must be a dict", nothing),
+    (T, short_with("rollout_buffer_class=DictRolloutBuffer"), "rollout_buffer_class must be null", nothing),
+    (T, [*short_with("n_steps=1"), "--n-envs", "1"], "n_steps * n_envs must be > 1", nothing),
+    (T, short_with("n_steps=100000000"), "n_steps * n_envs must be <=", nothing),
+    (T, short_with("n_steps=[1"), "is not valid YAML", nothing),
     (T, ["--timesteps", "64", "--hp", "n_envs=0", "--out", "{tmp}/out"], "n_envs must be an integer in", nothing),
-    (T, [*SHORT, "--hp", "n_timesteps=0"], "n_timesteps must be an integer >= 1", nothing),
-    (T, [*SHORT, "--hp", "seed=3"], "unknown hyperparameter 'seed'", nothing),
+    (T, short_with("n_timesteps=0"), "n_timesteps must be an integer >= 1", nothing),
+    (T, short_with("seed=3"), "unknown hyperparameter 'seed'", nothing),
     (T, ["--algo", "sac", *SHORT, "--hp", "n_epochs=5"], "unknown hyperparameter 'n_epochs' for SAC", nothing),
     (T, ["--algo", "sac", *SHORT, "--hp", "tau=2"], "tau must be a finite number > 0 and <= 1", nothing),
     (T, ["--algo", "sac", *SHORT, "--hp", "buffer_size=0"], "buffer_size must be an integer >= 1", nothing),
@@ -599,7 +612,7 @@ UNWRITABLE = [  # (command, argv builder, the path the message must name)
     ("run-jobs", lambda t: ["--spec", str(_write_spec(t)), "--root", str(t / "a_file" / "runs")], "a_file"),
     ("leaderboard", lambda t: ["--from-json", "--json", str(REPO / "results/leaderboard.json"),
                                "--markdown", "/sys/l.md", "--chart", str(t / "l.png")], "/sys"),
-    ("passivity-metrics", lambda t: ["--json", "/proc/p.json", "--episodes", "1", "--page", str(t / "p.md")],
+    ("passivity-metrics", lambda t: ["--json", "/proc/p.json", "--episodes", "1"],
      "/proc"),
     ("model-figures", lambda t: ["--json", "/proc/m.json", "--t-final", "0.1"], "/proc"),
     ("reproduce-paper", lambda t: ["--out", "/proc/paper", "--no-steady", "--no-plots"], "/proc"),
@@ -937,7 +950,7 @@ def test_run_jobs_interrupted_stops_its_workers_and_says_what_was_kept(sig, code
 def test_passivity_metrics_terminated_exits_143_and_writes_no_report(tmp_path):
     out = tmp_path / "p.json"
     proc = subprocess.Popen([sys.executable, "-m", "softpvtol_gym.baselines", "passivity-metrics", "--episodes",
-                             "10000", "--json", str(out), "--page", str(tmp_path / "p.md")], env=ENV, cwd=tmp_path,
+                             "10000", "--json", str(out)], env=ENV, cwd=tmp_path,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 300

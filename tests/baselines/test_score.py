@@ -145,8 +145,9 @@ def test_the_command_scores_a_file_module_writes_json_and_refuses_bad_input(user
     from softpvtol_gym.baselines.commands.score import main
 
     out = tmp_path / "mine.json"
+    # in a directory of the user's own: ranked against the summary that ships with the package
     assert main(["--policy", f"{user_module}:passivity", "--task", "hover", "--tier", "wind", "--episodes", "2",
-                 "--leaderboard", str(LEADERBOARD_JSON), "--json", str(out)]) == 0
+                 "--json", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "| hover | wind | RMS, last half |" in printed and "of 12 |" in printed
     data = json.loads(out.read_text())
@@ -168,3 +169,14 @@ def test_the_command_scores_a_file_module_writes_json_and_refuses_bad_input(user
                   "--leaderboard", str(LEADERBOARD_JSON)])
         err = capsys.readouterr().err
         assert exc.value.code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_the_packaged_summary_is_the_committed_leaderboards_aggregates():
+    from softpvtol_gym.baselines.leaderboard.stats import read_data
+    from softpvtol_gym.baselines.leaderboard.summary import SUMMARY_FILE, summary_bytes
+
+    board = json.loads(LEADERBOARD_JSON.read_text())
+    assert SUMMARY_FILE.read_bytes() == summary_bytes(board)  # python baselines/leaderboard.py --from-json writes it
+    summary = read_data(SUMMARY_FILE)
+    assert summary["aggregates"] == board["aggregates"] and summary["cells"] == []
+    assert SUMMARY_FILE.stat().st_size < 2_000_000

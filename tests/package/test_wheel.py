@@ -1,5 +1,6 @@
 """The built wheel, installed (not editable) into a fresh environment, runs
-``softpvtol evaluate --policy passivity`` in a directory outside the checkout and writes its JSON there.
+``softpvtol evaluate --policy passivity`` in a directory outside the checkout and writes its JSON there, and
+``softpvtol score`` ranks a module of the user's own there against the leaderboard summary the wheel ships.
 
 No download: the wheel is built without build isolation from a copy of the project (nothing is written into
 the checkout), and the fresh venv finds the dependencies through a ``.pth`` line naming this interpreter's
@@ -53,6 +54,7 @@ def test_installed_wheel_runs_softpvtol_evaluate_outside_the_checkout(tmp_path):
     assert all(t.startswith("softpvtol") for t in tops), tops  # no top-level 'baselines' package
     assert "softpvtol_gym/baselines/data/leaderboard.yml" in names
     assert "softpvtol_gym/baselines/data/hyperparams/ppo.yml" in names
+    assert "softpvtol_gym/baselines/data/leaderboard_summary.json" in names
     assert not [n for n in names if "/results/" in n]  # results are data of the checkout, not package contents
 
     venv = tmp_path / "venv"
@@ -74,4 +76,10 @@ def test_installed_wheel_runs_softpvtol_evaluate_outside_the_checkout(tmp_path):
              cwd=work, env=env)
     report = json.loads((work / "out" / "passivity.json").read_text())
     assert report["summary"]["episodes"] == 1 and "passivity" in r.stdout
-    assert sorted(p.relative_to(work).as_posix() for p in work.rglob("*")) == ["out", "out/passivity.json"]
+    (work / "mine.py").write_text("from softpvtol_gym import PassivityPolicy\n\n\ndef make(env):\n"
+                                  "    return PassivityPolicy.from_env(env)\n")
+    r = _run([softpvtol, "score", "--policy", "mine.py:make", "--task", "hover", "--tier", "nominal", "--episodes",
+              "2"], cwd=work, env=env)
+    assert "| hover | nominal | RMS, last half |" in r.stdout and " of " in r.stdout, r.stdout
+    assert sorted(p.relative_to(work).as_posix() for p in work.rglob("*") if "__pycache__" not in p.parts) == [
+        "mine.py", "out", "out/passivity.json"]

@@ -241,11 +241,15 @@ def load_model_state(model, tensors: dict, meta: dict, source: str) -> None:
 
 def _training_attribute(model, attr: str, value: np.ndarray, source: str) -> np.ndarray:
     """A saved rollout attribute (:data:`ARRAY_ATTRIBUTES`) checked against the model's env: the last
-    observations (n_envs, *observation shape) of floats, the episode starts (n_envs,) of bools; a CheckpointError
+    observations (n_envs, *observation shape) of floats (the original ones, under a frame stack of K, one frame:
+    (n_envs, width / K)), the episode starts (n_envs,) of bools; a CheckpointError
     naming the attribute, what it holds and what the run needs otherwise (it would fail inside SB3 later)."""
     starts = attr == "_last_episode_starts"
     want = (model.n_envs,) if starts else (model.n_envs, *model.observation_space.shape)
     kind_ok = value.dtype == np.bool_ if starts else value.dtype.kind == "f"
+    if attr == "_last_original_obs" and value.ndim == 2 and value.shape[0] == model.n_envs and value.shape[1] \
+            and want[1] % value.shape[1] == 0:
+        want = value.shape  # under a frame stack: one frame (the model sees K of them)
     if value.shape != want or not kind_ok:
         raise CheckpointError(f"{source}: {MODEL_FILE}'s attributes/{attr} is {value.dtype}{value.shape}, this run "
                               f"needs {'bool' if starts else 'float'}{want} ({model.n_envs} envs); the checkpoint "

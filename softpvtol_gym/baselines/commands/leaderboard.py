@@ -51,6 +51,7 @@ from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_jobs
 from softpvtol_gym.baselines.leaderboard.render import SUMMARY_BLOCK, chart_png, render_markdown, summary_markdown
 from softpvtol_gym.baselines.leaderboard.spec import INFERENCE
 from softpvtol_gym.baselines.leaderboard.stats import build, learned_name, read_data, validate_data
+from softpvtol_gym.baselines.leaderboard.summary import SUMMARY_FILE, summary_bytes
 from softpvtol_gym.baselines.training.distill import DISTILL_FILE
 from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main, refuse_overwrite
 from softpvtol_gym.baselines.util.atomic import atomic_write_all
@@ -138,6 +139,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
     chart_link = os.path.relpath(args.chart.resolve(), args.markdown.resolve().parent)
     outputs[args.markdown] = render_markdown(data, chart=chart_link).encode("utf-8")
     outputs[args.chart] = chart_png(data)
+    if args.markdown.resolve() == page.resolve():  # the committed page: the package's summary too
+        outputs[SUMMARY_FILE] = summary_bytes(data)
     if layout.readme is not None and args.markdown.resolve() == page.resolve():  # the committed page: the README too
         link = os.path.relpath(page.resolve(), layout.readme.resolve().parent)
         readme = _with_block(*SUMMARY_BLOCK, summary_markdown(data, link), layout.readme)

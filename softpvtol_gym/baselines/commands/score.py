@@ -26,7 +26,7 @@ import json
 from pathlib import Path
 
 from softpvtol_gym.baselines.config.hyperparams import MAX_EPISODES
-from softpvtol_gym.baselines.leaderboard.score import ENTRY, ranking_markdown, score
+from softpvtol_gym.baselines.leaderboard.score import ENTRY, LEADERBOARD_JSON, ranking_markdown, score
 from softpvtol_gym.baselines.leaderboard.spec import SPEC_FILE
 from softpvtol_gym.baselines.user_policy import load_factory
 from softpvtol_gym.baselines.util.args import Parser, check_output_file, command_main, int_arg, refuse_repeated
@@ -46,8 +46,9 @@ def _main(argv, layout: Layout, prog: str) -> int:
     ap.add_argument("--episodes", type=int_arg(1, MAX_EPISODES), default=None,
                     help="the first N of the leaderboard's test episodes (default: all of them)")
     ap.add_argument("--action-mode", choices=ACTION_MODES, default="actuators", help="default: %(default)s")
-    ap.add_argument("--leaderboard", type=Path, default=layout.results / "leaderboard.json",
-                    help="the committed leaderboard JSON to rank against (default: %(default)s)")
+    ap.add_argument("--leaderboard", type=Path, default=LEADERBOARD_JSON,
+                    help="the leaderboard JSON to rank against (default: the committed leaderboard's summary that "
+                         "ships with the package)")
     ap.add_argument("--spec", type=Path, default=SPEC_FILE,
                     help="the leaderboard spec (tasks, tiers, test seeds; default: the package's)")
     ap.add_argument("--json", type=Path, default=None, help="write the result here (refuses to overwrite)")

@@ -49,6 +49,7 @@ from softpvtol_gym.baselines.config.hyperparams import (
     apply_overrides,
     load_hyperparams,
     parse_env_options,
+    read_yaml,
 )
 from softpvtol_gym.baselines.config.recipes import RECIPES_FILE, load_recipe, recipe_config_fields
 from softpvtol_gym.baselines.config.run_config import RunConfig
@@ -142,16 +143,20 @@ def build_parser(prog: str = "train.py") -> Parser:
 
 
 def _saved_config(out: Path) -> RunConfig | None:
-    """The config of an existing run (its config.yaml, else its newest checkpoint's), or None if it has none (a run
-    killed before it wrote one); a ConfigError if it has configs and none of them can be read (resuming would
-    train a new run over the folder's files)."""
+    """The config of an existing run (its config.yaml, else its newest checkpoint's), or None if it has no
+    complete one (a run killed before its first checkpoint starts over); a ConfigError if its configs are files
+    that are not even YAML text (corrupt, or not a run's: resuming would train a new run over the folder's
+    files)."""
     failed = None
     for path in [out / CONFIG_FILE_NAME, *(c / CONFIG_FILE_NAME for c in checkpoint_candidates(out))]:
         if path.is_file():
             try:
                 return RunConfig.load(path)
-            except ConfigError as exc:
-                failed = failed or exc
+            except ConfigError:
+                try:
+                    read_yaml(path, "run config")  # YAML, but not a whole config: the run starts over
+                except ConfigError as exc:
+                    failed = failed or exc
     if failed is not None:
         raise ConfigError(f"--resume: the run in {out} has no readable config ({failed}); nothing was changed: "
                           f"fix or remove it, or train into another --out")

@@ -22,13 +22,13 @@ from softpvtol_gym.baselines.leaderboard.headline import verdict
 from softpvtol_gym.baselines.leaderboard.render import fmt_single, fmt_window
 from softpvtol_gym.baselines.leaderboard.spec import SPEC_FILE, load_spec
 from softpvtol_gym.baselines.leaderboard.stats import WINDOWS, aggregate, read_data
+from softpvtol_gym.baselines.leaderboard.summary import SUMMARY_FILE
 from softpvtol_gym.baselines.user_policy import as_policy, failure_words
-from softpvtol_gym.baselines.util.paths import Layout
 from softpvtol_gym.envs.actions import ACTION_MODES
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 
-#: the committed leaderboard a score is ranked against by default (the current directory's results/)
-LEADERBOARD_JSON = Layout().results / "leaderboard.json"
+#: the committed leaderboard a score is ranked against by default: its summary, shipped with the package
+LEADERBOARD_JSON = SUMMARY_FILE
 #: the row label of the scored policy
 ENTRY = "your policy"
 
