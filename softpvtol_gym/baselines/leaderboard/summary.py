@@ -9,10 +9,11 @@ equals the aggregates of ``results/leaderboard.json``.
 from __future__ import annotations
 
 import json
-from pathlib import Path
+
+from softpvtol_gym.baselines.util.paths import data_file
 
 #: the packaged summary (package data of ``softpvtol_gym.baselines``)
-SUMMARY_FILE = Path(__file__).resolve().parents[1] / "data" / "leaderboard_summary.json"
+SUMMARY_FILE = data_file("leaderboard_summary.json")
 
 
 def summary_of(data: dict) -> dict:
