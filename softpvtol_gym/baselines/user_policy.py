@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from softpvtol_gym._validation import short_repr
 from softpvtol_gym.baselines.errors import ConfigError
 
 SPEC_FORM = ("MODULE:FACTORY (MODULE: a dotted module importable from the current directory, or a path to a .py "
@@ -126,7 +127,8 @@ class CheckedPolicy:
         except (TypeError, ValueError):
             values = None
         if values is None or np.asarray(action).dtype.kind in "bc":
-            raise ConfigError(f"{self._where}: the policy returned {_short(action)} for observations of shape "
+            raise ConfigError(f"{self._where}: the policy returned {type(action).__name__} "
+                              f"{short_repr(action, 80).replace(chr(10), ' ')} for observations of shape "
                               f"{obs_shape}; expected real numbers, an array of {self.action_dim} actions per env")
         want = (obs_shape[0], self.action_dim) if len(obs_shape) == 2 else (self.action_dim,)
         if values.shape != want and not (len(obs_shape) == 1 and values.shape == (1, self.action_dim)):
@@ -144,8 +146,3 @@ def failure_words(exc: BaseException) -> str:
     if isinstance(exc, SystemExit):
         return f"called sys.exit({exc.code!r})"
     return f"raised {type(exc).__name__}: {exc}".replace("\n", " ")
-
-
-def _short(value) -> str:
-    text = repr(value).replace("\n", " ")
-    return f"{type(value).__name__} {text[:80]}{'...' if len(text) > 80 else ''}"

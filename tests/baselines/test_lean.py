@@ -249,9 +249,9 @@ def _with(obs, index, value):
     (lambda o: _with(o, 5, 1e300), r"must be finite \(as float32\), got 1e\+300 at 5"),
     (lambda o: np.stack([o, _with(o, 2, -np.inf)]), r"got -inf at \(1, 2\)"),
     (lambda o: np.zeros((0, 18)), r"with n >= 1, got shape \(0, 18\)"),
-    (lambda o: o.astype(complex), r"of real numbers, got dtype complex128"),
-    (lambda o: o > 0, r"of real numbers, got dtype bool"),
-    (lambda o: [str(v) for v in o], r"of real numbers, got dtype <U"),
+    (lambda o: o.astype(complex), r"\(real numbers\), got complex values \(dtype complex128\)"),
+    (lambda o: o > 0, r"\(real numbers\), got bool values \(dtype bool\)"),
+    (lambda o: [str(v) for v in o], r"\(real numbers\), got str values \(dtype <U"),
     (lambda o: [[1.0], [1.0, 2.0]], r"\(real numbers\), got \[\[1.0\], \[1.0, 2.0\]\]"),
 ])
 def test_learned_policies_refuse_observations_they_cannot_act_on(committed, inference, make, message):

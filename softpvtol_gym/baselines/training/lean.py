@@ -40,6 +40,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from softpvtol_gym._validation import real_array
 from softpvtol_gym.baselines.errors import ConfigError
 from softpvtol_gym.baselines.training.stacking import ObservationStack, frame_stack_wrapper
 
@@ -329,13 +330,9 @@ def checked_observations(observation, obs_dim: int) -> np.ndarray:
     (as the analytic policies do): values that are not real numbers (bool, complex, strings, ragged lists), another
     shape, NaN or inf (also after the cast to float32); a ValueError that says what was received."""
     expected = f"an array of shape ({obs_dim},) or (n, {obs_dim}) with n >= 1"
-    try:
-        raw = np.asarray(observation)
-    except (TypeError, ValueError):  # ragged nested lists
-        raise ValueError(f"observations must be {expected} (real numbers), got {observation!r:.200}") from None
-    if raw.dtype.kind not in "fiu":
-        raise ValueError(f"observations must be {expected} of real numbers, got dtype {raw.dtype}: "
-                         f"{observation!r:.200}")
+    raw = observation
+    if not (isinstance(raw, np.ndarray) and raw.dtype.kind == "f"):  # the env's float32 passes as it is
+        raw = real_array("observations", observation, expected)  # refuses bool, complex, strings, ragged lists
     if raw.ndim not in (1, 2) or raw.shape[-1] != obs_dim or raw.size == 0:
         raise ValueError(f"observations must be {expected}, got shape {raw.shape}")
     obs = raw.astype(np.float32, copy=False)

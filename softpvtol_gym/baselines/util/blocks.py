@@ -48,8 +48,8 @@ def check_page(path: Path, blocks: list[tuple[str, str]], option: str = "--page"
         raise ConfigError(f"{option} {path}: {'is a directory' if path.is_dir() else 'no such file'}; expected a "
                           f"Markdown file with the generated block")
     text = path.read_text(encoding="utf-8", errors="replace")
-    missing = [name for name, source in blocks if not all(m in text for m in markers(name, source))]
-    if missing:
-        start, end = markers(*blocks[0])
-        raise ConfigError(f"{option} {path} has no generated block {missing[0]!r} (the lines {start} and {end}); "
-                          f"add them where the table goes, or leave {option} out")
+    for name, source in blocks:
+        start, end = markers(name, source)
+        if start not in text or end not in text:
+            raise ConfigError(f"{option} {path} has no generated block {name!r} (the lines {start} and {end}); "
+                              f"add them where the table goes, or leave {option} out")
