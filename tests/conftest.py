@@ -15,7 +15,10 @@ ROOT = Path(__file__).resolve().parents[1]
 #: ".." for the path-traversal cases: built, so that no file of the project names a path that climbs
 UP = os.pardir
 sys.path.insert(0, str(ROOT / "baselines"))  # the checkout's layout (baselines/_clone.py), as its scripts see it
-from _clone import LAYOUT  # noqa: E402
+from _clone import LAYOUT, unpack_results  # noqa: E402
+
+# the committed results are archives (results/archive/): unpacked before any test module reads them
+unpack_results()
 
 #: the committed results of the checkout, where its scripts write them
 RESULTS = LAYOUT.results

@@ -45,6 +45,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "model-figures": ("model_figures", "model_figures.py", "integration error of the paper's loop (RK4 steps)"),
     "reproduce-paper": ("reproduce_paper", "reproduce_paper.py", "reproduce the paper's simulation section"),
     "passivity-metrics": ("passivity_metrics", "passivity_metrics.py", "the passivity policy on every task x tier"),
+    "results": ("results", "results.py", "pack the results into their committed archives, or unpack them"),
 }
 
 

@@ -105,7 +105,7 @@ def test_no_tracked_file_names_a_path_outside_the_repository(folder):
 def test_the_scan_covers_code_docs_tests_configuration_and_results():
     names = {str(f.relative_to(ROOT)) for f in FILES}
     for expected in ("README.md", "docs/model.md", "pyproject.toml", ".ci/run", "tests/conftest.py",
-                     "softpvtol_gym/dynamics.py", "results/leaderboard.json"):
+                     "softpvtol_gym/dynamics.py", "results/passivity_metrics.json"):
         assert expected in names
 
 

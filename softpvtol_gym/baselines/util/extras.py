@@ -28,6 +28,7 @@ NEEDS = {
     "passivity_metrics.py": (),
     "reproduce_paper.py": (),  # matplotlib for the figures only (--no-plots, --render-only run without it)
     "model_figures.py": (),
+    "results.py": ("safetensors",),
     "render_gif.py": (*_LEARNED, "PIL"),
     "tracking_figures.py": (*_LEARNED, "matplotlib", "PIL"),
     "tune.py": (*_LEARNED, "tensorboard", "ray", "optuna"),

@@ -1,0 +1,205 @@
+"""The committed results as archives, and the folders they unpack to.
+
+The per-episode detail and the trained runs are most of the results by size and by file count. They are
+committed packed, under ``<results>/archive/``:
+
+- each job folder of ``leaderboard_runs/``, ``ablation_runs/`` and ``distill_runs/`` as one reproducible
+  ``.tar.xz`` (``archive/leaderboard_runs/<job>.tar.xz`` holds ``leaderboard_runs/<job>/``);
+- ``leaderboard.json`` (every entry's per-episode metrics) as ``archive/leaderboard.json.xz``.
+
+:func:`unpack` writes the folders and files back where the commands read and write them (``leaderboard_runs/...``
+and ``leaderboard.json`` are not tracked: they are built from the archives); :func:`pack` writes the archives
+of what the commands wrote, first dropping the optimizers' state from each finished checkpoint
+(:mod:`~softpvtol_gym.baselines.checkpoints.compact`); :func:`differences` lists where the two disagree. Which
+archive an unpacked folder came from is recorded in ``<results>/.unpacked.json`` (sha256 of each archive), so
+that an unpack after ``git pull`` replaces exactly the folders whose archive changed, and never a folder that
+no archive wrote (a job run here and not packed yet) unless asked to.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+
+from filelock import FileLock
+
+from softpvtol_gym.baselines.checkpoints.compact import checkpoint_folders, compact_checkpoint
+from softpvtol_gym.baselines.util.archive import (
+    ArchiveError,
+    archive_members,
+    folder_files,
+    pack_file,
+    pack_files,
+    unpack_file,
+)
+from softpvtol_gym.baselines.util.atomic import atomic_dir, atomic_write_bytes, atomic_write_text
+
+ARCHIVE_DIR = "archive"
+#: the folders of the results whose sub-folders are archived one by one
+PACKED_FOLDERS = ("leaderboard_runs", "ablation_runs", "distill_runs")
+#: the files of the results archived on their own
+PACKED_FILES = ("leaderboard.json",)
+#: which archive each unpacked folder or file came from (not tracked), and the lock that one unpack at a time holds
+RECORD_FILE, LOCK_FILE = ".unpacked.json", ".unpack.lock"
+FOLDER_SUFFIX, FILE_SUFFIX = ".tar.xz", ".xz"
+
+
+@dataclasses.dataclass(frozen=True)
+class Packed:
+    """One archive and what it unpacks to: ``target`` (a folder for ``.tar.xz``, a file for ``.xz``), both under
+    the results folder; ``key``: the archive's path relative to it (the record's key)."""
+
+    archive: Path
+    target: Path
+    key: str
+
+    @property
+    def is_folder(self) -> bool:
+        return self.archive.name.endswith(FOLDER_SUFFIX)
+
+
+def _packed(results: Path, relative: str, is_folder: bool) -> Packed:
+    key = f"{ARCHIVE_DIR}/{relative}{FOLDER_SUFFIX if is_folder else FILE_SUFFIX}"
+    return Packed(results / key, results / relative, key)
+
+
+def archives(results: Path) -> list[Packed]:
+    """Every committed archive under ``results``, sorted."""
+    results = Path(results)
+    out = [_packed(results, f"{family}/{a.name[:-len(FOLDER_SUFFIX)]}", True)
+           for family in PACKED_FOLDERS for a in sorted((results / ARCHIVE_DIR / family).glob(f"*{FOLDER_SUFFIX}"))]
+    out += [_packed(results, name, False) for name in PACKED_FILES
+            if (results / ARCHIVE_DIR / f"{name}{FILE_SUFFIX}").is_file()]
+    return out
+
+
+def packable(results: Path) -> list[Packed]:
+    """Every job folder and file under ``results`` that has (or should have) an archive, sorted."""
+    results = Path(results)
+    out = [_packed(results, f"{family}/{d.name}", True) for family in PACKED_FOLDERS
+           for d in sorted((results / family).iterdir() if (results / family).is_dir() else ())
+           if d.is_dir() and not d.name.startswith(".")]
+    out += [_packed(results, name, False) for name in PACKED_FILES if (results / name).is_file()]
+    return out
+
+
+def kept_files(folder: Path) -> dict[str, bytes]:
+    """The files of a job folder that are packed: all but hidden ones (locks, temporaries), a job's training
+    folder while it runs (``*.run/``) and a distilled run's cached datasets (``datasets/``, collected again)."""
+    return {name: data for name, data in folder_files(folder).items()
+            if not any(p.startswith(".") or p.endswith(".run") or p == "datasets" for p in name.split("/"))}
+
+
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _records(results: Path) -> dict[str, str]:
+    try:
+        data = json.loads((Path(results) / RECORD_FILE).read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _write_records(results: Path, records: dict[str, str]) -> None:
+    atomic_write_text(Path(results) / RECORD_FILE, json.dumps(dict(sorted(records.items())), indent=1) + "\n")
+
+
+def unpack(results: Path, force: bool = False) -> tuple[list[Packed], list[Packed]]:
+    """Write every archive's folder or file under ``results`` where it is missing or came from another version
+    of the archive (``force``: also where it was not unpacked from an archive). Returns (what was unpacked,
+    what was kept because no archive wrote it). ArchiveError for an archive that does not read."""
+    results = Path(results)
+    with FileLock(str(results / LOCK_FILE)):  # parallel test workers and scripts unpack one at a time
+        return _unpack(results, force)
+
+
+def _unpack(results: Path, force: bool) -> tuple[list[Packed], list[Packed]]:
+    records = _records(results)
+    done, kept = [], []
+    for p in archives(results):
+        data = p.archive.read_bytes()
+        sha = _sha256(data)
+        present = p.target.exists()
+        if present and records.get(p.key) == sha:
+            continue
+        if present and p.key not in records and not force:
+            kept.append(p)
+            continue
+        if p.is_folder:
+            members = archive_members(data, str(p.archive))
+            with atomic_dir(p.target) as tmp:
+                for name, content in members.items():
+                    (tmp / name).parent.mkdir(parents=True, exist_ok=True)
+                    (tmp / name).write_bytes(content)
+        else:
+            atomic_write_bytes(p.target, unpack_file(data, str(p.archive)))
+        records[p.key] = sha
+        done.append(p)
+    if done:
+        _write_records(results, records)
+    return done, kept
+
+
+def pack(results: Path) -> list[Packed]:
+    """Write the archive of every job folder and packed file under ``results`` whose archive is missing or
+    differs, after compacting the folder's finished checkpoints; remove the archives of job folders that are
+    gone. Returns the archives written or removed."""
+    results = Path(results)
+    records = _records(results)
+    changed = []
+    targets = packable(results)
+    for p in targets:
+        if p.is_folder:
+            for folder in checkpoint_folders(p.target):
+                if not any(part.endswith(".run") or part == "checkpoints" for part in folder.parts):
+                    compact_checkpoint(folder)
+            data = pack_files(kept_files(p.target))
+        else:
+            data = pack_file(p.target.read_bytes())
+        if not p.archive.is_file() or p.archive.read_bytes() != data:
+            atomic_write_bytes(p.archive, data)
+            changed.append(p)
+        records[p.key] = _sha256(data)
+    wanted = {p.key for p in targets}
+    for p in archives(results):
+        if p.key not in wanted:
+            p.archive.unlink()
+            records.pop(p.key, None)
+            changed.append(p)
+    _write_records(results, records)
+    return changed
+
+
+def differences(results: Path) -> list[str]:
+    """Where the archives under ``results`` and the folders and files they unpack to disagree, in words (empty:
+    they agree): an archive not unpacked, a file that differs, is missing or is extra, a job folder without an
+    archive."""
+    results = Path(results)
+    out = []
+    committed = archives(results)
+    for p in committed:
+        if not p.target.exists():
+            out.append(f"{p.target} is missing (unpack {p.key})")
+            continue
+        data = p.archive.read_bytes()
+        try:
+            if p.is_folder:
+                want, have = archive_members(data, p.key), kept_files(p.target)
+                for name in sorted(set(want) | set(have)):
+                    if name not in have:
+                        out.append(f"{p.target / name} is missing (it is in {p.key})")
+                    elif name not in want:
+                        out.append(f"{p.target / name} is not in {p.key} (pack it)")
+                    elif want[name] != have[name]:
+                        out.append(f"{p.target / name} differs from {p.key}")
+            elif unpack_file(data, p.key) != p.target.read_bytes():
+                out.append(f"{p.target} differs from {p.key}")
+        except ArchiveError as exc:
+            out.append(str(exc))
+    known = {p.key for p in committed}
+    out += [f"{p.target} has no archive {p.key} (pack it)" for p in packable(results) if p.key not in known]
+    return out
