@@ -12,6 +12,7 @@ from pathlib import Path
 
 from softpvtol_gym.baselines.cli import leave_now_after_a_ray_interrupt, run_command
 from softpvtol_gym.baselines.errors import ConfigError
+from softpvtol_gym.baselines.util.extras import require
 from softpvtol_gym.baselines.util.paths import Layout
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -44,6 +45,7 @@ def run(command: str, script: str) -> int:
     unpacked first (but for ``results`` itself); errors name ``script``."""
     try:
         if command != "results":
+            require(script, prog=script)  # a missing extra is named before anything is imported for the unpack
             unpack_results()
         return run_command(command, sys.argv[1:], layout=LAYOUT, prog=script)
     except SystemExit as exc:
