@@ -155,7 +155,8 @@ def pack(results: Path) -> list[Packed]:
     for p in targets:
         if p.is_folder:
             for folder in checkpoint_folders(p.target):
-                if not any(part.endswith(".run") or part == "checkpoints" for part in folder.parts):
+                inside = folder.relative_to(p.target).parts  # a run still training keeps its optimizer
+                if not any(part.endswith(".run") or part == "checkpoints" for part in inside):
                     compact_checkpoint(folder)
             data = pack_files(kept_files(p.target))
         else:

@@ -13,7 +13,7 @@ import pytest
 
 from softpvtol_gym.baselines.checkpoints.compact import compact_checkpoint, optimizer_tensors
 from softpvtol_gym.baselines.packed_results import ARCHIVE_DIR, archives, differences, pack, unpack
-from softpvtol_gym.baselines.util.archive import ArchiveError, archive_members, pack_files, pack_folder
+from softpvtol_gym.baselines.util.archive import ArchiveError, archive_members, folder_files, pack_files
 from tests.conftest import RESULTS, ROOT, UP, copy_run
 from tests.package.test_no_outside_paths import MACHINE
 
@@ -72,7 +72,7 @@ def test_pack_is_reproducible_and_reads_back(tmp_path):
     (tmp_path / "b").mkdir()
     for name, content in files.items():
         (tmp_path / name).write_bytes(content)
-    assert pack_folder(tmp_path) == data
+    assert pack_files(folder_files(tmp_path)) == data
 
 
 def _tar_xz(add) -> bytes:

@@ -1,11 +1,11 @@
 """Folders and files as reproducible xz archives, and archives read back without trusting them.
 
-:func:`pack_folder` writes a folder as a ``.tar.xz`` whose bytes depend on the files' names and contents only
-(sorted members, no times, owners or modes), so that packing the same folder twice gives the same archive and
-git sees a change only where a file changed. :func:`archive_members` reads an archive back as
-``{relative name: bytes}``, refusing what a packed folder never holds (links, devices, absolute names, ``..``,
-more than :data:`MAX_UNPACKED_BYTES`), so an archive is data: nothing in it is run and nothing lands outside
-the folder it is unpacked into. A single file is packed as plain ``.xz``.
+:func:`pack_files` writes a folder's files (:func:`folder_files`) as a ``.tar.xz`` whose bytes depend on the files'
+names and contents only (sorted members, no times, owners or modes), so that packing the same folder twice gives the
+same archive and git sees a change only where a file changed. :func:`archive_members` reads an archive back as
+``{relative name: bytes}``, refusing what a packed folder never holds (links, devices, absolute names, ``..``, more
+than :data:`MAX_UNPACKED_BYTES`), so an archive is data: nothing in it is run and nothing lands outside the folder
+it is unpacked into. A single file is packed as plain ``.xz``.
 """
 
 from __future__ import annotations
@@ -54,11 +54,6 @@ def pack_files(files: dict[str, bytes]) -> bytes:
 def pack_file(data: bytes) -> bytes:
     """The ``.xz`` of one file's bytes ``data`` (the same bytes for the same data)."""
     return lzma.compress(data, format=lzma.FORMAT_XZ, preset=PRESET)
-
-
-def pack_folder(folder: Path) -> bytes:
-    """:func:`pack_files` of the files under ``folder``."""
-    return pack_files(folder_files(folder))
 
 
 def archive_members(data: bytes, source: str) -> dict[str, bytes]:
