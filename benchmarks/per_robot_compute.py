@@ -116,7 +116,7 @@ def measure(steps: int, rounds: int) -> dict:
 
 def markdown_table(report: dict) -> str:
     facts = report["machine"]
-    lines = [f"From `{report['command']}` at commit `{facts['commit'][:7]}`, {facts['cores']} cores ({facts['cpu']}), "
+    lines = [f"From `{report['command']}`, {facts['cores']} cores, "
              f"load average {facts['loadavg_start'][0]:.2f} at the start and {report['loadavg_end'][0]:.2f} at the "
              f"end; {report['rounds']} rounds of {report['steps']} observations per policy.",
              "",
