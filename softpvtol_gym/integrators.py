@@ -12,7 +12,7 @@ from ._parallel import run_rows
 from .dynamics import input_map_code, model_code, resolve_input_map
 from .params import SoftPVTOLParams
 
-__all__ = ["rk4_step", "rk4_step_actuated", "rollout"]
+__all__ = ["rk4_step", "rk4_step_actuated", "rk4_step_of_rates", "rollout"]
 
 
 def _check_dt(dt: float) -> float:
@@ -57,6 +57,29 @@ def rk4_step_actuated(q, qdot, actuators, params: SoftPVTOLParams, dt: float = 0
     u = np.zeros((af.shape[0], 5))
     u[:, :4] = af
     return _step(lead, qf, vf, u, ef, params, dt, code, mcode)
+
+
+def rk4_step_of_rates(rates, t: float, q, qdot, dt: float, first, x=None):
+    """One classical RK4 step of (q, qdot) and, where given, a controller's own state x, whose rates at a
+    stage come from ``rates(t, q, qdot, x) -> (qddot, xdot)`` (xdot None without x): a closed loop
+    integrated with its controller at every stage. ``first`` = (qddot, xdot) at the step's start, which the
+    caller evaluates itself (that evaluation is the one that advances the controller's memory).
+
+    Shapes: q, qdot, qddot (..., 5); x, xdot any shape of their own. Returns (q_next, qdot_next, x_next), x_next
+    None without x.
+    """
+    a1, x1 = first
+    h = 0.5 * dt
+
+    def moved(c, xdot):
+        return None if x is None else x + c * xdot
+
+    a2, x2 = rates(t + h, q + h * qdot, qdot + h * a1, moved(h, x1))
+    a3, x3 = rates(t + h, q + h * (qdot + h * a1), qdot + h * a2, moved(h, x2))
+    a4, x4 = rates(t + dt, q + dt * (qdot + h * a2), qdot + dt * a3, moved(dt, x3))
+    q_next = q + dt / 6.0 * (6.0 * qdot + dt * (a1 + a2 + a3))
+    qdot_next = qdot + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+    return q_next, qdot_next, None if x is None else x + dt / 6.0 * (x1 + 2.0 * x2 + 2.0 * x3 + x4)
 
 
 def _step(lead, qf, vf, u, ef, params, dt, code, mcode):

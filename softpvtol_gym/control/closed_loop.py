@@ -43,7 +43,7 @@ import numpy as np
 from .._batching import broadcast_batch, check_curvature
 from .._parallel import run_rows
 from ..dynamics import forward_dynamics, generalized_forces, input_map_code
-from ..integrators import rk4_step, rk4_step_actuated
+from ..integrators import rk4_step, rk4_step_actuated, rk4_step_of_rates
 from ..params import SoftPVTOLParams
 from . import kernels as CK
 from .allocation import ALLOCATION_METHODS, AllocationInfo, _allocation_info
@@ -483,12 +483,8 @@ def simulate_closed_loop(
             else:
                 q, v = rk4_step_actuated(q, v, out.actuators, plant, dt, input_map)
         else:
-            h = 0.5 * dt
-            a2 = closed_loop(tk + h, q + h * v, v + h * a1, False)[0]
-            a3 = closed_loop(tk + h, q + h * (v + h * a1), v + h * a2, False)[0]
-            a4 = closed_loop(tk + dt, q + dt * (v + h * a2), v + dt * a3, False)[0]
-            q = q + dt / 6.0 * (6.0 * v + dt * (a1 + a2 + a3))
-            v = v + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+            q, v, _ = rk4_step_of_rates(lambda ts, qs, vs, _: (closed_loop(ts, qs, vs, False)[0], None), tk, q, v, dt,
+                                        (a1, None))
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
             raise ValueError(f"the closed loop diverged: the state is not finite after t = {t[k + 1]:.4g} s "
                              f"(loop {loop!r}, hold {hold!r}, dt = {dt:g} s); a shorter dt or other gains may keep "

@@ -44,7 +44,7 @@ from ..dynamics import (
     input_map_code,
     mass_matrix,
 )
-from ..integrators import rk4_step_actuated
+from ..integrators import rk4_step_actuated, rk4_step_of_rates
 from ..params import SoftPVTOLParams
 from .references import paper_reference
 
@@ -510,13 +510,7 @@ def simulate_extended_loop(
         else:
             a1, x1, out, tau = law(tk, q, v, xi)
             act[k], tau_app[k], outs[k], degen[k] = out.actuators, tau, out.outputs, out.degenerate
-            h = 0.5 * dt
-            a2, x2 = law(tk + h, q + h * v, v + h * a1, xi + h * x1)[:2]
-            a3, x3 = law(tk + h, q + h * (v + h * a1), v + h * a2, xi + h * x2)[:2]
-            a4, x4 = law(tk + dt, q + dt * (v + h * a2), v + dt * a3, xi + dt * x3)[:2]
-            q = q + dt / 6.0 * (6.0 * v + dt * (a1 + a2 + a3))
-            v = v + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-            xi = xi + dt / 6.0 * (x1 + 2.0 * x2 + 2.0 * x3 + x4)
+            q, v, xi = rk4_step_of_rates(lambda ts, qs, vs, xs: law(ts, qs, vs, xs)[:2], tk, q, v, dt, (a1, x1), xi)
         Q[k + 1], V[k + 1], XI[k + 1] = q, v, xi
     if not batched:
         Q, V, XI, tau_app, act, outs, degen = (a[:, 0] for a in (Q, V, XI, tau_app, act, outs, degen))

@@ -324,6 +324,14 @@ class EnvConfig:
                             "(plus render_mode, and num_envs/autoreset_mode for the vector env)")
         return cls(**kwargs)
 
+    @classmethod
+    def from_init_arguments(cls, arguments: dict, env_arguments: tuple[str, ...] = ()) -> EnvConfig:
+        """EnvConfig from an env's ``__init__`` arguments (its ``locals()`` before anything else is bound): every
+        argument but ``self``, the env's own (``env_arguments``, e.g. ``render_mode``) and ``unknown`` (the
+        ``**unknown`` of misspelled names, passed on so that :meth:`from_kwargs` refuses them)."""
+        own = {"self", "unknown", *env_arguments}
+        return cls.from_kwargs(**{k: v for k, v in arguments.items() if k not in own}, **arguments.get("unknown", {}))
+
     # ---------------------------------------------------------------------------- derived values
     @property
     def task_spec(self) -> TaskSpec:

@@ -248,16 +248,7 @@ class SoftPVTOLEnv(gym.Env):
     ) -> None:
         """The arguments are :class:`EnvConfig`'s fields (see Arguments), validated there; ``unknown``
         only collects misspelled names, refused with a TypeError that lists the valid ones."""
-        self.config = EnvConfig.from_kwargs(
-            action_mode=action_mode, task=task, tier=tier, params=params, input_map=input_map,
-            allocation=allocation, residual_space=residual_space, frame_skip=frame_skip,
-            max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
-            actuator_limits=actuator_limits, controller_loop=controller_loop, model=model,
-            observe_error_integral=observe_error_integral, error_integral_limit=error_integral_limit,
-            error_integral_error_limit=error_integral_error_limit,
-            precision_reward_weight=precision_reward_weight, precision_reward_scale=precision_reward_scale,
-            action_rate_penalty=action_rate_penalty, residual_gate=residual_gate, start_error_scale=start_error_scale,
-            start_distribution=start_distribution, **unknown)
+        self.config = EnvConfig.from_init_arguments(locals(), ("render_mode",))
         choice("render_mode", render_mode, RENDER_MODES)
         self.render_mode = render_mode
         self.observation_space, self.action_space = make_spaces(self.config)

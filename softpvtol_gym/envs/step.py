@@ -326,14 +326,21 @@ def kernel_flags(consts: np.ndarray, codes: np.ndarray) -> tuple:
 # kernel compiled for None never compiles the virtual mode's allocation, resp. the consistent model (a cold
 # first step compiles what its env uses).
 @njit(cache=True, nogil=True)
+def _check_and_clip(act, state, istate, codes):
+    """The serial entry points' start: (all actions finite, a tau residual is added), the actions clipped
+    where they are all finite (see check_actions, clip_actions)."""
+    ok, has_res = step_check_actions(act, codes)
+    if ok:
+        clip_actions(0, state.shape[0], act, state, istate, codes[SK.action_dim])
+    return ok, has_res
+
+
+@njit(cache=True, nogil=True)
 def step_serial(act, state, obs, keys, istate, consts, codes, ctl, virtual=None, consistent=None):
     """Action modes without the base controller, any N."""
-    n = state.shape[0]
-    ok, _ = check_actions(act, codes[SK.action_dim])
-    if not ok:
+    if not _check_and_clip(act, state, istate, codes)[0]:
         return STEP_BAD_ACTION
-    clip_actions(0, n, act, state, istate, codes[SK.action_dim])
-    _physics_rows(0, n, state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
+    _physics_rows(0, state.shape[0], state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
     return STEP_OK
 
 
@@ -341,26 +348,20 @@ def step_serial(act, state, obs, keys, istate, consts, codes, ctl, virtual=None,
 def step_serial_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl, ctl_err,
                          virtual=None, consistent=None):
     """Residual mode (the base controller, then the physics), any N."""
-    n = state.shape[0]
-    ok, anyu = check_actions(act, codes[SK.action_dim])
+    ok, has_res = _check_and_clip(act, state, istate, codes)
     if not ok:
         return STEP_BAD_ACTION
-    clip_actions(0, n, act, state, istate, codes[SK.action_dim])
-    has_res = anyu and codes[SK.res_virtual] != 0
-    _controller_rows(0, n, state, consts, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err)
-    _physics_rows(0, n, state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
+    _controller_rows(0, state.shape[0], state, consts, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err)
+    _physics_rows(0, state.shape[0], state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
     return STEP_OK
 
 
 @njit(cache=True, nogil=True)
 def step_serial_small(act, state, obs, keys, istate, consts, codes, ctl, virtual=None, consistent=None):
     """:func:`step_serial` for N < LANES."""
-    n = state.shape[0]
-    ok, _ = check_actions(act, codes[SK.action_dim])
-    if not ok:
+    if not _check_and_clip(act, state, istate, codes)[0]:
         return STEP_BAD_ACTION
-    clip_actions(0, n, act, state, istate, codes[SK.action_dim])
-    _physics_rows_small(0, n, state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
+    _physics_rows_small(0, state.shape[0], state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
     return STEP_OK
 
 
@@ -368,14 +369,11 @@ def step_serial_small(act, state, obs, keys, istate, consts, codes, ctl, virtual
 def step_serial_small_residual(act, state, obs, keys, istate, consts, codes, cc, S_mem, S_new, ctl_in, ctl,
                                ctl_err, virtual=None, consistent=None):
     """:func:`step_serial_residual` for N < LANES."""
-    n = state.shape[0]
-    ok, anyu = check_actions(act, codes[SK.action_dim])
+    ok, has_res = _check_and_clip(act, state, istate, codes)
     if not ok:
         return STEP_BAD_ACTION
-    clip_actions(0, n, act, state, istate, codes[SK.action_dim])
-    has_res = anyu and codes[SK.res_virtual] != 0
-    _controller_rows(0, n, state, consts, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err)
-    _physics_rows_small(0, n, state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
+    _controller_rows(0, state.shape[0], state, consts, has_res, cc, S_mem, S_new, ctl_in, ctl, ctl_err)
+    _physics_rows_small(0, state.shape[0], state, obs, keys, istate, consts, codes, ctl, virtual, consistent)
     return STEP_OK
 
 

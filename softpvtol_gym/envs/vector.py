@@ -77,16 +77,7 @@ class SoftPVTOLVectorEnv(VectorEnv):
             raise ValueError(f"num_envs must be an int >= 1, got {short_repr(num_envs)} of type "
                              f"{type(num_envs).__name__}")
         # the arguments of EnvConfig, as SoftPVTOLEnv (one signature for both; a test keeps them equal)
-        self.config = EnvConfig.from_kwargs(
-            action_mode=action_mode, task=task, tier=tier, params=params, input_map=input_map,
-            allocation=allocation, residual_space=residual_space, frame_skip=frame_skip,
-            max_episode_seconds=max_episode_seconds, tier_options=tier_options, residual_scale=residual_scale,
-            actuator_limits=actuator_limits, controller_loop=controller_loop, model=model,
-            observe_error_integral=observe_error_integral, error_integral_limit=error_integral_limit,
-            error_integral_error_limit=error_integral_error_limit,
-            precision_reward_weight=precision_reward_weight, precision_reward_scale=precision_reward_scale,
-            action_rate_penalty=action_rate_penalty, residual_gate=residual_gate, start_error_scale=start_error_scale,
-            start_distribution=start_distribution, **unknown)
+        self.config = EnvConfig.from_init_arguments(locals(), ("num_envs", "render_mode", "autoreset_mode"))
         choice("render_mode", render_mode, (None, "rgb_array"))
         try:
             self.autoreset_mode = AutoresetMode(autoreset_mode)

@@ -28,6 +28,25 @@ def _rk4_combine(x, v, a1, a2, a3, a4, h, dt, c):
     return x + c * dq, v + c * dv
 
 
+@accessor
+def _rk4_update(q, qd, k1, k2, k3, k4, h, dt):
+    """(q_next, qdot_next) as 5-tuples from the four stages' accelerations k1 .. k4 (h = dt / 2)."""
+    c = dt / 6.0
+    x0, w0 = _rk4_combine(q[0], qd[0], k1[0], k2[0], k3[0], k4[0], h, dt, c)
+    x1, w1 = _rk4_combine(q[1], qd[1], k1[1], k2[1], k3[1], k4[1], h, dt, c)
+    x2, w2 = _rk4_combine(q[2], qd[2], k1[2], k2[2], k3[2], k4[2], h, dt, c)
+    x3, w3 = _rk4_combine(q[3], qd[3], k1[3], k2[3], k3[3], k4[3], h, dt, c)
+    x4, w4 = _rk4_combine(q[4], qd[4], k1[4], k2[4], k3[4], k4[4], h, dt, c)
+    return (x0, x1, x2, x3, x4), (w0, w1, w2, w3, w4)
+
+
+@accessor
+def _arguments(q, qd, u, ext, p):
+    """The arrays of the ``*_into`` wrappers as the tuples the steps take (p: the 10 parameters they read)."""
+    return ((q[0], q[1], q[2], q[3], q[4]), (qd[0], qd[1], qd[2], qd[3], qd[4]), (u[0], u[1], u[2], u[3], u[4]),
+            (ext[0], ext[1]), (p[P_M], p[P_ML], p[P_MR], p[P_I], p[P_IL], p[P_IR], p[P_LL], p[P_LR], p[P_G], p[P_EPS]))
+
+
 @inline
 def rk4_step_sc(q, qd, s0, c0, u, ext, p, dt, input_map):
     r"""One classical RK4 step of (q, qdot) with the command u and the external force ext held
@@ -51,13 +70,7 @@ def rk4_step_sc(q, qd, s0, c0, u, ext, p, dt, input_map):
     q4, v4 = _axpy5(q, dt, v3), _axpy5(v1, dt, k3)
     s4, c4 = rotate(s0, c0, dt * v3[2])
     k4 = qddot(q4[3], q4[4], v4[3], v4[4], held_force(s4, c4, q4, u, ext, p, input_map), p)
-    c = dt / 6.0
-    x0, w0 = _rk4_combine(q[0], qd[0], k1[0], k2[0], k3[0], k4[0], h, dt, c)
-    x1, w1 = _rk4_combine(q[1], qd[1], k1[1], k2[1], k3[1], k4[1], h, dt, c)
-    x2, w2 = _rk4_combine(q[2], qd[2], k1[2], k2[2], k3[2], k4[2], h, dt, c)
-    x3, w3 = _rk4_combine(q[3], qd[3], k1[3], k2[3], k3[3], k4[3], h, dt, c)
-    x4, w4 = _rk4_combine(q[4], qd[4], k1[4], k2[4], k3[4], k4[4], h, dt, c)
-    return (x0, x1, x2, x3, x4), (w0, w1, w2, w3, w4)
+    return _rk4_update(q, qd, k1, k2, k3, k4, h, dt)
 
 
 @inline
@@ -76,15 +89,8 @@ def rk4_step_tuple(q, qd, u, ext, p, dt, input_map):
 @jit
 def rk4_step_into(q, qd, u, ext, p, dt, input_map, q_out, qd_out):
     """:func:`rk4_step` on arrays. Allocation-free; ``q_out``/``qd_out`` may alias ``q``/``qd``."""
-    qn, vn = rk4_step_tuple(
-        (q[0], q[1], q[2], q[3], q[4]),
-        (qd[0], qd[1], qd[2], qd[3], qd[4]),
-        (u[0], u[1], u[2], u[3], u[4]),
-        (ext[0], ext[1]),
-        (p[P_M], p[P_ML], p[P_MR], p[P_I], p[P_IL], p[P_IR], p[P_LL], p[P_LR], p[P_G], p[P_EPS]),
-        dt,
-        input_map,
-    )
+    qt, vt, ut, et, pt = _arguments(q, qd, u, ext, p)
+    qn, vn = rk4_step_tuple(qt, vt, ut, et, pt, dt, input_map)
     q_out[0], q_out[1], q_out[2], q_out[3], q_out[4] = qn
     qd_out[0], qd_out[1], qd_out[2], qd_out[3], qd_out[4] = vn
 
@@ -114,13 +120,7 @@ def consistent_rk4_step(q, qd, u, ext, p, dt, held):
     q4, v4 = _axpy5(q, dt, v3), _axpy5(v1, dt, k3)
     s4, c4 = math.sin(q4[2]), math.cos(q4[2])
     k4 = consistent_stage(s4, c4, q4, v4, u, ext, p, held)
-    c = dt / 6.0
-    x0, w0 = _rk4_combine(q[0], qd[0], k1[0], k2[0], k3[0], k4[0], h, dt, c)
-    x1, w1 = _rk4_combine(q[1], qd[1], k1[1], k2[1], k3[1], k4[1], h, dt, c)
-    x2, w2 = _rk4_combine(q[2], qd[2], k1[2], k2[2], k3[2], k4[2], h, dt, c)
-    x3, w3 = _rk4_combine(q[3], qd[3], k1[3], k2[3], k3[3], k4[3], h, dt, c)
-    x4, w4 = _rk4_combine(q[4], qd[4], k1[4], k2[4], k3[4], k4[4], h, dt, c)
-    return (x0, x1, x2, x3, x4), (w0, w1, w2, w3, w4)
+    return _rk4_update(q, qd, k1, k2, k3, k4, h, dt)
 
 
 @jit
@@ -132,14 +132,7 @@ def consistent_rk4_step_tuple(q, qd, u, ext, p, dt, held):
 @jit
 def consistent_rk4_step_into(q, qd, u, ext, p, dt, held, q_out, qd_out):
     """:func:`consistent_rk4_step` on arrays (see :func:`rk4_step_into`)."""
-    qn, vn = consistent_rk4_step_tuple(
-        (q[0], q[1], q[2], q[3], q[4]),
-        (qd[0], qd[1], qd[2], qd[3], qd[4]),
-        (u[0], u[1], u[2], u[3], u[4]),
-        (ext[0], ext[1]),
-        (p[P_M], p[P_ML], p[P_MR], p[P_I], p[P_IL], p[P_IR], p[P_LL], p[P_LR], p[P_G], p[P_EPS]),
-        dt,
-        held,
-    )
+    qt, vt, ut, et, pt = _arguments(q, qd, u, ext, p)
+    qn, vn = consistent_rk4_step_tuple(qt, vt, ut, et, pt, dt, held)
     q_out[0], q_out[1], q_out[2], q_out[3], q_out[4] = qn
     qd_out[0], qd_out[1], qd_out[2], qd_out[3], qd_out[4] = vn

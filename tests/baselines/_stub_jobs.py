@@ -1,5 +1,6 @@
 """Light stand-ins for leaderboard jobs (standard library only, so that a spawned worker starts in a fraction of a
-second): the executor and interrupt tests of test_bad_input.py run them instead of training or evaluating."""
+second): the executor and interrupt tests (test_io_errors.py, test_interrupts.py) run them instead of training or
+evaluating."""
 
 from __future__ import annotations
 

@@ -1,10 +1,10 @@
 """The paper's model written symbolically for CasADi: what the MPC predicts with.
 
 The compiled kernels of :mod:`softpvtol_gym.model` are the single source of truth of the physics, but
-numba functions cannot take CasADi symbols. This module writes the same equations once more, term by
-term as :mod:`softpvtol_gym.model.paper` and :mod:`softpvtol_gym.model.input_map` write them (the
-same curvature series from :mod:`softpvtol_gym._series_coefficients`, Horner's rule, the Schur-complement solve of
-the mass matrix), and ``tests/control/test_mpc.py`` checks it against the kernels' public API
+numba functions cannot take CasADi symbols. This module runs their own Python source on CasADi's symbols
+(:func:`softpvtol_gym.model.twin.python_twin`: :mod:`softpvtol_gym.model.paper`'s ``qddot`` and
+:mod:`softpvtol_gym.model.input_map`'s forces, the same curvature series, Horner's rule and Schur-complement
+solve), and ``tests/control/test_mpc.py`` checks it against the kernels' public API
 (:func:`softpvtol_gym.dynamics.forward_dynamics`, :func:`~softpvtol_gym.dynamics.generalized_forces`,
 :func:`softpvtol_gym.integrators.rk4_step_actuated`) to ~1e-12 at random states. Only the paper's model
 (the controllers' model in every tier) is written here.
@@ -17,8 +17,10 @@ from __future__ import annotations
 
 import math
 
-from ...model.series import A_COEFFS, C1_COEFFS, D1P_COEFFS, D2_COEFFS, D2PQ_COEFFS, S0_COEFFS
-from ...params import P_EPS, P_G, P_I, P_IL, P_IR, P_LL, P_LR, P_M, P_ML, P_MR
+from ...model import input_map as input_map_kernels
+from ...model import paper, series
+from ...model.twin import python_twin
+from ...params import P_LL, P_LR
 from ._casadi import import_casadi
 
 #: the input maps written here (:data:`softpvtol_gym.dynamics.INPUT_MAPS`)
@@ -27,60 +29,20 @@ INPUT_MAPS = ("paper", "exact")
 CURVATURE_RANGE = 2.0 * math.pi
 
 
-def horner(c, s):
-    """c[0] + c[1] s + ... by Horner's rule from the highest coefficient down (as the kernels)."""
-    acc = float(c[-1])
-    for ck in c[-2::-1]:
-        acc = acc * s + float(ck)
-    return acc
-
-
-def arm_basis(q):
-    """(D1, D2, dD1/dq, dD2/dq) of one arm's curvature q (model.series.arm_basis)."""
-    s = q * q
-    return q * horner(A_COEFFS, s), horner(D2_COEFFS, s), horner(D1P_COEFFS, s), q * horner(D2PQ_COEFFS, s)
-
-
-def sin_cos_series(q):
-    """(sin q, cos q) of an arm curvature from the series (model.series.sin_cos)."""
-    s = q * q
-    return q * horner(S0_COEFFS, s), 1.0 - s * horner(C1_COEFFS, s)
+#: the model's own functions as plain Python (:func:`~softpvtol_gym.model.twin.python_twin`): the same equations,
+#: the same operations in the same order, on CasADi's symbols
+arm_basis = python_twin(series.arm_basis)
+sin_cos_series = python_twin(series.sin_cos)
+_qddot = python_twin(paper.qddot)
+_generalized_forces_sc = python_twin(input_map_kernels.generalized_forces_sc)
+_thrust_curvature_work = python_twin(input_map_kernels.thrust_curvature_work)
 
 
 def qddot(q, qd, tau, p):
     """qddot = D(q)^-1 (tau - C(q, qdot) qdot - g(q)) of the paper's model, a list of 5 expressions
-    (model.paper.qddot: the same entries and the same block solve). q, qd, tau: indexable of 5; p: the
-    parameter vector (``SoftPVTOLParams.array``)."""
-    ml, mr, ll, lr = p[P_ML], p[P_MR], p[P_LL], p[P_LR]
-    ql, qr, vl, vr = q[3], q[4], qd[3], qd[4]
-    d1l, d2l, d1pl, d2pl = arm_basis(ql)
-    d1r, d2r, d1pr, d2pr = arm_basis(qr)
-    M = p[P_M] + p[P_ML] + p[P_MR]
-    inertia = p[P_I]
-    a0, a1 = ml * ll * d1l, ml * ll * d2l
-    b0, b1 = -mr * lr * d1r, mr * lr * d2r
-    dll = ml * ll * ll * (d1l * d1l + d2l * d2l) + p[P_IL]
-    drr = mr * lr * lr * (d1r * d1r + d2r * d2r) + p[P_IR]
-    c03, c13 = ml * ll * d1pl * vl, ml * ll * d2pl * vl
-    c04, c14 = -mr * lr * d1pr * vr, mr * lr * d2pr * vr
-    c33 = ml * ll * ll * (d1l * d1pl + d2l * d2pl) * vl
-    c44 = mr * lr * lr * (d1r * d1pr + d2r * d2pr) * vr
-    g1 = p[P_G] * (p[P_M] + p[P_ML] + p[P_MR])
-    g3 = p[P_G] * p[P_ML] * p[P_LL] * d2l
-    g4 = p[P_G] * p[P_MR] * p[P_LR] * d2r
-    r0 = tau[0] - (c03 * vl + c04 * vr)
-    r1 = tau[1] - (c13 * vl + c14 * vr) - g1
-    r3 = tau[3] - c33 * vl - g3
-    r4 = tau[4] - c44 * vr - g4
-    s11 = dll - (a0 * a0 + a1 * a1) / M
-    s22 = drr - (b0 * b0 + b1 * b1) / M
-    s12 = -(a0 * b0 + a1 * b1) / M
-    h3 = r3 - (a0 * r0 + a1 * r1) / M
-    h4 = r4 - (b0 * r0 + b1 * r1) / M
-    det = s11 * s22 - s12 * s12
-    qdd_l = (s22 * h3 - s12 * h4) / det
-    qdd_r = (s11 * h4 - s12 * h3) / det
-    return [(r0 - a0 * qdd_l - b0 * qdd_r) / M, (r1 - a1 * qdd_l - b1 * qdd_r) / M, tau[2] / inertia, qdd_l, qdd_r]
+    (:func:`softpvtol_gym.model.paper.qddot`). q, qd, tau: indexable of 5; p: the parameter vector
+    (``SoftPVTOLParams.array``)."""
+    return list(_qddot(q[3], q[4], qd[3], qd[4], tau, p))
 
 
 #: the size of the disturbance input d of :func:`continuous_dynamics`: a generalized force on each of x, z, theta,
@@ -90,31 +52,18 @@ DISTURBANCE_SIZE = 7
 
 def thrust_bending(q, a, p):
     """The thrusts' work on the curvatures, (l_l T_l C1(q_l^2), l_r T_r C1(q_r^2)): the exact input map's arm
-    rows less the paper's."""
-    return (a[0] * p[P_LL] * horner(C1_COEFFS, q[3] * q[3]), a[1] * p[P_LR] * horner(C1_COEFFS, q[4] * q[4]))
+    rows less the paper's (:func:`softpvtol_gym.model.input_map.thrust_curvature_work`)."""
+    return (_thrust_curvature_work(a[0], p[P_LL], q[3]), _thrust_curvature_work(a[1], p[P_LR], q[4]))
 
 
 def generalized_forces(q, a, p, input_map: str):
-    """tau = B(q) a for a = (T_l, T_r, tau_l, tau_r), a list of 5 expressions (model.input_map)."""
-    ca = import_casadi()
-    st, ct = ca.sin(q[2]), ca.cos(q[2])
-    ql, qr = q[3], q[4]
-    Tl, Tr = a[0], a[1]
-    sl, cl = sin_cos_series(ql)
-    sr, cr = sin_cos_series(qr)
-    vx = Tl * sl - Tr * sr
-    vz = Tl * cl + Tr * cr
-    t0 = ct * vx - st * vz
-    t1 = st * vx + ct * vz
-    ll, lr, eps = p[P_LL], p[P_LR], p[P_EPS]
-    sinc_l, sinc_r = horner(S0_COEFFS, ql * ql), horner(S0_COEFFS, qr * qr)
-    if input_map == "paper":
-        return [t0, t1, lr * Tr * cr * sinc_r - ll * Tl * cl * sinc_l, a[2], a[3]]
-    if input_map != "exact":
+    """tau = B(q) a for a = (T_l, T_r, tau_l, tau_r), a list of 5 expressions
+    (:func:`softpvtol_gym.model.input_map.generalized_forces_sc`, sin and cos of theta by CasADi)."""
+    if input_map not in INPUT_MAPS:
         raise ValueError(f"input_map must be one of {list(INPUT_MAPS)}, got {input_map!r}")
-    t2 = Tr * (eps * cr + lr * sinc_r) - Tl * (eps * cl + ll * sinc_l)
-    bend_l, bend_r = thrust_bending(q, a, p)
-    return [t0, t1, t2, a[2] + bend_l, a[3] + bend_r]
+    ca = import_casadi()
+    code = input_map_kernels.INPUT_MAP_PAPER if input_map == "paper" else input_map_kernels.INPUT_MAP_EXACT
+    return list(_generalized_forces_sc(ca.sin(q[2]), ca.cos(q[2]), q[3], q[4], a, p, code))
 
 
 def continuous_dynamics(p, input_map: str, disturbance: bool = False):

@@ -1,0 +1,144 @@
+"""The README's headline in words says what the committed leaderboard says: each figure of its bullets is computed
+here from the leaderboard's aggregate rows (the summary that ships with the package, equal to the aggregates of
+``results/leaderboard.json``) and looked up in the text, so a re-scored leaderboard that moves a figure fails here
+until the sentence is rewritten."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from softpvtol_gym.baselines.leaderboard.headline import tolerance_headline, verdict, window_headline
+from softpvtol_gym.baselines.leaderboard.spec import is_learned
+from softpvtol_gym.baselines.leaderboard.summary import SUMMARY_FILE
+from softpvtol_gym.envs.tiers import get_tier
+from tests.conftest import LAYOUT
+
+BOARD = json.loads(SUMMARY_FILE.read_text())
+ROWS = BOARD["aggregates"]
+WINDOWS = window_headline(BOARD)
+NUMBER_WORDS = dict(enumerate(("no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten")))
+
+
+def _in_words() -> str:
+    """The README's bullets under the headline table, one line (Markdown line breaks as spaces)."""
+    text = LAYOUT.readme.read_text()
+    start = text.index("In words:", text.index("## Headline result"))
+    return " ".join(text[start:text.index("\nFigures:", start)].split())
+
+
+WORDS = _in_words()
+
+
+def _row(entry: str, task: str, tier: str) -> dict:
+    (row,) = [r for r in ROWS if r["entry"] == entry and r["task"] == task and r["tier"] == tier]
+    return row
+
+
+def _us_range(rows: list[dict]) -> str:
+    """The range of the rows' single-observation compute, rounded to whole µs as the README writes it."""
+    values = [r["compute_us_single"] for r in rows]
+    return f"{min(values):.0f}-{max(values):.0f} µs"
+
+
+def _sci(value: float) -> str:
+    """``2.8e-4``: one decimal, the exponent without its leading zero."""
+    mantissa, exponent = f"{value:.1e}".split("e")
+    return f"{mantissa}e{int(exponent)}"
+
+
+def _percent(rate: float) -> str:
+    return f"{rate * 100:.0f} %"
+
+
+def _has(phrase: str) -> None:
+    assert phrase in WORDS, f"the README's headline in words should say {phrase!r}"
+
+
+def test_model_based_wins_every_decided_last_half_window_and_every_noise_free_one():
+    decided = [w for w in WINDOWS if w["winner"] != "neither"]
+    assert decided and all(w["winner"] == "model-based" for w in decided if w["window"] == "steady")
+    noise_free = [w for w in decided if "noise" not in get_tier(w["tier"]).effects]
+    assert noise_free and all(w["winner"] == "model-based" for w in noise_free)
+    _has("Model-based control wins every decided last-half window, and every decided window of the noise-free tiers")
+
+
+def test_the_learned_wins_are_the_six_cells_named():
+    wins = {(w["task"], w["tier"], w["window"]) for w in WINDOWS if w["winner"] == "learned"}
+    paper = {("track_paper", tier, window) for tier in ("noisy", "hard") for window in ("whole", "transient")}
+    assert wins == paper | {(task, "noisy", "final_5s") for task in ("hover", "track_random")}
+    assert all("noise" in get_tier(tier).effects for _, tier, _ in wins)
+    (cell,) = [w for w in WINDOWS if (w["task"], w["tier"], w["window"]) == ("track_paper", "noisy", "whole")]
+    assert cell["model_based"]["entry"] == "passivity-integral"
+    learned, model = (cell[side]["rms_position_error_whole_iqm"] for side in ("learned", "model_based"))
+    _has(f"Learned control wins {NUMBER_WORDS[len(wins)]} cells, all under sensor noise")
+    _has(f"({learned:.2f} against the integral loop's {model:.2f} m, noisy, whole episode)")
+
+
+def test_time_within_1_cm():
+    cells = tolerance_headline(BOARD)
+    model = sum(c["winner"] == "model-based" for c in cells)
+    assert not any(c["winner"] == "learned" for c in cells)
+    _has(f"Time within 1 cm of the reference: model-based wins {model} of the {len(cells)} (task, tier) cells, "
+         "learned none")
+
+
+def test_the_compute_ranges():
+    mpc = [r for r in ROWS if r["entry"] == "mpc"]
+    ms = [r["compute_us_single"] / 1000 for r in mpc]
+    _has(f"the MPC takes {min(ms):.1f}-{max(ms):.1f} ms per step and robot")
+    _has(f"the integral loop {_us_range([r for r in ROWS if r['entry'] == 'passivity-integral'])}")
+    _has(f"the learned MLPs {_us_range([r for r in ROWS if is_learned(r['policy'])])}")
+
+
+def test_the_mpc_crashes_where_the_integral_loop_does_not():
+    crashed = {(r["task"], r["tier"]): (r["crashes"], r["crash_episodes"]) for r in ROWS
+               if r["entry"] == "mpc" and r["crashes"]}
+    assert crashed == {("track_paper", "noisy"): (4, 20), ("track_paper", "hard"): (5, 20), ("hover", "noisy"): (1, 20)}
+    _has("it crashes in 4 and 5 of 20 `track_paper` episodes of the noisy and hard tiers, and in 1 of 20 hover noisy")
+    assert not any(r["crashes"] for r in ROWS if r["entry"] == "passivity-integral")
+    _has("The integral loop crashes in none.")
+
+
+def test_the_mpc_students():
+    student, mpc = (_row(e, "track_random", "nominal") for e in ("distilled mpc small (trained on nominal)", "mpc"))
+    ours, theirs = (r["rms_position_error_steady_iqm"] for r in (student, mpc))
+    assert 1 < ours / theirs < 2
+    _has(f"come within 2 times of it on `track_random` nominal (last half {_sci(ours)} against {_sci(theirs)} m; "
+         f"{student['crashes']} crash in {student['crash_episodes']} episodes), "
+         f"at {student['compute_us_single']:.0f} µs per robot")
+    for tier in ("noisy", "hard", "model_gap"):
+        assert _row("distilled mpc small (trained on nominal)", "track_random", tier)["crashes"] > 0, tier
+    _has("They crash under noise and on `model_gap`.")
+
+
+def test_the_fine_tuned_students():
+    finetuned = _row("PPO student-finetune (trained on nominal)", "track_random", "nominal")
+    mpc = _row("mpc", "track_random", "nominal")
+    assert verdict(mpc, finetuned, "rms_position_error_whole")[0] == "neither"
+    _has("students tie the MPC over the whole of `track_random` nominal "
+         f"({finetuned['rms_position_error_whole_iqm']:.3f} against {mpc['rms_position_error_whole_iqm']:.3f} m)")
+    hard = _row("PPO student-finetune (trained on hard)", "track_random", "hard")
+    students = [r["crash_rate"] for r in ROWS
+                if r["entry"].startswith("distilled") and r["task"] == "track_random" and r["tier"] == "hard"]
+    _has(f"Fine-tuned on the hard tier they crash in {_percent(hard['crash_rate'])} of its episodes (the students in "
+         f"{min(students) * 100:.0f}-{_percent(max(students))})")
+    gap = _row("PPO student-history-finetune (trained on model_gap)", "track_random", "model_gap")
+    assert all(_row(e, "track_random", "model_gap")["crashes"] == 0 for e in ("mpc", "passivity-integral"))
+    _has(f"fine-tuned on `model_gap`, crash in {_percent(gap['crash_rate'])} of its episodes "
+         "(the MPC and the integral loop in none)")
+
+
+@pytest.mark.parametrize("entry, finished", [
+    ("PPO actuators-curriculum (trained on nominal)", "3 with a curriculum over the paper's own start"),
+    ("PPO actuators-wide (trained on track_random, nominal)", "1 with wide starts"),
+    ("PPO-actuators (trained on nominal)", "none without either"),
+    ("PPO-actuators (trained on track_random, nominal)", "none without either"),
+])
+def test_ppo_on_raw_actuators_rarely_finishes_the_papers_reference(entry, finished):
+    row = _row(entry, "track_paper", "nominal")
+    count = row["crash_episodes"] - row["crashes"]
+    assert finished.startswith("none" if count == 0 else str(count))
+    _has(f"of the {row['crash_episodes']} nominal seeds")
+    _has(finished)
