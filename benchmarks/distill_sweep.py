@@ -1,4 +1,4 @@
-"""The sweep behind the distilled cells' settings (docs/baselines.md, "Learning from the controllers").
+"""The sweep behind the distilled cells' settings (benchmarks/STUDIES.md, "Learning from the controllers").
 
     python benchmarks/distill_sweep.py                   # every setting, one process each (16 processes)
     python benchmarks/distill_sweep.py --workers 2       # two at a time (about 45 CPU-minutes in all)
@@ -11,7 +11,7 @@ on ``track_random``, seed 0 unless a setting names another, changed from :data:`
 per window over the evaluation episodes of its last round (8 episodes from seed 3,000,000: not the leaderboard's),
 the crashed episodes, the last epoch's loss and the seconds it took. One seed per setting: differences within a
 factor of about 1.5 are within the seed-to-seed spread of the leaderboard's distilled cells (docs/baselines.md).
-Writes ``benchmarks/distill_sweep.json`` and the table between the ``distill-sweep`` markers of docs/baselines.md.
+Writes ``benchmarks/distill_sweep.json`` and the table between the ``distill-sweep`` markers of benchmarks/STUDIES.md.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from softpvtol_gym.baselines.util.blocks import write_block  # noqa: E402
 from softpvtol_gym.baselines.util.environment import temporary_environment  # noqa: E402
 
 OUT = ROOT / "benchmarks" / "distill_sweep.json"
-DOC = ROOT / "docs" / "baselines.md"
+DOC = ROOT / "benchmarks" / "STUDIES.md"
 BLOCK, SOURCE = "distill-sweep", "benchmarks/distill_sweep.json"
 #: the settings every variant starts from (the committed run results/distill_runs/integral_track_random)
 BASE = dict(teacher="integral", task="track_random", tiers=["nominal"], seed=0, net_arch=[256, 256], rounds=4,

@@ -20,7 +20,7 @@ of 10 episodes every ``--eval-freq`` steps). Per configuration it records
 Wall-clock figures depend on the machine's load: the JSON records ``os.getloadavg()`` before and after
 each configuration. Time to beat = steps to beat x wall time per step, the selection criterion. Each run
 is a fresh interpreter (as ``python train.py``). ``--table`` prints the Markdown table of a results file
-(docs/baselines.md, "Fast defaults").
+(benchmarks/STUDIES.md, "The PPO defaults").
 """
 
 from __future__ import annotations
@@ -131,7 +131,7 @@ def run_one(name: str, overrides: list[str], mode: str, timesteps: int, eval_fre
 
 
 def markdown_table(results: list[dict]) -> str:
-    """One row per run of a results file (the table of docs/baselines.md, "Fast defaults")."""
+    """One row per run of a results file (the table of benchmarks/STUDIES.md, "The PPO defaults")."""
     lines = ["| mode | configuration | seed | steps to beat passivity | seconds to beat (load) | return at the end | "
              "env-steps/s (evaluations excluded) | env share |", "|---|---|---|---|---|---|---|---|"]
     for r in results:

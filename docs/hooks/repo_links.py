@@ -27,7 +27,8 @@ ROOT = Path(__file__).resolve().parents[2]
 #: repository Markdown files that the site shows as pages: repository path -> page (under docs/)
 PAGES = {"README.md": "index.md", "CHANGELOG.md": "changelog.md", "results/README.md": "results.md",
          "benchmarks/README.md": "dev/benchmarks.md", "benchmarks/RESULTS.md": "dev/benchmark-results.md",
-         "benchmarks/TRACKING_EVALUATION.md": "dev/tracking-evaluation.md"}
+         "benchmarks/TRACKING_EVALUATION.md": "dev/tracking-evaluation.md",
+         "benchmarks/STUDIES.md": "dev/studies.md"}
 INCLUDE = re.compile(r"^\s*<!-- repo-file: (\S+) -->\s*$")
 # inline links and images: [text](target) / ![alt](target "title"); targets without spaces
 LINK = re.compile(r"(!?\[[^\]]*\]\()([^)\s]+)((?:\s+\"[^\"]*\")?\))")

@@ -434,7 +434,7 @@ def test_the_docs_table_is_generated_from_the_committed_distilled_run():
     run = RESULTS / "distill_runs" / "integral_track_random"
     record = json.loads((run / DISTILL_FILE).read_text())
     source = f"results/distill_runs/integral_track_random/{DISTILL_FILE}"
-    assert read_block("distill.py integral_track_random", source, ROOT / "docs" / "baselines.md") == \
+    assert read_block("distill.py integral_track_random", source, ROOT / "benchmarks" / "STUDIES.md") == \
         distill_table(record).strip()
     policy, config = LearnedPolicy.load(run)  # the committed student loads (its manifest verifies)
     assert config.env_options == {"observe_error_integral": True} and record["config"]["teacher"] == "integral"

@@ -116,7 +116,7 @@ def test_readme_train_py_output_and_time_to_beat_are_the_committed_measurement()
 
 
 def test_docs_ppo_speed_table_is_the_generated_one():
-    """docs/baselines.md's "Fast defaults" table = benchmarks/ppo_speed.py --table of the committed JSON, and
+    """benchmarks/STUDIES.md's PPO-defaults table = benchmarks/ppo_speed.py --table of the committed JSON, and
     every run's steps to beat is the first evaluation above passivity on its committed learning curve."""
     import importlib.util
 
@@ -124,7 +124,7 @@ def test_docs_ppo_speed_table_is_the_generated_one():
     speed = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(speed)
     results = json.loads((ROOT / "benchmarks" / "ppo_speed.json").read_text())
-    text = (ROOT / "docs" / "baselines.md").read_text()
+    text = (ROOT / "benchmarks" / "STUDIES.md").read_text()
     start = "<!-- benchmarks/ppo_speed.py --table: start (generated from benchmarks/ppo_speed.json, do not edit) -->"
     block = text[text.index(start) + len(start):text.index("<!-- benchmarks/ppo_speed.py --table: end -->")]
     assert block.strip() == speed.markdown_table(results).strip()

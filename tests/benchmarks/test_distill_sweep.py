@@ -1,4 +1,4 @@
-"""benchmarks/distill_sweep.py: its table in docs/baselines.md is the one generated from the committed JSON, the
+"""benchmarks/distill_sweep.py: its table in benchmarks/STUDIES.md is the one generated from the committed JSON, the
 JSON holds every setting as the script defines it, and the leaderboard's distilled cells use the setting the
 sweep found best."""
 
@@ -18,8 +18,8 @@ from benchmarks import distill_sweep as bench  # noqa: E402
 COMMITTED = json.loads((ROOT / bench.SOURCE).read_text())
 
 
-def test_docs_table_is_the_generated_one():
-    assert read_block(bench.BLOCK, bench.SOURCE, ROOT / "docs" / "baselines.md") == \
+def test_studies_table_is_the_generated_one():
+    assert read_block(bench.BLOCK, bench.SOURCE, bench.DOC) == \
         bench.markdown_table(COMMITTED).strip()
 
 

@@ -26,7 +26,7 @@ def evaluation():
 def test_tables_are_generated_from_the_json(evaluation):
     module, data = evaluation
     assert (ROOT / "benchmarks" / "TRACKING_EVALUATION.md").read_text() == module.markdown(data)
-    text = (ROOT / "docs" / "baselines.md").read_text()
+    text = (ROOT / "benchmarks" / "STUDIES.md").read_text()
     block = text[text.index(module.DOCS_START) + len(module.DOCS_START):text.index(module.DOCS_END)]
     assert block.strip() == module.summary_table(data).strip()
 
