@@ -176,3 +176,53 @@ def test_the_zero_residual_cell_against_the_plain_residual():
     assert _row(plain, "track_random", "noisy")["crashes"] == 0
     _says(f"under sensor noise it crashes in {_percent(noisy['crash_rate'])} of the `track_random` episodes (the plain "
           f"residual in none), and in {_percent(hard['crash_rate'])} on the hard tier")
+
+
+def test_the_mpc_paragraph_of_the_controller_page():
+    """docs/control.md, "Nonlinear MPC": the figures after the table, from the table's JSON
+    (benchmarks/mpc_quality.json) and the leaderboard's rows."""
+    episodes = json.loads((LAYOUT.root / "benchmarks" / "mpc_quality.json").read_text())
+    run = {(r["tier"], r["policy"]): r for r in episodes}
+    page = " ".join(LAYOUT.doc("control.md").read_text().split())
+
+    def _says(phrase):
+        _has(phrase, page, "docs/control.md")
+
+    for tier in ("nominal", "wind"):
+        mpc, bounded = run[(tier, "mpc")], run[(tier, "passivity-bounded")]
+        assert 0.4 < mpc["rms_0_10s"] / bounded["rms_0_10s"] < 0.6, tier  # "about half"
+        assert mpc["solver"]["fallbacks"] == 0 and mpc["solver"]["solves"] == 4000, tier
+    _says("with no fallback in 4,000 solves")
+    nominal, wind, noisy = (run[(tier, "mpc")] for tier in ("nominal", "wind", "noisy"))
+    b_nominal, b_wind, b_noisy = (run[(tier, "passivity-bounded")] for tier in ("nominal", "wind", "noisy"))
+    _says(f"20–40 s RMS {_sci(nominal['rms_20_40s'])} m against {_sci(b_nominal['rms_20_40s'])} m on nominal, "
+          f"{_sci(wind['rms_20_40s'])} m against {b_wind['rms_20_40s']:.2g} m under wind")
+    assert not noisy["crashed"]
+    _says(f"this episode finishes at {noisy['rms_20_40s']:.2g} m over 20–40 s (the bounded loop: "
+          f"{b_noisy['rms_20_40s']:.2g} m)")
+    crashes = _row("mpc", "track_paper", "noisy")
+    assert _row("passivity-bounded", "track_paper", "noisy")["crashes"] == 0
+    _says(f"but {crashes['crashes']} of the leaderboard's {crashes['crash_episodes']} `track_paper` noisy episodes "
+          "crash (the bounded loop: none)")
+    _says(f"on nominal the bounded loop's largest error over the last 5 s is smaller "
+          f"({_sci(b_nominal['max_final_5s'])} m against {_sci(nominal['max_final_5s'])} m")
+    solver = [r["solver"] for r in episodes if r["policy"] == "mpc"]
+
+    def _span(key, digits):
+        values = [s[key] for s in solver]
+        return f"{min(values):.{digits}f}–{max(values):.{digits}f} ms"
+
+    _says(f"The median step ({_span('solve_ms_median', 1)} here")
+    _says(f"p99 ({_span('solve_ms_p99', 1)}) and every solve here (max {_span('solve_ms_max', 0)})")
+    assert all(_row("mpc", task, "model_gap")["crashes"] == 0 for task in BOARD["meta"]["tasks"])
+    _says("(none on `model_gap`)")
+
+
+def test_the_per_robot_compute_ratios_of_the_guide():
+    """docs/baselines.md, "Per-robot compute": the ratios of benchmarks/per_robot_compute.json."""
+    data = json.loads((LAYOUT.root / "benchmarks" / "per_robot_compute.json").read_text())
+    us = {name: row["median"] for name, row in data["us"].items()}
+    _has(f"the lean path of a 2 x 64 MLP costs {data['lean_over_integral']:.1f} times what the integral passivity "
+         f"loop costs, SB3's `predict` calls {data['torch_over_lean']:.0f} times the lean path and "
+         f"SB3's `model.predict` {us['learned-sb3'] / us['learned-lean']:.0f} times", BASELINES_PAGE,
+         "docs/baselines.md")
