@@ -9,7 +9,7 @@ import json
 
 import pytest
 
-from softpvtol_gym.baselines.leaderboard.headline import tolerance_headline, verdict, window_headline
+from softpvtol_gym.baselines.leaderboard.headline import headline, tolerance_headline, verdict, window_headline
 from softpvtol_gym.baselines.leaderboard.spec import is_learned
 from softpvtol_gym.baselines.leaderboard.stats import WINDOWS as WINDOW_METRICS
 from softpvtol_gym.baselines.leaderboard.summary import SUMMARY_FILE
@@ -226,3 +226,21 @@ def test_the_per_robot_compute_ratios_of_the_guide():
          f"loop costs, SB3's `predict` calls {data['torch_over_lean']:.0f} times the lean path and "
          f"SB3's `model.predict` {us['learned-sb3'] / us['learned-lean']:.0f} times", BASELINES_PAGE,
          "docs/baselines.md")
+
+
+def test_the_pictures_policy_of_the_guide():
+    """docs/baselines.md, "Pictures": the learned policy the figures script selects from the committed leaderboard
+    (its cells: ``results/leaderboard.json``), its seed and errors."""
+    from softpvtol_gym.baselines.figures.tracking import select_learned
+    from tests.conftest import LEADERBOARD_JSON
+
+    chosen = select_learned(json.loads(LEADERBOARD_JSON.read_text()))
+    assert chosen.entry == "PPO-residual (trained on track_random, hard)"
+    bounded = _row("passivity-bounded", "track_paper", "nominal")["rms_position_error_iqm"]
+    _has(f"PPO-residual trained on `track_random` in the hard tier (it never sees `track_paper`), seed {chosen.seed}, "
+         f"{chosen.seed_rms:.3f} m (entry IQM {chosen.entry_iqm:.3f} m against {bounded:.3f} m for "
+         "`passivity-bounded`)",
+         BASELINES_PAGE, "docs/baselines.md")
+    assert headline(BOARD)["policy"] == "PPO residual-precise trained on track_random (hard tier)"
+    _has("It is not the leaderboard's headline policy (`PPO residual-precise` trained on `track_random`'s hard tier",
+         BASELINES_PAGE, "docs/baselines.md")
