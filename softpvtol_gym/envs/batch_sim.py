@@ -14,7 +14,8 @@ from ..control.closed_loop import MAX_HELD_CONTROL_PERIOD, PassivityController
 from ..references import reference_block
 from .config import EnvConfig
 from .episodes import MAX_START_ERROR_SCALE, START_SCALE_REASON, apply_options, sample_episodes
-from .packed_state import CONST, ISTATE, STATE, S
+from .observation import observe_range
+from .packed_state import CONST, ISTATE, SC, STATE, S
 from .reset import reset_rows
 from .step import (
     STEP_BAD_ACTION,
@@ -250,6 +251,15 @@ class BatchSim:
             side()
         if after is not None and in_threads is None:
             after(0, self.n)
+
+    def noise_free_observation(self) -> np.ndarray:
+        """(n, obs_dim) float32: the current observation without sensor noise, by the env's own observation
+        function on the true state (q, qdot) and the reference; the error integrals (``observe_error_integral``)
+        are the env's, integrated from the measured errors. Equal to ``obs`` where the tier has no sensor noise."""
+        consts, state, obs = self.C.copy(), self.F.copy(), self.obs.copy()
+        consts[SC.noise_on] = 0.0
+        observe_range(0, self.n, state, self.key, self.I, consts, obs)
+        return obs
 
     @staticmethod
     def _bad_action(action) -> ValueError:

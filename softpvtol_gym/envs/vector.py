@@ -250,6 +250,12 @@ class SoftPVTOLVectorEnv(VectorEnv):
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         return self._sim.q.copy(), self._sim.qd.copy()
 
+    def noise_free_observations(self) -> np.ndarray:
+        """The observations of the last reset or step as noise-free sensors would give them (num_envs, obs_dim),
+        float32: what a privileged teacher acts on. Equal to the observations where the tier has no sensor
+        noise; the error integrals are the env's."""
+        return self._sim.noise_free_observation()
+
     def render(self):
         """rgb_array of sub-env 0."""
         if self.render_mode is None:

@@ -196,6 +196,71 @@ def test_a_teacher_with_memory_of_its_inputs_is_told_the_actions_the_student_app
     assert teacher_alone.applied == []  # flying its own actions, the teacher needs no telling
 
 
+def test_privileged_labels_are_the_teachers_actions_on_the_true_state():
+    """``privileged``: on a tier without sensor noise the labels are the plain ones; on the noisy tier the student
+    flies the same episodes on what it observes, and the labels differ: they are the teacher's actions on the
+    noise-free observations of the true state (a reference loop: the env stepped by hand, a fresh teacher)."""
+    from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
+
+    def student():
+        return teacher_policy("bounded", "hover", STUDENT_OPTIONS)
+
+    def teacher():
+        return teacher_policy("integral", "hover", STUDENT_OPTIONS)
+
+    plain = collect(teacher(), "hover", "nominal", 2, 7, student=student(), env_options=STUDENT_OPTIONS)
+    privileged = collect(teacher(), "hover", "nominal", 2, 7, student=student(), env_options=STUDENT_OPTIONS,
+                         privileged=True)
+    assert all(np.array_equal(a, b) for a, b in zip(plain, privileged))
+    obs, labels = collect(teacher(), "hover", "noisy", 2, 7, student=student(), env_options=STUDENT_OPTIONS)
+    seen, privileged_labels = collect(teacher(), "hover", "noisy", 2, 7, student=student(),
+                                      env_options=STUDENT_OPTIONS, privileged=True)
+    assert np.array_equal(seen, obs)  # the student's flight and observations are the same
+    assert not np.allclose(privileged_labels, labels, rtol=0, atol=1e-3)
+
+    env = SoftPVTOLVectorEnv(num_envs=2, action_mode="actuators", task="hover", tier="noisy", **STUDENT_OPTIONS)
+    flier, labeller = student(), teacher()
+    observation, _ = env.reset(seed=7)
+    start, expected = np.ones(2, bool), []
+    for _ in range(50):
+        expected.append(labeller.predict(env.noise_free_observations(), episode_start=start)[0])
+        action, _ = flier.predict(observation, episode_start=start)
+        start[:] = False
+        observation, *_ = env.step(action)
+    # the rows come step by step, both episodes at each (both fly longer than 50 steps)
+    np.testing.assert_array_equal(privileged_labels[:100], np.concatenate(expected))
+
+
+def test_the_command_refuses_privileged_labels_without_sensor_noise(tmp_path, capsys, monkeypatch):
+    from softpvtol_gym.baselines.cli import run_command
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        run_command("distill", ["--privileged", "--tier", "nominal", "--tier", "wind"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and "only under sensor noise" in err[0], err
+    assert list(tmp_path.iterdir()) == []
+    assert DistillConfig(**{**TINY, "tiers": ("nominal", "noisy"), "privileged": True}).privileged
+
+
+def test_noise_free_observations_are_the_true_states():
+    from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
+
+    for tier in ("nominal", "noisy"):
+        env = SoftPVTOLVectorEnv(num_envs=3, action_mode="actuators", task="track_random", tier=tier,
+                                 observe_error_integral=True)
+        obs, _ = env.reset(seed=5)
+        for _ in range(10):
+            obs, *_ = env.step(np.zeros((3, 4), np.float32))
+        true = env.noise_free_observations()
+        q, qd = env.state
+        assert np.array_equal(true, obs) == (tier == "nominal"), tier
+        np.testing.assert_allclose(true[:, :2], q[:, :2] - env.sim.qr[:, :2], rtol=0, atol=1e-6)  # float32
+        np.testing.assert_allclose(true[:, 5:7], q[:, 3:5], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(true[:, 7:12], qd, rtol=1e-6, atol=1e-6)
+        assert np.array_equal(true[:, 18:], obs[:, 18:])  # the env's error integrals
+
+
 class ZeroStudent:
     """A student that applies the middle of every actuator's range, whatever it observes."""
 
@@ -219,7 +284,7 @@ def test_a_run_made_before_the_newer_settings_resumes_with_the_values_it_had(tmp
     from softpvtol_gym.baselines.training.distill import _check_same_config
 
     earlier = DistillConfig(**{**TINY, "teacher_integral": False}).to_dict()
-    for later in ("teacher_integral", "wide_fraction", "balance_actions", "teacher_share"):
+    for later in ("teacher_integral", "wide_fraction", "balance_actions", "teacher_share", "history", "privileged"):
         del earlier[later]
     (tmp_path / "distill_config.json").write_text(json.dumps(earlier))
     _check_same_config(tmp_path, DistillConfig(**{**TINY, "teacher_integral": False}))
@@ -300,6 +365,8 @@ def test_an_unreadable_cached_dataset_is_collected_again_not_a_traceback(damage,
     ({"teacher_share": -0.1}, "teacher_share must be a probability in"),
     ({"history": 0}, "history must be an integer in"),
     ({"history": 2.0}, "history must be an integer in"),
+    ({"privileged": 1}, "privileged must be a bool"),
+    ({"privileged": True}, "privileged labels differ from the plain ones only under sensor noise"),
 ])
 def test_bad_settings_are_refused_with_what_was_given(changes, words):
     with pytest.raises(ConfigError, match=words):

@@ -72,6 +72,9 @@ def build_parser(prog: str = "distill.py") -> Parser:
     ap.add_argument("--history", type=int_arg(1, MAX_FRAME_STACK), default=DEFAULTS.history, metavar="K",
                     help="the student sees its last K observations, oldest first (a frame stack; default 1: the "
                          "current one)")
+    ap.add_argument("--privileged", action="store_true", default=DEFAULTS.privileged,
+                    help="the teacher labels (and in round 0 flies) from the noise-free observation of the true "
+                         "state, the student learns from the noisy one (needs a --tier with sensor noise)")
     ap.add_argument("--out", type=Path, default=None,
                     help="run directory (default runs/distilled_<teacher>_<task>_s<seed>)")
     ap.add_argument("--resume", action="store_true", help="continue the run in --out (same options)")
@@ -100,7 +103,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
                                eval_episodes=args.eval_episodes, precision_scale=args.precision_scale,
                                wide_fraction=args.wide_fraction, teacher_integral=args.teacher_integral,
                                balance_actions=args.balance_actions, teacher_share=args.teacher_share,
-                               history=args.history)
+                               history=args.history, privileged=args.privileged)
     except ConfigError as exc:
         ap.error(str(exc))
     out = args.out or Path("runs") / f"distilled_{config.teacher}_{config.task}_s{config.seed}"

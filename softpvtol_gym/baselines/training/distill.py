@@ -59,7 +59,7 @@ from softpvtol_gym.baselines.training.teachers import TEACHERS, collect, student
 from softpvtol_gym.baselines.util.atomic import atomic_write_bytes, atomic_write_text
 from softpvtol_gym.baselines.util.locks import DirectoryLock
 from softpvtol_gym.envs.observation import N_ERROR_INTEGRALS, OBS_DIM
-from softpvtol_gym.envs.tiers import registered_tiers
+from softpvtol_gym.envs.tiers import get_tier, registered_tiers
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
 from softpvtol_gym.tasks import registered_tasks
 
@@ -76,7 +76,7 @@ MAX_EPISODES_PER_ROUND = 1_000
 MAX_ROUNDS = 50
 #: settings added after runs were made, with the value those runs had (a resumed run keeps it)
 EARLIER_DEFAULTS = {"wide_fraction": 0.0, "teacher_integral": False, "balance_actions": False, "teacher_share": 0.0,
-                    "history": 1}
+                    "history": 1, "privileged": False}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,6 +117,10 @@ class DistillConfig:
             run, SB3's VecFrameStack over VecNormalize; 1: the current one only). With K > 1 the student can tell
             the rates of change its observation lacks (of the error integrals, of what the wind or a parameter
             error does to the motion); its first layer takes K times the inputs.
+        privileged: the teacher labels, and in round 0 flies, from the noise-free observation of the true state
+            (:meth:`~softpvtol_gym.envs.vector.SoftPVTOLVectorEnv.noise_free_observations`), while the student sees
+            the noisy one: learning by cheating. Only tiers with sensor noise make a difference, so at least one
+            of ``tiers`` must have it.
     """
 
     teacher: str = "integral"
@@ -136,6 +140,7 @@ class DistillConfig:
     balance_actions: bool = False
     teacher_share: float = 0.0
     history: int = 1
+    privileged: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tiers", tuple(self.tiers))
@@ -159,7 +164,7 @@ class DistillConfig:
         p = self.precision_scale
         if p is not None and (isinstance(p, bool) or not isinstance(p, (int, float)) or not 0 < p <= 100):
             raise ConfigError(f"precision_scale must be None or a length in (0, 100] m, got {p!r}")
-        for name in ("teacher_integral", "balance_actions"):
+        for name in ("teacher_integral", "balance_actions", "privileged"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{name} must be a bool, got {getattr(self, name)!r}")
         w = self.wide_fraction
@@ -171,6 +176,10 @@ class DistillConfig:
         if p and self.rounds == 1:
             raise ConfigError(f"teacher_share={p!r} acts in the DAgger rounds (round 2 on), and rounds=1 is behaviour "
                               f"cloning only: it would change nothing; pass rounds >= 2, or leave teacher_share out")
+        if self.privileged and not any("noise" in get_tier(t).effects for t in self.tiers):
+            raise ConfigError(f"privileged labels differ from the plain ones only under sensor noise, and the tiers "
+                              f"{list(self.tiers)} have none: it would change nothing; add a tier with noise "
+                              f"(noisy, hard) or leave privileged out")
         if not _is_int(self.history) or not 1 <= self.history <= MAX_FRAME_STACK:
             raise ConfigError(f"history must be an integer in [1, {MAX_FRAME_STACK}] (observations the student sees), "
                               f"got {self.history!r}")
@@ -411,7 +420,8 @@ def _collect_round(teacher, config: DistillConfig, tier: str, seed: int, student
         if count:
             parts.append(collect(teacher, config.task, tier, count, first, student=student, progress=bar,
                                  env_options={**config.env_options, "start_distribution": start},
-                                 teacher_share=teacher_share, history=config.history))
+                                 teacher_share=teacher_share, history=config.history,
+                                 privileged=config.privileged))
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 

@@ -48,7 +48,7 @@ def teacher_policy(name: str, task: str, env_options: dict | None = None):
 
 def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=None,
             env_options: dict | None = None, progress=None,
-            teacher_share: float = 0.0, history: int = 1) -> tuple[np.ndarray, np.ndarray]:
+            teacher_share: float = 0.0, history: int = 1, privileged: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(observations (n, d), teacher actions (n, 4)) of ``episodes`` seeded episodes (seeds seed + i) on the
     actuators mode: flown by the teacher (``student=None``) or by ``student`` with the teacher labelling
     every observation the student visits; with ``teacher_share`` p > 0 the teacher's action is applied instead of
@@ -58,7 +58,11 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
 
     ``history`` K > 1: each row holds the episode's last K observations, oldest first (n, K d), as SB3's
     VecFrameStack stacks them, with NaN in the slots before the episode's start (VecFrameStack's zeros are zeros
-    of the normalised observation: the fit puts them there after normalising)."""
+    of the normalised observation: the fit puts them there after normalising).
+
+    ``privileged``: the teacher acts on the noise-free observations of the true state
+    (:meth:`~softpvtol_gym.envs.vector.SoftPVTOLVectorEnv.noise_free_observations`), the rows hold the observations
+    (noisy where the tier has sensor noise) that the student sees."""
     env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode="actuators", task=task, tier=tier,
                              **(STUDENT_ENV_OPTIONS if env_options is None else env_options))
     obs, _ = env.reset(seed=seed)
@@ -66,8 +70,9 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
     draws = np.random.default_rng(seed) if student is not None and teacher_share > 0 else None
     observations, labels = [], []
     stack = np.full((episodes, history, obs.shape[1]), np.nan, dtype=np.float32)  # each episode's last observations
+    seen = env.noise_free_observations() if privileged else obs  # what the teacher acts on
     while not done.all():
-        label, _ = teacher.predict(obs, episode_start=start, deterministic=True)
+        label, _ = teacher.predict(seen, episode_start=start, deterministic=True)
         action = label if student is None else student.predict(obs, episode_start=start, deterministic=True)[0]
         if draws is not None:
             action = np.where((draws.random(episodes) < teacher_share)[:, None], label, action)
@@ -80,12 +85,14 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
         observations.append(stack[live].reshape(int(live.sum()), -1))
         labels.append(np.array(label[live], dtype=np.float32))
         start[:] = False
-        previous = obs
+        previous, previous_seen = obs, seen
         obs, _, term, trunc, _ = env.step(action)
+        seen = env.noise_free_observations() if privileged else obs
         done |= term | trunc
         if progress is not None:
             progress(int(live.sum()))
         if done.any() and not done.all():  # the policies act on the whole batch: a running row's last observation
             obs = np.where(done[:, None], previous, obs)
+            seen = np.where(done[:, None], previous_seen, seen)
     env.close()
     return np.concatenate(observations), np.concatenate(labels)
