@@ -175,6 +175,7 @@ def _wait_for_ray_to_exit() -> None:
 @pytest.mark.parametrize("when", ["starting", "running"])
 def test_run_jobs_on_ray_terminated_leaves_no_ray_process_or_temp_folder(when, tmp_path, command_temp_dir):
     pytest.importorskip("ray")
+    _wait_for_ray_to_exit()  # an earlier test's Ray may still be shutting down
     if _ray_processes():
         pytest.skip(f"another Ray is running here: {_ray_processes()[:2]}")
     # 4 jobs of 10,000 episodes: still running 8 s after Ray's start on a fast machine (one job of 5,000 took 5 s
@@ -196,6 +197,7 @@ def test_run_jobs_on_ray_terminated_leaves_no_ray_process_or_temp_folder(when, t
 @pytest.mark.xdist_group("ray")
 def test_tune_interrupted_writes_no_best_configuration(tmp_path, command_temp_dir):
     pytest.importorskip("ray")
+    _wait_for_ray_to_exit()  # an earlier test's Ray may still be shutting down
     if _ray_processes():
         pytest.skip(f"another Ray is running here: {_ray_processes()[:2]}")
     space = tmp_path / "space.yml"

@@ -244,3 +244,56 @@ def test_the_pictures_policy_of_the_guide():
     assert headline(BOARD)["policy"] == "PPO residual-precise trained on track_random (hard tier)"
     _has("It is not the leaderboard's headline policy (`PPO residual-precise` trained on `track_random`'s hard tier",
          BASELINES_PAGE, "docs/baselines.md")
+
+
+def test_what_the_integral_sweep_shows():
+    """docs/control.md, "Integral action": the paragraph under the sweep's table, from the table's JSON
+    (benchmarks/integral_sweep.json)."""
+    from scipy.stats import fisher_exact
+
+    sweep = json.loads((LAYOUT.root / "benchmarks" / "integral_sweep.json").read_text())
+    bounded, raised, chosen = (sweep["variants"][name] for name in (
+        "bounded (no integral)", "raised gains, no integral (error clip 0.5 m)", "**integral** (the loop's settings)"))
+    page = " ".join(LAYOUT.doc("control.md").read_text().split())
+    episodes = sweep["episodes"]
+
+    def _says(phrase):
+        _has(phrase, page, "docs/control.md")
+
+    def steady(variant, cell):
+        return variant[cell]["steady"]
+
+    _says(f"Raised gains alone (third row) remove most of the offsets but keep {steady(raised, 'hover/mismatch'):.2f} "
+          "m under mismatch")
+    hover = steady(chosen, "hover/mismatch")
+    _says(f"falls to {hover:.3f} m on hover ({hover / steady(bounded, 'hover/mismatch'):.1%} of the bounded loop's "
+          f"{steady(bounded, 'hover/mismatch'):.2f} m), {steady(chosen, 'track_paper/mismatch'):.2g} m on "
+          f"`track_paper` and {steady(chosen, 'track_random/mismatch'):.2g} m on `track_random`".replace("%", " %"))
+    wind = steady(chosen, "hover/wind")
+    _says(f"under wind to {wind:.2f} m on hover ({wind / steady(bounded, 'hover/wind'):.0%} of "
+          f"{steady(bounded, 'hover/wind'):.2f} m".replace("%", " %"))
+
+    def crashes(variant):
+        return {cell: round(v["crash_rate"] * episodes) for cell, v in variant.items() if v["crash_rate"]}
+
+    total = len(chosen) * episodes
+    assert crashes(chosen) == {"hover/noisy": 1} and crashes(raised) == {}
+    assert sorted(crashes(bounded)) == sorted(f"{task}/{tier}" for task in ("hover", "track_paper", "track_random")
+                                              for tier in ("mismatch", "hard"))
+    _says(f"It crashed in 1 of the {total} episodes (hover noisy), the raised gains alone in none, the bounded loop "
+          f"in {sum(crashes(bounded).values())} (one in each mismatch and hard cell)")
+    p = fisher_exact([[1, total - 1], [0, total]], alternative="greater").pvalue
+    _says(f"1 of {total} against 0 of {total} is no evidence of a difference (one-sided Fisher exact test, "
+          f"p = {p:.1f})")
+    ratios = [steady(raised, f"{task}/mismatch") / steady(chosen, f"{task}/mismatch")
+              for task in ("hover", "track_paper", "track_random")]
+    _says(f"the integral row is {min(ratios):.0f} to {max(ratios):.0f} times lower under mismatch")
+    _says(f"on hover nominal the integral's slow mode leaves {steady(chosen, 'hover/nominal'):.3f} m over the last "
+          f"half, where the raised gains alone reach {_sci(steady(raised, 'hover/nominal'))} m")
+    both = [steady(v, "track_paper/nominal") for v in (raised, chosen)]
+    assert all(f"{b:.0e}" == "2e-05" for b in both), both
+    _says("on `track_paper` nominal both reach 2e-5 m")
+    assert chosen["track_paper/model_gap"]["crash_rate"] == 0
+    assert sweep["variants"]["integral, error clip 1 m"]["track_paper/model_gap"]["crash_rate"] == 1
+    _says("A looser law-error clip (1 m) gives a faster `track_paper` transient but folds the arms in every "
+          "`model_gap` episode")
