@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from softpvtol_gym.baselines.leaderboard.headline import headline, tolerance_headline, verdict, window_headline
@@ -297,3 +298,104 @@ def test_what_the_integral_sweep_shows():
     assert sweep["variants"]["integral, error clip 1 m"]["track_paper/model_gap"]["crash_rate"] == 1
     _says("A looser law-error clip (1 m) gives a faster `track_paper` transient but folds the arms in every "
           "`model_gap` episode")
+
+
+@pytest.mark.slow  # two 40-s closed loops: a few seconds
+def test_the_extended_loops_figures(tmp_path, capsys):
+    """docs/control.md, "Exact tracking": the figures around the extended loop's tables, from their JSON
+    (benchmarks/extended_loop.json, results/paper_reproduction/metrics.json) and the two commands the page names."""
+    from softpvtol_gym.baselines.cli import run_command
+    from softpvtol_gym.control.extended import simulate_extended_loop
+
+    data = json.loads((LAYOUT.root / "benchmarks" / "extended_loop.json").read_text())
+    paper = json.loads((LAYOUT.results / "paper_reproduction" / "metrics.json").read_text())
+    bounded_step = paper["steady_state"]["loops"]["bounded"]["step"]["0.01"]["worst_max_abs_xz"]
+    worst = {name: cell["worst_max_abs_xz"] for name, cell in data["simulation"]["cells"].items()}
+    page = " ".join(LAYOUT.doc("control.md").read_text().split())
+
+    def _says(phrase):
+        _has(phrase, page, "docs/control.md")
+
+    _says(f"it falls {worst['stage 0.01'] / worst['stage 0.005']:.0f}× when dt halves (dt⁴; "
+          f"{worst['stage 0.005'] / worst['stage 0.002']:.0f}× from 0.005 to 0.002 s")
+    _says(f"about {bounded_step / worst['step 0.01']:.0f}× below the bounded loop's at dt = 0.01 s")
+    env = data["env"]
+    assert 3.5 < env["bounded"]["rms_position_30_40s"] / env["extended"]["rms_position_30_40s"] < 4.5
+    _says("Over 30–40 s the extended policy tracks four times closer than the bounded one and never saturates")
+    assert env["extended"]["saturated_step_share"] == 0.0
+    cell = data["simulation"]["cells"]["stage 0.01"]
+    _says(f"the loop asks for at most {cell['max_thrust_per_rotor_N']:.1f} N per rotor")
+    _says(f"and {cell['max_abs_arm_torque_Nm']:.1f} N m of arm torque")
+
+    run = simulate_extended_loop(t_final=40, hold="step", held_command="start")
+    window = (run["t"] >= 30.0) & (run["t"] <= 40.0)
+    held_at_start = float(np.abs(run["q"][window][:, :2] - run["q_ref"][window][:, :2]).max())
+    assert 2.5 < held_at_start / bounded_step < 3.5  # "three times the bounded loop's figure in the table"
+    _says(f"error is O(dt): {_sci(held_at_start)} m at dt = 0.01 s over 30–40 s from the paper's q(0)")
+
+    out = tmp_path / "extended.json"
+    code = run_command("evaluate", ["--policy", "passivity", "--controller-loop", "extended", "--task", "track_paper",
+                                    "--episodes", "1", "--json", str(out)])
+    assert code in (0, None), capsys.readouterr().err
+    (episode,) = json.loads(out.read_text())["episodes"]
+    bounded = json.loads((LAYOUT.results / "passivity_metrics.json").read_text())["cells"]["track_paper/nominal"]
+    _says(f"gives an RMS position error of {episode['rms_position_error']:.2f} m (seed 1,000,000; the bounded loop's "
+          f"mean over {bounded['episodes']} episodes in the table below is {bounded['rms_position_error_m']:.2f} m)")
+
+
+def test_the_algebraic_loops_passes():
+    """docs/control.md, "Closed loops": the algebraic loop's passes on the paper's case, from
+    results/paper_reproduction/metrics.json."""
+    loops = json.loads((LAYOUT.results / "paper_reproduction" / "metrics.json").read_text())["loops"]
+    solved = {name: m["algebraic_loop"] for name, m in loops.items() if m.get("algebraic_loop")}
+    assert max(s["residual_max_rad"] for s in solved.values()) <= 1e-10
+    means = {f"{s['passes_mean']:.1f}" for s in solved.values()}
+    worst = max(solved, key=lambda name: solved[name]["passes_max"])
+    assert means == {"2.1"} and worst == "improved_zero_order_hold"
+    _has(f"every step is solved to ≤ 1e-10 rad with 2.1 passes on average (at most {solved[worst]['passes_max']}, "
+         "in the first 0.1 s of the improved loop under a zero-order hold",
+         " ".join(LAYOUT.doc("control.md").read_text().split()), "docs/control.md")
+
+
+@pytest.mark.slow  # 12 episodes of 40 s: seconds
+def test_the_pictures_episodes_of_the_guide():
+    """docs/baselines.md, "Pictures": what the figures script prints of the episodes it draws, flown again."""
+    from softpvtol_gym import PassivityPolicy, SoftPVTOLVectorEnv
+    from softpvtol_gym.baselines.figures.tracking import (
+        TASK,
+        episode_summary,
+        load_learned,
+        reference_env_kwargs,
+        run_trajectory,
+        select_learned,
+    )
+    from softpvtol_gym.baselines.leaderboard.jobs import SPEC_FILE, load_spec
+    from tests.conftest import LEADERBOARD_JSON
+
+    chosen = select_learned(json.loads(LEADERBOARD_JSON.read_text()), base=LAYOUT.root)
+    policy, config, _, _ = load_learned(chosen.checkpoint)
+    kwargs = reference_env_kwargs(SPEC_FILE)
+    analytic = PassivityPolicy.from_env(SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=TASK, **kwargs))
+    bounded, learned = {}, {}
+    for tier in load_spec(SPEC_FILE)["evaluation"]["tiers"]:
+        bounded[tier] = episode_summary(run_trajectory(analytic, "actuators", TASK, tier, 1_000_000, None, kwargs))
+        learned[tier] = episode_summary(run_trajectory(policy, config.action_mode, TASK, tier, 1_000_000, None,
+                                                       config.eval_env_kwargs()))
+    assert [t for t, v in learned.items() if v["crashed"]] == ["model_gap"]
+    assert not any(v["crashed"] for v in bounded.values())
+    others = [t for t in learned if t != "model_gap"]
+
+    def span(values, digits):
+        return f"{min(values):.{digits}f}-{max(values):.{digits}f}"
+
+    def _says(phrase):
+        _has(phrase, BASELINES_PAGE, "docs/baselines.md")
+
+    _says(f"the learned policy's `model_gap` episode, at {learned['model_gap']['seconds']:.2f} s")
+    _says(f"first below 0.2 m after {span([learned[t]['first_close'] for t in others], 1)} s in the other tiers, "
+          f"`passivity-bounded`'s after {span([v['first_close'] for v in bounded.values()], 1)} s")
+    assert all(learned[t]["first_close"] < bounded[t]["first_close"] for t in others)
+    _says(f"After 10 s the learned policy stays within {span([learned[t]['max_settled'] for t in others], 2)} m")
+    _says(f"(within {bounded['nominal']['max_settled']:.2f} m after 10 s)")
+    _says(f"under wind and in the hard tier stays within "
+          f"{span([bounded[t]['max_settled'] for t in ('wind', 'hard')], 2)} m")
