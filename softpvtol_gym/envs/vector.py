@@ -11,6 +11,7 @@ from gymnasium.vector.utils import batch_space
 
 from .._validation import choice, seed_value, short_repr
 from ..params import SoftPVTOLParams
+from .actions import actuator_action
 from .batch_sim import BatchSim
 from .config import EnvConfig
 from .episodes import N_UNIFORMS, check_reset_options
@@ -255,6 +256,17 @@ class SoftPVTOLVectorEnv(VectorEnv):
         float32: what a privileged teacher acts on. Equal to the observations where the tier has no sensor
         noise; the error integrals are the env's."""
         return self._sim.noise_free_observation()
+
+    def applied_actions(self) -> np.ndarray:
+        """The actuator inputs (T_l, T_r, tau_l, tau_r) the plant received at the last step, after the actuator lag
+        where the tier has one, as the normalised actions (num_envs, 4) float64 that command them: what a
+        privileged teacher with memory of its inputs is told. NaN in a row that has not stepped since its reset.
+        Only in the actuators mode (in the others the plant's inputs are not the action's)."""
+        if self.config.action_mode != "actuators":
+            raise ValueError(f"applied_actions() gives the inputs as actions of action_mode='actuators', and this "
+                             f"env's action_mode is {self.config.action_mode!r}; read env.sim.applied for the "
+                             f"applied command")
+        return actuator_action(self._sim.applied[:, :4], self.config.thrust_max, self.config.arm_torque_max)
 
     def render(self):
         """rgb_array of sub-env 0."""

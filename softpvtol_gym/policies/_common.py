@@ -119,27 +119,6 @@ def env_config(env) -> EnvConfig:
     return cfg
 
 
-def actuator_action(actuators: np.ndarray, thrust_max: float, arm_torque_max: float) -> np.ndarray:
-    """The env's normalised action (unclipped) of actuators (..., 4) = (T_l, T_r, tau_l, tau_r):
-    thrusts [0, T_max] -> [-1, 1] (2 T / T_max - 1), arm torques [-tau_max, tau_max] -> [-1, 1]
-    (the compiled path of :class:`PassivityPolicy` writes the same formula in its kernel)."""
-    a = np.asarray(actuators, dtype=np.float64)
-    u = np.empty(a.shape)
-    u[..., 0:2] = 2.0 * a[..., 0:2] / thrust_max - 1.0
-    u[..., 2:4] = a[..., 2:4] / arm_torque_max
-    return u
-
-
-def action_actuators(action: np.ndarray, thrust_max: float, arm_torque_max: float) -> np.ndarray:
-    """The actuators (..., 4) = (T_l, T_r, tau_l, tau_r) of the env's normalised action (..., 4), clipped to
-    [-1, 1] as the env clips it: the inverse of :func:`actuator_action`."""
-    a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-    u = np.empty(a.shape)
-    u[..., 0:2] = 0.5 * (a[..., 0:2] + 1.0) * thrust_max
-    u[..., 2:4] = a[..., 2:4] * arm_torque_max
-    return u
-
-
 class _OneObservationPath:
     """What PassivityPolicy and ExtendedPolicy share for their one-observation path: the buffers
     (:class:`_OneObservation`), built at first use and left out of a copy (they hold views of themselves, which a

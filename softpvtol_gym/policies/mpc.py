@@ -8,11 +8,10 @@ import numpy as np
 
 from .._validation import short_repr
 from ..control.mpc import ND, NU, NX, MPCOptions, TrackingOCP, hover_input, import_casadi
+from ..envs.actions import action_actuators, actuator_action
 from ..envs.config import EnvConfig
 from ._common import (
     _episode_start_mask,
-    action_actuators,
-    actuator_action,
     env_config,
     policy_observations,
     state_from_observation,

@@ -12,13 +12,13 @@ from ..control import PassivityController
 from ..control import kernels as CK
 from ..control.closed_loop import LOOPS, MAX_HELD_CONTROL_PERIOD
 from ..control.passivity import PassivityGains
+from ..envs.actions import actuator_action
 from ..envs.config import EnvConfig
 from ..envs.observation import OBS_DIM
 from ._common import (
     _episode_start_mask,
     _is_one_observation,
     _OneObservationPath,
-    actuator_action,
     env_config,
     policy_observations,
     state_from_observation,

@@ -21,29 +21,13 @@ from softpvtol_gym.baselines.training.distill import (
 )
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
 
+from ._teachers import LinearTeacher, ZeroStudent
+
 #: the env options of the integral loop's students (teacher_integral, the default)
 STUDENT_OPTIONS = {"observe_error_integral": True, "error_integral_limit": 8.0, "error_integral_error_limit": 0.5}
 #: hover (1,000 steps an episode): 2 rounds of 2 episodes, a few epochs: seconds
 TINY = dict(teacher="integral", task="hover", rounds=2, episodes=2, epochs=3, batch_size=256, eval_episodes=1,
             net_arch=(16, 16))
-
-
-class LinearTeacher:
-    """A stateless teacher whose labels can be recomputed from the stored observations: a fixed linear map
-    clipped to the action box (hover needs about -0.35 on the thrusts' normalised scale)."""
-
-    def __init__(self):
-        self.gain = np.zeros((4, 21))
-        self.gain[0, 1] = self.gain[1, 1] = -0.3  # more thrust when below the reference
-        self.gain[2, 2] = self.gain[3, 2] = 0.1
-        self.calls = 0
-
-    def label(self, obs):
-        return np.clip(np.asarray(obs, float) @ self.gain.T - 0.35 * np.array([1, 1, 0, 0]), -1, 1)
-
-    def predict(self, obs, state=None, episode_start=None, deterministic=True):
-        self.calls += 1
-        return self.label(obs).astype(np.float32), None
 
 
 @pytest.fixture(scope="module")
@@ -261,13 +245,6 @@ def test_noise_free_observations_are_the_true_states():
         assert np.array_equal(true[:, 18:], obs[:, 18:])  # the env's error integrals
 
 
-class ZeroStudent:
-    """A student that applies the middle of every actuator's range, whatever it observes."""
-
-    def predict(self, obs, state=None, episode_start=None, deterministic=True):
-        return np.zeros((len(obs), 4), np.float32), None
-
-
 def test_the_students_integrals_are_integrated_as_their_teacher_integrates_them():
     from softpvtol_gym.baselines.training.teachers import student_env_options
     from softpvtol_gym.control import LOOPS
@@ -284,7 +261,8 @@ def test_a_run_made_before_the_newer_settings_resumes_with_the_values_it_had(tmp
     from softpvtol_gym.baselines.training.distill import _check_same_config
 
     earlier = DistillConfig(**{**TINY, "teacher_integral": False}).to_dict()
-    for later in ("teacher_integral", "wide_fraction", "balance_actions", "teacher_share", "history", "privileged"):
+    for later in ("teacher_integral", "wide_fraction", "balance_actions", "teacher_share", "history", "privileged",
+                  "teacher_shares", "also_tasks"):
         del earlier[later]
     (tmp_path / "distill_config.json").write_text(json.dumps(earlier))
     _check_same_config(tmp_path, DistillConfig(**{**TINY, "teacher_integral": False}))

@@ -328,7 +328,7 @@ def test_told_the_inputs_another_policy_applied_the_estimate_does_not_blame_a_di
     """On the MPC's own model with no force, a second policy applies the MPC's action with 5 % more thrust (as a
     student flies while the MPC labels in DAgger): told the applied actions, the estimate stays near 0 (the model
     predicts each step); not told, it explains the extra thrust as a force."""
-    from softpvtol_gym.policies._common import action_actuators
+    from softpvtol_gym.envs.actions import action_actuators
 
     cfg = EnvConfig(task="hover")
     estimates = {}

@@ -47,13 +47,14 @@ def build_parser(prog: str = "distill.py") -> Parser:
     ap.add_argument("--rounds", type=int_arg(1), default=DEFAULTS.rounds,
                     help=f"1: behaviour cloning only; each further round is a DAgger round (default {DEFAULTS.rounds})")
     ap.add_argument("--episodes", type=int_arg(1), default=DEFAULTS.episodes,
-                    help=f"episodes per tier and round (default {DEFAULTS.episodes})")
+                    help=f"episodes per task, tier and round (default {DEFAULTS.episodes})")
     ap.add_argument("--epochs", type=int_arg(1), default=DEFAULTS.epochs, help=f"default {DEFAULTS.epochs}")
     ap.add_argument("--batch-size", type=int_arg(1), default=DEFAULTS.batch_size, help=f"default {DEFAULTS.batch_size}")
     ap.add_argument("--learning-rate", type=float_arg(0.0, 1.0, lo_open=True), default=DEFAULTS.learning_rate,
                     help=f"Adam's initial learning rate, decayed linearly to 0 (default {DEFAULTS.learning_rate:g})")
     ap.add_argument("--eval-episodes", type=int_arg(0), default=DEFAULTS.eval_episodes,
-                    help=f"student and teacher episodes per tier after each round (default {DEFAULTS.eval_episodes})")
+                    help=f"student and teacher episodes per task and tier after each round "
+                         f"(default {DEFAULTS.eval_episodes})")
     ap.add_argument("--precision-scale", type=float_arg(0.0, 100.0, lo_open=True), default=None, metavar="S",
                     help="weigh each sample by 1 / (S + |position error|) (S in m, e.g. 0.01): the fit spends its "
                          "accuracy where the errors are small (default: every sample the same)")
@@ -69,6 +70,12 @@ def build_parser(prog: str = "distill.py") -> Parser:
     ap.add_argument("--teacher-share", type=float_arg(0.0, 1.0), default=DEFAULTS.teacher_share,
                     metavar="P", help="DAgger round k applies the teacher's action at a step with probability P**k "
                                       "(default 0: the student flies alone)")
+    ap.add_argument("--teacher-shares", default=None, metavar="B,B,...",
+                    help="the teacher's share of each DAgger round, one per round after the first (e.g. 0.5,0.2,0 with "
+                         "--rounds 4: a schedule that ends with the student alone), instead of --teacher-share")
+    ap.add_argument("--also-task", action="append", default=[], choices=registered_tasks(), dest="also_tasks",
+                    help="a further task the episodes fly besides --task (repeat for several): one student for a "
+                         "mixture of tasks")
     ap.add_argument("--history", type=int_arg(1, MAX_FRAME_STACK), default=DEFAULTS.history, metavar="K",
                     help="the student sees its last K observations, oldest first (a frame stack; default 1: the "
                          "current one)")
@@ -90,6 +97,15 @@ def _net_arch(text: str, ap: Parser) -> tuple:
     return sizes
 
 
+def _shares(text: str | None, ap: Parser) -> tuple:
+    if text is None:
+        return ()
+    try:
+        return tuple(float(part) for part in text.split(","))
+    except ValueError:
+        ap.error(f"--teacher-shares must be comma-separated shares such as 0.5,0.2,0, got {text!r}")
+
+
 def _main(argv, layout: Layout, prog: str) -> int:
     ap = build_parser(prog)
     args = ap.parse_args(argv)
@@ -103,7 +119,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
                                eval_episodes=args.eval_episodes, precision_scale=args.precision_scale,
                                wide_fraction=args.wide_fraction, teacher_integral=args.teacher_integral,
                                balance_actions=args.balance_actions, teacher_share=args.teacher_share,
-                               history=args.history, privileged=args.privileged)
+                               history=args.history, privileged=args.privileged,
+                               teacher_shares=_shares(args.teacher_shares, ap), also_tasks=tuple(args.also_tasks))
     except ConfigError as exc:
         ap.error(str(exc))
     out = args.out or Path("runs") / f"distilled_{config.teacher}_{config.task}_s{config.seed}"

@@ -7,7 +7,7 @@ format, ``softpvtol evaluate RUN``, the lean inference path, the leaderboard, an
 
 Rounds (Ross et al., "A reduction of imitation learning to no-regret online learning", 2011):
 
-* round 0 (behaviour cloning): the teacher flies ``episodes`` seeded episodes per tier; every step's
+* round 0 (behaviour cloning): the teacher flies ``episodes`` seeded episodes per task and tier; every step's
   observation is stored with the teacher's action;
 * round k >= 1 (DAgger): the student of round k - 1 flies new episodes and the teacher labels every
   observation the student visits (the teacher runs beside it on the same observations, so a teacher with
@@ -76,7 +76,7 @@ MAX_EPISODES_PER_ROUND = 1_000
 MAX_ROUNDS = 50
 #: settings added after runs were made, with the value those runs had (a resumed run keeps it)
 EARLIER_DEFAULTS = {"wide_fraction": 0.0, "teacher_integral": False, "balance_actions": False, "teacher_share": 0.0,
-                    "history": 1, "privileged": False}
+                    "history": 1, "privileged": False, "teacher_shares": [], "also_tasks": []}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,17 +85,17 @@ class DistillConfig:
 
     Args:
         teacher: a name of :data:`TEACHERS`.
-        task: the task the episodes fly (``registered_tasks()``).
+        task: the student's task (its run config; ``registered_tasks()``): the episodes fly it and ``also_tasks``.
         tiers: the tiers the episodes fly, each with its randomisation; every round collects ``episodes``
-            episodes of each.
+            episodes of each, on each task.
         seed: the run's seed (< 500,000 / 10,000 episodes: collection seeds stay below the training limit).
         net_arch: the student's hidden layers (the actor's; the value net is SB3's default 64, 64).
         rounds: data-collection rounds: 1 is behaviour cloning only, each further one a DAgger round.
-        episodes: episodes per tier and round (they fly as one vector env).
+        episodes: episodes per task, tier and round (they fly as one vector env).
         epochs: passes over the aggregate dataset per fit.
         batch_size: samples per gradient step.
         learning_rate: Adam's initial learning rate (decayed linearly to 0 over the fit).
-        eval_episodes: student and teacher episodes per tier after each round (0: none).
+        eval_episodes: student and teacher episodes per task and tier after each round (0: none).
         precision_scale: None: every sample weighs the same; s > 0 [m]: a sample of position error e weighs
             in proportion to 1 / (s + |e|) (normalised to a mean of 1), so that the fit spends its accuracy
             where the errors are small, where the teacher's fine corrections decide the steady error.
@@ -113,6 +113,9 @@ class DistillConfig:
             action with probability p ** k and the student's otherwise (the DAgger paper's beta_k = p ** k), so that
             the early students, which may crash within a second, still fly where the teacher goes; the teacher
             labels every step either way. 0: the student flies alone in every DAgger round.
+        teacher_shares: the teacher's share of DAgger rounds 1, 2, ... given one by one (``rounds - 1`` shares in
+            [0, 1], e.g. (0.5, 0.2, 0.0): a schedule that ends with the student alone), instead of ``teacher_share``'s
+            powers; empty: ``teacher_share``.
         history: K, the observations the student sees: its last K, oldest first (``frame_stack`` K of its
             run, SB3's VecFrameStack over VecNormalize; 1: the current one only). With K > 1 the student can tell
             the rates of change its observation lacks (of the error integrals, of what the wind or a parameter
@@ -120,7 +123,11 @@ class DistillConfig:
         privileged: the teacher labels, and in round 0 flies, from the noise-free observation of the true state
             (:meth:`~softpvtol_gym.envs.vector.SoftPVTOLVectorEnv.noise_free_observations`), while the student sees
             the noisy one: learning by cheating. Only tiers with sensor noise make a difference, so at least one
-            of ``tiers`` must have it.
+            of ``tiers`` must have it. Where a tier lags the actuators, a teacher with memory of its inputs (the
+            MPC) is also told the actuators' true lagged state after each step.
+        also_tasks: further tasks the episodes fly besides ``task`` (every round collects ``episodes`` episodes per
+            task and tier, and evaluates the student on each): one student for a mixture of tasks, such as hover
+            and both tracking tasks.
     """
 
     teacher: str = "integral"
@@ -141,14 +148,23 @@ class DistillConfig:
     teacher_share: float = 0.0
     history: int = 1
     privileged: bool = False
+    teacher_shares: tuple = ()
+    also_tasks: tuple = ()
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "tiers", tuple(self.tiers))
-        object.__setattr__(self, "net_arch", tuple(self.net_arch))
+        for name in ("tiers", "net_arch", "teacher_shares", "also_tasks"):
+            value = getattr(self, name)
+            if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+                raise ConfigError(f"{name} must be a list, got {value!r}")
+            object.__setattr__(self, name, tuple(value))
         if self.teacher not in TEACHERS:
             raise ConfigError(f"teacher must be one of {list(TEACHERS)}, got {self.teacher!r}")
         if self.task not in registered_tasks():
             raise ConfigError(f"task must be one of {list(registered_tasks())}, got {self.task!r}")
+        bad = [t for t in self.also_tasks if t not in registered_tasks()]
+        if bad or len(set(self.tasks)) != len(self.tasks):
+            raise ConfigError(f"also_tasks must be distinct names of {list(registered_tasks())} other than task "
+                              f"{self.task!r}, got {list(self.also_tasks)}")
         bad = [t for t in self.tiers if t not in registered_tiers()]
         if not self.tiers or bad or len(set(self.tiers)) != len(self.tiers):
             raise ConfigError(f"tiers must be distinct names of {list(registered_tiers())}, got {list(self.tiers)}")
@@ -176,6 +192,15 @@ class DistillConfig:
         if p and self.rounds == 1:
             raise ConfigError(f"teacher_share={p!r} acts in the DAgger rounds (round 2 on), and rounds=1 is behaviour "
                               f"cloning only: it would change nothing; pass rounds >= 2, or leave teacher_share out")
+        shares = self.teacher_shares
+        if shares:
+            if p:
+                raise ConfigError(f"teacher_shares {list(shares)} and teacher_share={p!r} both set the teacher's "
+                                  f"share of the DAgger rounds; give one of them")
+            if len(shares) != self.rounds - 1 or not all(
+                    isinstance(b, (int, float)) and not isinstance(b, bool) and 0.0 <= b <= 1.0 for b in shares):
+                raise ConfigError(f"teacher_shares must be one share in [0, 1] per DAgger round ({self.rounds - 1} "
+                                  f"with rounds={self.rounds}), got {list(shares)}")
         if self.privileged and not any("noise" in get_tier(t).effects for t in self.tiers):
             raise ConfigError(f"privileged labels differ from the plain ones only under sensor noise, and the tiers "
                               f"{list(self.tiers)} have none: it would change nothing; add a tier with noise "
@@ -191,13 +216,28 @@ class DistillConfig:
                               f"seed {self.seed!r} with {self.collections} collections of {self.episodes} episodes")
 
     @property
-    def collections(self) -> int:
-        """The number of collected datasets: one per round and tier."""
-        return self.rounds * len(self.tiers)
+    def tasks(self) -> tuple:
+        """The tasks the episodes fly: ``task``, then ``also_tasks``."""
+        return (self.task, *self.also_tasks)
 
-    def collection_seed(self, round_index: int, tier_index: int) -> int:
-        """The first episode seed of round ``round_index``'s collection on tier ``tier_index``."""
-        return self.seed * SEED_STRIDE + (round_index * len(self.tiers) + tier_index) * self.episodes
+    @property
+    def collections(self) -> int:
+        """The number of collected datasets: one per round, task and tier."""
+        return self.rounds * len(self.tasks) * len(self.tiers)
+
+    def collection_seed(self, round_index: int, tier_index: int, task_index: int = 0) -> int:
+        """The first episode seed of round ``round_index``'s collection on task ``task_index`` (of :attr:`tasks`)
+        and tier ``tier_index``."""
+        index = (round_index * len(self.tasks) + task_index) * len(self.tiers) + tier_index
+        return self.seed * SEED_STRIDE + index * self.episodes
+
+    def round_teacher_share(self, round_index: int) -> float:
+        """The teacher's share of the steps of round ``round_index`` (0: behaviour cloning, the teacher flies)."""
+        if round_index == 0:
+            return 1.0
+        if self.teacher_shares:
+            return float(self.teacher_shares[round_index - 1])
+        return float(self.teacher_share) ** round_index
 
     @property
     def env_options(self) -> dict:
@@ -232,8 +272,10 @@ def _say(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def _dataset_path(run_dir: Path, round_index: int, tier: str) -> Path:
-    return run_dir / DATASET_DIR / f"round_{round_index:02d}_{tier}.npz"
+def _dataset_path(run_dir: Path, round_index: int, tier: str, task: str | None = None) -> Path:
+    """A round's dataset on ``tier`` (and on ``task``, one of ``also_tasks``; None: the student's task)."""
+    name = tier if task is None else f"{task}_{tier}"
+    return run_dir / DATASET_DIR / f"round_{round_index:02d}_{name}.npz"
 
 
 def _save_dataset(path: Path, obs: np.ndarray, labels: np.ndarray) -> None:
@@ -373,17 +415,18 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
         student = None
         t0 = time.perf_counter()
         for k in range(config.rounds):
-            for j, tier in enumerate(config.tiers):
-                path = _dataset_path(run_dir, k, tier)
-                cached = _load_dataset(path, obs_dim, config.history)
-                if cached is None:
-                    cached = _collect_round(teacher, config, tier, config.collection_seed(k, j), student, bar,
-                                            teacher_share=config.teacher_share ** k if k else 0.0)
-                    _save_dataset(path, *cached)
-                elif bar is not None:
-                    bar(len(cached[0]))
-                data_obs.append(cached[0])
-                data_act.append(cached[1])
+            for i, task in enumerate(config.tasks):
+                for j, tier in enumerate(config.tiers):
+                    path = _dataset_path(run_dir, k, tier, task if i else None)
+                    cached = _load_dataset(path, obs_dim, config.history)
+                    if cached is None:
+                        cached = _collect_round(teacher, config, task, tier, config.collection_seed(k, j, i), student,
+                                                bar, teacher_share=config.round_teacher_share(k) if k else 0.0)
+                        _save_dataset(path, *cached)
+                    elif bar is not None:
+                        bar(len(cached[0]))
+                    data_obs.append(cached[0])
+                    data_act.append(cached[1])
             obs, act = np.concatenate(data_obs), np.concatenate(data_act)
             run_config, vecnorm, model = _fresh_student(config, run_dir, len(obs))
             losses = fit(model, vecnorm, obs, act, config.epochs, config.batch_size, config.learning_rate,
@@ -391,8 +434,9 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
                          channel_weights=action_channel_weights(act) if config.balance_actions else None,
                          history=config.history)
             student = LearnedPolicy(model, vecnorm, inference="lean")
+            this_round = data_obs[-len(config.tasks) * len(config.tiers):]
             entry = {"round": k, "kind": "behaviour cloning" if k == 0 else "dagger",
-                     "samples": int(sum(len(o) for o in data_obs[-len(config.tiers):])), "aggregate": int(len(obs)),
+                     "samples": int(sum(len(o) for o in this_round)), "aggregate": int(len(obs)),
                      "loss_first_epoch": losses[0], "loss_last_epoch": losses[-1], "losses": losses,
                      "evaluation": _evaluate_round(student, teacher, config, k)}
             rounds.append(entry)
@@ -409,16 +453,16 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
     return {"policy": student, "run_config": run_config, "record": record}
 
 
-def _collect_round(teacher, config: DistillConfig, tier: str, seed: int, student, bar,
+def _collect_round(teacher, config: DistillConfig, task: str, tier: str, seed: int, student, bar,
                    teacher_share: float = 0.0) -> tuple:
-    """One round's dataset on one tier: ``config.episodes`` episodes from seed ``seed`` on, the last
+    """One round's dataset on one task and tier: ``config.episodes`` episodes from seed ``seed`` on, the last
     ``config.wide_episodes()`` of them started wide; with a student, the teacher acts at a step with probability
     ``teacher_share``."""
     wide = config.wide_episodes()
     parts = []
     for count, first, start in ((config.episodes - wide, seed, "task"), (wide, seed + config.episodes - wide, "wide")):
         if count:
-            parts.append(collect(teacher, config.task, tier, count, first, student=student, progress=bar,
+            parts.append(collect(teacher, task, tier, count, first, student=student, progress=bar,
                                  env_options={**config.env_options, "start_distribution": start},
                                  teacher_share=teacher_share, history=config.history,
                                  privileged=config.privileged))
@@ -438,21 +482,29 @@ def _check_same_config(run_dir: Path, config: DistillConfig) -> None:
                           f"pass the same options or choose another --out")
 
 
+def evaluation_key(config: DistillConfig, task: str, tier: str) -> str:
+    """The key of a task's and tier's evaluation in a round's record: the tier on the student's task, else
+    ``"<task> <tier>"``."""
+    return tier if task == config.task else f"{task} {tier}"
+
+
 def _evaluate_round(student, teacher, config: DistillConfig, round_index: int) -> dict:
-    """Per tier: the student's and the teacher's summaries on the same evaluation episodes."""
+    """Per task and tier (:func:`evaluation_key`): the student's and the teacher's summaries on the same
+    evaluation episodes."""
     if config.eval_episodes == 0:
         return {}
     seed = DISTILL_EVAL_SEED + 1_000 * config.seed
     out = {}
-    for tier in config.tiers:
-        row = {}
-        for who, policy in (("student", student), ("teacher", teacher)):
-            if who == "teacher" and round_index > 0:
-                continue  # the same episodes as round 0's
-            eps = run_episodes(policy, "actuators", config.task, tier, config.eval_episodes, seed,
-                               env_kwargs=config.env_options)
-            row[who] = summarize(eps)
-        out[tier] = row
+    for task in config.tasks:
+        for tier in config.tiers:
+            row = {}
+            for who, policy in (("student", student), ("teacher", teacher)):
+                if who == "teacher" and round_index > 0:
+                    continue  # the same episodes as round 0's
+                eps = run_episodes(policy, "actuators", task, tier, config.eval_episodes, seed,
+                                   env_kwargs=config.env_options)
+                row[who] = summarize(eps)
+            out[evaluation_key(config, task, tier)] = row
     return out
 
 
@@ -474,8 +526,9 @@ def _progress(enabled: bool, config: DistillConfig):
         from tqdm import tqdm
     except ImportError:
         return None
-    probe = SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=config.task)
-    bar = tqdm(total=config.collections * config.episodes * int(probe.sim.max_steps), unit="sample",
+    steps = max(int(SoftPVTOLVectorEnv(num_envs=1, action_mode="actuators", task=t).sim.max_steps)
+                for t in config.tasks)  # at most
+    bar = tqdm(total=config.collections * config.episodes * steps, unit="sample",
                desc="distill", file=sys.stderr)
     return bar.update
 

@@ -62,7 +62,9 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
 
     ``privileged``: the teacher acts on the noise-free observations of the true state
     (:meth:`~softpvtol_gym.envs.vector.SoftPVTOLVectorEnv.noise_free_observations`), the rows hold the observations
-    (noisy where the tier has sensor noise) that the student sees."""
+    (noisy where the tier has sensor noise) that the student sees; where the tier lags the actuators, a teacher
+    with ``observe_applied`` is told after each step the inputs the plant received, the actuators' true lagged state
+    (:meth:`~softpvtol_gym.envs.vector.SoftPVTOLVectorEnv.applied_actions`), instead of the actions commanded."""
     env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode="actuators", task=task, tier=tier,
                              **(STUDENT_ENV_OPTIONS if env_options is None else env_options))
     obs, _ = env.reset(seed=seed)
@@ -71,12 +73,14 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
     observations, labels = [], []
     stack = np.full((episodes, history, obs.shape[1]), np.nan, dtype=np.float32)  # each episode's last observations
     seen = env.noise_free_observations() if privileged else obs  # what the teacher acts on
+    remembers = hasattr(teacher, "observe_applied")  # a teacher with memory of its inputs
+    lagged = privileged and remembers and env.config.tier_values["actuator_time_constant"] > 0
     while not done.all():
         label, _ = teacher.predict(seen, episode_start=start, deterministic=True)
         action = label if student is None else student.predict(obs, episode_start=start, deterministic=True)[0]
         if draws is not None:
             action = np.where((draws.random(episodes) < teacher_share)[:, None], label, action)
-        if student is not None and hasattr(teacher, "observe_applied"):  # a teacher with memory of its inputs
+        if student is not None and remembers and not lagged:
             teacher.observe_applied(action)
         live = ~done
         stack = np.roll(stack, -1, axis=1)
@@ -88,6 +92,9 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
         previous, previous_seen = obs, seen
         obs, _, term, trunc, _ = env.step(action)
         seen = env.noise_free_observations() if privileged else obs
+        if lagged:  # the plant's inputs after the lag (a row that ends keeps the action: it is not asked again)
+            applied = env.applied_actions()
+            teacher.observe_applied(np.where(np.isnan(applied), action, applied))
         done |= term | trunc
         if progress is not None:
             progress(int(live.sum()))
