@@ -49,6 +49,8 @@ VARIANTS = {
     "tier mixture, history 4": {},
     "tier mixture, history 4, privileged": {"privileged": True},
     "tier mixture, history 20 (0.2 s), privileged": {"privileged": True, "history": 20},
+    "tier mixture, history 4, privileged, residual on the integral loop": {"privileged": True,
+                                                                           "residual_on": "integral"},
 }
 
 
@@ -65,7 +67,7 @@ def run_variant(name: str, keep: str) -> dict:
     record = distill(config, Path(keep) / slug(name), resume=True)["record"]
     last = record["rounds"][-1]
     return {"settings": VARIANTS[name], "seconds": time.perf_counter() - t0, "loss_last_epoch": last["loss_last_epoch"],
-            "samples": last["aggregate"],
+            "samples": last["aggregate"], "labels_at_clip": last.get("labels_at_clip"),
             "evaluation": {cell: row["student"] for cell, row in last["evaluation"].items()},
             "teacher": {cell: row["teacher"] for cell, row in record["rounds"][0]["evaluation"].items()}}
 
@@ -97,9 +99,12 @@ def markdown_table(report: dict) -> str:
         for variant, v in report["variants"].items():
             if cell in v["evaluation"]:
                 lines.append(f"| {name} | {variant} | {cells(v['evaluation'][cell])} |")
-    lines += ["", "| variant | samples (all rounds) | last loss | seconds |", "|---|---|---|---|"]
+    lines += ["", "| variant | samples (all rounds) | last loss | residual labels at the clip, last round (T_l, T_r, "
+              "tau_l, tau_r) | seconds |", "|---|---|---|---|---|"]
     for variant, v in report["variants"].items():
-        lines.append(f"| {variant} | {v['samples']:,} | {v['loss_last_epoch']:.2e} | {v['seconds']:.0f} |")
+        shares = v.get("labels_at_clip")
+        clip = "" if shares is None else ", ".join(f"{100 * x:.0f} %" for x in shares)
+        lines.append(f"| {variant} | {v['samples']:,} | {v['loss_last_epoch']:.2e} | {clip} | {v['seconds']:.0f} |")
     return "\n".join(lines)
 
 

@@ -259,13 +259,13 @@ class SoftPVTOLVectorEnv(VectorEnv):
 
     def applied_actions(self) -> np.ndarray:
         """The actuator inputs (T_l, T_r, tau_l, tau_r) the plant received at the last step, after the actuator lag
-        where the tier has one, as the normalised actions (num_envs, 4) float64 that command them: what a
-        privileged teacher with memory of its inputs is told. NaN in a row that has not stepped since its reset.
-        Only in the actuators mode (in the others the plant's inputs are not the action's)."""
-        if self.config.action_mode != "actuators":
-            raise ValueError(f"applied_actions() gives the inputs as actions of action_mode='actuators', and this "
-                             f"env's action_mode is {self.config.action_mode!r}; read env.sim.applied for the "
-                             f"applied command")
+        where the tier has one, as the normalised actions (num_envs, 4) float64 of ``action_mode="actuators"``
+        that command them: what a privileged teacher with memory of its inputs is told. NaN in a row that has not
+        stepped since its reset. In every mode whose plant gets actuator inputs (all but ``allocation="ideal"``,
+        where it gets tau)."""
+        if self.config.resolved_allocation == "ideal":
+            raise ValueError("applied_actions(): with allocation='ideal' the plant gets the generalized force tau, "
+                             "not actuator inputs; read env.sim.applied for the applied command")
         return actuator_action(self._sim.applied[:, :4], self.config.thrust_max, self.config.arm_torque_max)
 
     def render(self):

@@ -224,6 +224,16 @@ class PassivityPolicy(_OneObservationPath):
         ctrl.swap_memory()
         return out[0]
 
+    def unclipped_actions(self) -> np.ndarray:
+        """The actuators (N, 4) the last :meth:`predict` commanded (an actuated loop on the actuators mode), as
+        normalised actions before the clip to [-1, 1]: the base command to which the residual mode adds its
+        correction (the env saturates the sum, not the base)."""
+        if self._work is None or self._n is None or self._kind != ACTION_ACTUATORS or \
+                self.controller.allocation == "ideal" or self.config.action_mode != "actuators":
+            raise ValueError("unclipped_actions() reads the last prediction of an actuated loop on "
+                             "action_mode='actuators': call predict first, on such a policy")
+        return actuator_action(self._work[1][:self._n, CK.OUT_ACT:CK.OUT_ACT + 4], self._tmax, self._taumax)
+
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         """(action, state) for observations (18,) or (N, 18) of the env (21 entries with the env's
         ``observe_error_integral``: the policy reads entries 0-17); ``episode_start``: None, a bool

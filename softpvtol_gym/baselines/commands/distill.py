@@ -76,6 +76,10 @@ def build_parser(prog: str = "distill.py") -> Parser:
     ap.add_argument("--also-task", action="append", default=[], choices=registered_tasks(), dest="also_tasks",
                     help="a further task the episodes fly besides --task (repeat for several): one student for a "
                          "mixture of tasks")
+    ap.add_argument("--residual-on", default=None, metavar="LOOP",
+                    help="the student is a residual on this passivity loop (e.g. integral: the env's residual mode in "
+                         "the actuator space) and learns the correction from the loop's command to the teacher's "
+                         "(default: the student commands the actuators)")
     ap.add_argument("--history", type=int_arg(1, MAX_FRAME_STACK), default=DEFAULTS.history, metavar="K",
                     help="the student sees its last K observations, oldest first (a frame stack; default 1: the "
                          "current one)")
@@ -120,7 +124,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
                                wide_fraction=args.wide_fraction, teacher_integral=args.teacher_integral,
                                balance_actions=args.balance_actions, teacher_share=args.teacher_share,
                                history=args.history, privileged=args.privileged,
-                               teacher_shares=_shares(args.teacher_shares, ap), also_tasks=tuple(args.also_tasks))
+                               teacher_shares=_shares(args.teacher_shares, ap), also_tasks=tuple(args.also_tasks),
+                               residual_on=args.residual_on)
     except ConfigError as exc:
         ap.error(str(exc))
     out = args.out or Path("runs") / f"distilled_{config.teacher}_{config.task}_s{config.seed}"

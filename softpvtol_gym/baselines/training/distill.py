@@ -55,9 +55,16 @@ from softpvtol_gym.baselines.evaluation import TUNING_SEED, run_episodes, summar
 from softpvtol_gym.baselines.training.imitation import action_gap, actor_parameters
 from softpvtol_gym.baselines.training.loop import prepare, torch_threads
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
-from softpvtol_gym.baselines.training.teachers import TEACHERS, collect, student_env_options, teacher_policy
+from softpvtol_gym.baselines.training.teachers import (
+    RESIDUAL_STUDENT_SCALE,
+    TEACHERS,
+    collect,
+    student_env_options,
+    teacher_policy,
+)
 from softpvtol_gym.baselines.util.atomic import atomic_write_bytes, atomic_write_text
 from softpvtol_gym.baselines.util.locks import DirectoryLock
+from softpvtol_gym.control import LOOPS
 from softpvtol_gym.envs.observation import N_ERROR_INTEGRALS, OBS_DIM
 from softpvtol_gym.envs.tiers import get_tier, registered_tiers
 from softpvtol_gym.envs.vector import SoftPVTOLVectorEnv
@@ -76,7 +83,8 @@ MAX_EPISODES_PER_ROUND = 1_000
 MAX_ROUNDS = 50
 #: settings added after runs were made, with the value those runs had (a resumed run keeps it)
 EARLIER_DEFAULTS = {"wide_fraction": 0.0, "teacher_integral": False, "balance_actions": False, "teacher_share": 0.0,
-                    "history": 1, "privileged": False, "teacher_shares": [], "also_tasks": []}
+                    "history": 1, "privileged": False, "teacher_shares": [], "also_tasks": [],
+                   "residual_on": None}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,6 +136,13 @@ class DistillConfig:
         also_tasks: further tasks the episodes fly besides ``task`` (every round collects ``episodes`` episodes per
             task and tier, and evaluates the student on each): one student for a mixture of tasks, such as hover
             and both tracking tasks.
+        residual_on: None: the student commands the actuators. A passivity loop (a name of ``LOOPS`` the residual
+            mode takes as its base, e.g. ``"integral"``): the student is a residual on it, the env's residual mode
+            with ``residual_space="actuators"`` and ``residual_scale`` :data:`RESIDUAL_STUDENT_SCALE`, and learns the
+            correction that turns the loop's command into the teacher's, (teacher - loop) / scale clipped to
+            [-1, 1] (the loop computed beside the env on the same observations, clipped to the actuator box). At
+            zero correction the student flies the loop itself: the loop's integral action holds the steady state,
+            and the fit need not learn millimetres from the teacher's actions.
     """
 
     teacher: str = "integral"
@@ -150,6 +165,7 @@ class DistillConfig:
     privileged: bool = False
     teacher_shares: tuple = ()
     also_tasks: tuple = ()
+    residual_on: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("tiers", "net_arch", "teacher_shares", "also_tasks"):
@@ -201,6 +217,11 @@ class DistillConfig:
                     isinstance(b, (int, float)) and not isinstance(b, bool) and 0.0 <= b <= 1.0 for b in shares):
                 raise ConfigError(f"teacher_shares must be one share in [0, 1] per DAgger round ({self.rounds - 1} "
                                   f"with rounds={self.rounds}), got {list(shares)}")
+        if self.residual_on is not None and (self.residual_on not in LOOPS or "controller" in LOOPS[self.residual_on]
+                                             or self.residual_on == "ideal"):
+            bases = [name for name, loop in LOOPS.items() if "controller" not in loop and name != "ideal"]
+            raise ConfigError(f"residual_on must be None or a loop the residual mode takes as its base, one of "
+                              f"{bases}, got {self.residual_on!r}")
         if self.privileged and not any("noise" in get_tier(t).effects for t in self.tiers):
             raise ConfigError(f"privileged labels differ from the plain ones only under sensor noise, and the tiers "
                               f"{list(self.tiers)} have none: it would change nothing; add a tier with noise "
@@ -241,23 +262,38 @@ class DistillConfig:
 
     @property
     def env_options(self) -> dict:
-        """The student's env options (its observation)."""
+        """The student's observation options (the teacher's env has them too)."""
         return student_env_options(self.teacher, self.teacher_integral)
+
+    @property
+    def action_mode(self) -> str:
+        """The student's action mode: ``"residual"`` on ``residual_on``, else ``"actuators"``."""
+        return "actuators" if self.residual_on is None else "residual"
+
+    @property
+    def student_env_options(self) -> dict:
+        """The student's env options: :attr:`env_options` and, as a residual, its base loop and scale."""
+        if self.residual_on is None:
+            return self.env_options
+        return {**self.env_options, "controller_loop": self.residual_on, "residual_space": "actuators",
+                "residual_scale": RESIDUAL_STUDENT_SCALE}
 
     def wide_episodes(self) -> int:
         """The episodes of each round and tier that start wide (``wide_fraction`` of ``episodes``, rounded)."""
         return int(round(self.wide_fraction * self.episodes))
 
     def run_config(self, dataset_size: int = 1) -> RunConfig:
-        """The student's run config: PPO on the actuators mode with the error integrals observed, the
-        actuators entry's hyperparameters with the student's ``net_arch`` (``timesteps``: the samples)."""
+        """The student's run config: PPO on its action mode (:attr:`action_mode`) with the error integrals
+        observed, the actuators entry's hyperparameters with the student's ``net_arch`` (``timesteps``: the
+        samples)."""
         hp = load_hyperparams("ppo", "actuators")
         arch = ", ".join(str(n) for n in self.net_arch)
         hp = apply_overrides(hp, [f"policy_kwargs=dict(log_std_init=-1.0, net_arch=dict(pi=[{arch}], vf=[64, 64]))"]
                              + ([f"frame_stack={self.history}"] if self.history > 1 else []))
-        return RunConfig(algo="ppo", action_mode="actuators", task=self.task, tier=self.tiers[0],
+        options = dict(self.student_env_options)
+        return RunConfig(algo="ppo", action_mode=self.action_mode, task=self.task, tier=self.tiers[0],
                          timesteps=max(1, int(dataset_size)), seed=self.seed, n_envs=int(hp.get("n_envs", 16)),
-                         hyperparams=hp, env_options=self.env_options)
+                         hyperparams=hp, controller_loop=options.pop("controller_loop", None), env_options=options)
 
     def to_dict(self) -> dict:
         return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
@@ -435,9 +471,11 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
                          history=config.history)
             student = LearnedPolicy(model, vecnorm, inference="lean")
             this_round = data_obs[-len(config.tasks) * len(config.tiers):]
+            this_round_labels = data_act[-len(config.tasks) * len(config.tiers):]
             entry = {"round": k, "kind": "behaviour cloning" if k == 0 else "dagger",
                      "samples": int(sum(len(o) for o in this_round)), "aggregate": int(len(obs)),
                      "loss_first_epoch": losses[0], "loss_last_epoch": losses[-1], "losses": losses,
+                     **({} if config.residual_on is None else {"labels_at_clip": _clip_shares(this_round_labels)}),
                      "evaluation": _evaluate_round(student, teacher, config, k)}
             rounds.append(entry)
             _say(f"distill round {k} ({entry['kind']}): {entry['aggregate']:,} samples, loss {losses[0]:.3g} -> "
@@ -445,8 +483,8 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
         model.num_timesteps = int(len(obs))
         seconds = time.perf_counter() - t0
         write_model_files(run_dir, model, vecnorm, run_config, "run")
-        record = {"config": config.to_dict(), "student": {"algo": "ppo", "action_mode": "actuators",
-                                                         "env_options": config.env_options,
+        record = {"config": config.to_dict(), "student": {"algo": "ppo", "action_mode": config.action_mode,
+                                                         "env_options": config.student_env_options,
                                                          "net_arch": list(config.net_arch)},
                   "rounds": rounds, "seconds": seconds}
         atomic_write_text(record_path, json.dumps(record, indent=2))
@@ -465,8 +503,15 @@ def _collect_round(teacher, config: DistillConfig, task: str, tier: str, seed: i
             parts.append(collect(teacher, task, tier, count, first, student=student, progress=bar,
                                  env_options={**config.env_options, "start_distribution": start},
                                  teacher_share=teacher_share, history=config.history,
-                                 privileged=config.privileged))
+                                 privileged=config.privileged, residual_on=config.residual_on,
+                                 residual_scale=RESIDUAL_STUDENT_SCALE))
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+
+def _clip_shares(labels: list) -> list[float]:
+    """Per action channel, the share of a residual student's labels (the round's arrays (n, 4)) at the clip, +-1:
+    where the correction from the loop's command to the teacher's is larger than the residual's range."""
+    return [float(v) for v in (np.abs(np.concatenate(labels)) >= 1.0).mean(axis=0)]
 
 
 def _check_same_config(run_dir: Path, config: DistillConfig) -> None:
@@ -498,11 +543,11 @@ def _evaluate_round(student, teacher, config: DistillConfig, round_index: int) -
     for task in config.tasks:
         for tier in config.tiers:
             row = {}
-            for who, policy in (("student", student), ("teacher", teacher)):
+            for who, policy, mode, options in (("student", student, config.action_mode, config.student_env_options),
+                                               ("teacher", teacher, "actuators", config.env_options)):
                 if who == "teacher" and round_index > 0:
                     continue  # the same episodes as round 0's
-                eps = run_episodes(policy, "actuators", task, tier, config.eval_episodes, seed,
-                                   env_kwargs=config.env_options)
+                eps = run_episodes(policy, mode, task, tier, config.eval_episodes, seed, env_kwargs=options)
                 row[who] = summarize(eps)
             out[evaluation_key(config, task, tier)] = row
     return out

@@ -1,6 +1,6 @@
 """Distillation for robust students: the mixture of tasks and tiers, the teacher's share per DAgger round, the
-privileged teacher told the actuators' true lagged state, and a student with a long memory whose lean forward pass
-matches torch."""
+privileged teacher told the actuators' true lagged state, a student with a long memory whose lean forward pass
+matches torch, and a student that is a residual on the integral loop."""
 
 from __future__ import annotations
 
@@ -115,6 +115,9 @@ def test_each_dagger_round_gets_its_share_of_the_schedule(tmp_path):
     ({"teacher_shares": (math.nan,)}, r"got \[nan\]"),
     ({"teacher_shares": (True,)}, r"got \[True\]"),
     ({"teacher_shares": (0.5,), "teacher_share": 0.5}, "both set the teacher's share"),
+    ({"residual_on": "pid"}, "residual_on must be None or a loop the residual mode takes as its base"),
+    ({"residual_on": "extended"}, r"residual_on .* got 'extended'"),
+    ({"residual_on": "ideal"}, r"residual_on .* got 'ideal'"),
 ])
 def test_bad_mixture_settings_are_refused_with_what_was_given(changes, words):
     with pytest.raises(ConfigError, match=words):
@@ -128,7 +131,8 @@ def test_the_command_takes_the_mixture_and_the_schedule_and_refuses_bad_ones_in_
     monkeypatch.chdir(tmp_path)
     for argv, words in ((["--teacher-shares", "0.5,x"], "--teacher-shares must be comma-separated shares"),
                         (["--rounds", "3", "--teacher-shares", "0.5"], "one share in [0, 1] per DAgger round"),
-                        (["--also-task", "track_random"], "also_tasks must be distinct names")):
+                        (["--also-task", "track_random"], "also_tasks must be distinct names"),
+                        (["--residual-on", "pid"], "residual_on must be None or a loop")):
         with pytest.raises(SystemExit) as exc:
             run_command("distill", argv)
         err = capsys.readouterr().err.strip().splitlines()
@@ -164,8 +168,12 @@ def test_applied_actions_are_the_plants_inputs_after_the_lag():
     plain.step(np.full((2, 4), 3.0, np.float32))  # clipped to the box, as the plant gets it
     np.testing.assert_allclose(plain.applied_actions(), 1.0, rtol=0, atol=1e-12)
     virtual = SoftPVTOLVectorEnv(num_envs=1, action_mode="virtual", task="hover")
-    with pytest.raises(ValueError, match="applied_actions.* action_mode='actuators'.* 'virtual'"):
-        virtual.applied_actions()
+    virtual.reset(seed=0)
+    virtual.step(np.zeros((1, 5), np.float32))
+    assert np.isfinite(virtual.applied_actions()).all()  # the allocation's actuators
+    ideal = SoftPVTOLVectorEnv(num_envs=1, action_mode="virtual", allocation="ideal", task="hover")
+    with pytest.raises(ValueError, match="applied_actions.*allocation='ideal'.* generalized force tau"):
+        ideal.applied_actions()
 
 
 class TellingTeacher(LinearTeacher):
@@ -266,3 +274,72 @@ def test_a_long_memory_students_lean_forward_matches_torch(history, tmp_path):
         obs, *_ = env.step(a_lean)
     assert max(gaps) <= 1e-5 and len(gaps) == 60
     assert json.loads((out / DISTILL_FILE).read_text())["config"]["history"] == history
+
+
+# ------------------------------------------------------------------------- a residual on the integral loop
+RESIDUAL = dict(residual_on="integral", residual_space="actuators")
+
+
+def test_the_loop_beside_the_env_gives_the_envs_base_command():
+    """With a zero correction the residual mode's plant gets its base loop's command, and the loop computed beside
+    the env on the observations (what the labels subtract) gives it to the float32 rounding of the observation."""
+    from softpvtol_gym.baselines.training.teachers import RESIDUAL_STUDENT_SCALE, teacher_policy
+
+    loop = teacher_policy("integral", "track_random", STUDENT_OPTIONS)
+    with pytest.raises(ValueError, match="unclipped_actions.* call predict first"):
+        loop.unclipped_actions()
+    env = SoftPVTOLVectorEnv(num_envs=3, action_mode="residual", task="track_random", controller_loop="integral",
+                             residual_space="actuators", residual_scale=RESIDUAL_STUDENT_SCALE, **STUDENT_OPTIONS)
+    obs, _ = env.reset(seed=4)
+    start, gaps = np.ones(3, bool), []
+    for _ in range(300):
+        base, _ = loop.predict(obs, episode_start=start)
+        start[:] = False
+        obs, *_ = env.step(np.zeros((3, 4), np.float32))
+        gaps.append(np.abs(env.applied_actions() - np.clip(loop.unclipped_actions(), -1, 1)).max())
+    assert max(gaps) < 1e-3 and np.isfinite(gaps).all()
+
+
+def test_residual_labels_are_the_corrections_from_the_loop_to_the_teacher():
+    """The teacher flying through the residual mode: each label is clip((teacher - loop) / scale, -1, 1), against a
+    reference stepped by hand; applied, the correction gives the plant the teacher's own command."""
+    from softpvtol_gym.baselines.training.teachers import RESIDUAL_STUDENT_SCALE, teacher_policy
+
+    obs, labels = collect(LinearTeacher(), "hover", "nominal", 2, 7, env_options=STUDENT_OPTIONS,
+                          residual_on="integral")
+    teacher, loop = LinearTeacher(), teacher_policy("integral", "hover", STUDENT_OPTIONS)
+    env = SoftPVTOLVectorEnv(num_envs=2, action_mode="residual", task="hover", controller_loop="integral",
+                             residual_space="actuators", residual_scale=RESIDUAL_STUDENT_SCALE, **STUDENT_OPTIONS)
+    observation, _ = env.reset(seed=7)
+    start = np.ones(2, bool)
+    for k in range(20):
+        wanted = teacher.label(observation)
+        clipped, _ = loop.predict(observation, episode_start=start)
+        base = loop.unclipped_actions()  # the loop's command before the box's clip
+        np.testing.assert_array_equal(np.clip(base, -1, 1).astype(np.float32), clipped)
+        start[:] = False
+        label = np.clip((wanted.astype(np.float32).astype(np.float64) - base) / RESIDUAL_STUDENT_SCALE, -1, 1)
+        np.testing.assert_array_equal(labels[2 * k:2 * k + 2], label.astype(np.float32))
+        np.testing.assert_array_equal(obs[2 * k:2 * k + 2], observation)
+        observation, *_ = env.step(label.astype(np.float32))
+        reachable = np.abs(wanted - base) < RESIDUAL_STUDENT_SCALE  # where the correction is in the residual's range
+        assert reachable.any()
+        np.testing.assert_allclose(env.applied_actions()[reachable], wanted[reachable], rtol=0, atol=1e-3)
+
+
+def test_a_residual_student_is_a_run_of_the_residual_mode_on_its_loop(tmp_path):
+    config = DistillConfig(**{**MIXTURE, "also_tasks": (), "tiers": ("nominal",), "residual_on": "integral"})
+    assert config.action_mode == "residual"
+    out = tmp_path / "residual"
+    result = distill(config, out, teacher=LinearTeacher())
+    run = result["run_config"]
+    assert (run.action_mode, run.controller_loop) == ("residual", "integral")
+    assert run.env_options["residual_space"] == "actuators" and run.env_options["residual_scale"] == 2.0
+    record = json.loads((out / DISTILL_FILE).read_text())
+    assert record["student"]["action_mode"] == "residual" and record["config"]["residual_on"] == "integral"
+    loaded, saved = LearnedPolicy.load(out)
+    assert saved.action_mode == "residual" and saved.controller_loop == "integral"
+    for r in record["rounds"]:  # the share of labels at the residual's clip, per action channel
+        assert len(r["labels_at_clip"]) == 4 and all(0.0 <= v <= 1.0 for v in r["labels_at_clip"])
+    # the round's evaluation flew the student in the residual mode (its action space: 4 corrections)
+    assert loaded.model.action_space.shape == (4,) and result["record"]["rounds"][0]["evaluation"]["nominal"]
