@@ -276,7 +276,7 @@ def test_wide_episodes_start_far_from_the_reference_and_the_others_as_the_task_d
     teacher = LinearTeacher()
     config = DistillConfig(**{**TINY, "episodes": 4, "wide_fraction": 0.5})
     assert config.wide_episodes() == 2
-    obs, labels = _collect_round(teacher, config, "nominal", 0, None, None)
+    obs, labels = _collect_round(teacher, config, "hover", "nominal", 0, None, None)
     task_obs, _ = collect(teacher, "hover", "nominal", 2, 0, env_options=config.env_options)  # the task's starts
     assert np.array_equal(obs[:len(task_obs)], task_obs)
     wide_obs, _ = collect(teacher, "hover", "nominal", 2, 2, env_options={**config.env_options,

@@ -198,3 +198,15 @@ def test_the_docs_ablation_is_generated_from_the_committed_leaderboard_students_
                   "PPO student-history-finetune (trained on hard)",
                   "PPO student-history-finetune (trained on model_gap)"):
         assert f"| {entry} |" in table  # the leaderboard holds the cells the ablation reads
+
+
+def test_a_residual_students_cell_is_a_job_of_the_residual_mode_with_the_mixture_settings(tmp_path):
+    spec = write_spec(tmp_path / "spec.yml", "{teacher: integral, task: hover, tier: nominal, variant: residual, "
+                                             "options: {residual_on: integral, teacher_shares: [0.5, 0.0], "
+                                             "rounds: 3, also_tasks: [track_random]}}")
+    (job,) = [j for j in load_jobs(spec) if j.policy == "distilled"]
+    assert job.action_mode == "residual"
+    config = distill_config(job.teacher, job.task, job.train_tier, job.seed, job.distill_options)
+    assert (config.residual_on, config.teacher_shares, config.also_tasks) == ("integral", (0.5, 0.0),
+                                                                               ("track_random",))
+    assert config.run_config().action_mode == "residual"

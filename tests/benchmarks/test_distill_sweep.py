@@ -14,6 +14,7 @@ from softpvtol_gym.baselines.util.blocks import read_block
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 from benchmarks import distill_sweep as bench  # noqa: E402
+from tests.benchmarks._tables import check_render_only  # noqa: E402
 
 COMMITTED = json.loads((ROOT / bench.SOURCE).read_text())
 
@@ -43,13 +44,7 @@ def test_the_distilled_cell_uses_the_first_sweeps_best_setting_on_nominal():
 
 
 def test_render_only_writes_the_table_from_the_json(tmp_path, capsys):
-    doc = tmp_path / "page.md"
-    start, end = (f"<!-- {bench.BLOCK}: table start (generated from {bench.SOURCE}, do not edit) -->",
-                  f"<!-- {bench.BLOCK}: table end -->")
-    doc.write_text(f"# x\n\n{start}\nold\n{end}\n")
-    assert bench.main(["--render-only", "--doc", str(doc)]) == 0
-    assert read_block(bench.BLOCK, bench.SOURCE, doc) == bench.markdown_table(COMMITTED).strip()
-    assert "wrote the table" in capsys.readouterr().out
+    check_render_only(bench, COMMITTED, tmp_path, capsys)
 
 
 def test_only_reruns_the_named_settings_and_keeps_the_others_with_their_runs(tmp_path, monkeypatch):

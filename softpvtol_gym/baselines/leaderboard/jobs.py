@@ -214,7 +214,8 @@ def load_jobs(spec_path: Path = SPEC_FILE, inference: str | None = None) -> list
                             imitation=tuple(sorted((cell.get("imitation") or {}).items())), **common))
     for cell in spec.get("distilled", []):
         for seed in spec["seeds"]:
-            jobs.append(Job(policy="distilled", action_mode="actuators", task=cell["task"], train_tier=cell["tier"],
+            mode = "actuators" if cell.get("options", {}).get("residual_on") is None else "residual"
+            jobs.append(Job(policy="distilled", action_mode=mode, task=cell["task"], train_tier=cell["tier"],
                             seed=int(seed), other_eval_tasks=tuple(cell.get("also_evaluated_on", ())),
                             teacher=cell["teacher"], variant=cell.get("variant"),
                             distill_options=tuple(sorted((k, _hashable(v))
