@@ -470,8 +470,7 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
                          channel_weights=action_channel_weights(act) if config.balance_actions else None,
                          history=config.history)
             student = LearnedPolicy(model, vecnorm, inference="lean")
-            this_round = data_obs[-len(config.tasks) * len(config.tiers):]
-            this_round_labels = data_act[-len(config.tasks) * len(config.tiers):]
+            this_round, this_round_labels = (d[-len(config.tasks) * len(config.tiers):] for d in (data_obs, data_act))
             entry = {"round": k, "kind": "behaviour cloning" if k == 0 else "dagger",
                      "samples": int(sum(len(o) for o in this_round)), "aggregate": int(len(obs)),
                      "loss_first_epoch": losses[0], "loss_last_epoch": losses[-1], "losses": losses,
@@ -509,8 +508,7 @@ def _collect_round(teacher, config: DistillConfig, task: str, tier: str, seed: i
 
 
 def _clip_shares(labels: list) -> list[float]:
-    """Per action channel, the share of a residual student's labels (the round's arrays (n, 4)) at the clip, +-1:
-    where the correction from the loop's command to the teacher's is larger than the residual's range."""
+    """Per action channel, the share of a residual student's labels (arrays (n, 4)) at the residual's clip, +-1."""
     return [float(v) for v in (np.abs(np.concatenate(labels)) >= 1.0).mean(axis=0)]
 
 
