@@ -84,8 +84,13 @@ def command(state, n, consts, mode, alloc, imap, ctl, cmd, virtual):
         cmd[3] = taumax * state[n, S.u + 3]
         return 0.0
     if mode == MODE_RES_ACT:
+        clip_base = consts[SC.residual_base_saturated] > 0.5
         for i in range(4):
-            cmd[i] = ctl[n, CK.OUT_ACT + i] + consts[SC.residual_actuator_scale + i] * state[n, S.u + i]
+            base = ctl[n, CK.OUT_ACT + i]
+            if clip_base and math.isfinite(base):  # a non-finite command stays one: the step ends the episode
+                lo, hi = (0.0, tmax) if i < 2 else (-taumax, taumax)
+                base = min(max(base, lo), hi)
+            cmd[i] = base + consts[SC.residual_actuator_scale + i] * state[n, S.u + i]
         return 0.0
     for i in range(5):
         cmd[5 + i] = consts[SC.virtual_offset + i] + consts[SC.virtual_scale + i] * state[n, S.u + i]

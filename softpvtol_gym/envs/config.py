@@ -31,6 +31,8 @@ INPUT_MAPS = ("paper", "exact")
 MODELS = (None, "paper", "consistent")
 ALLOCATIONS = ("paper", "exact", "ideal")
 RESIDUAL_SPACES = ("virtual", "actuators")
+#: what an actuator-space residual is added to: the base loop's command as computed, or clipped to the actuator box
+RESIDUAL_BASES = ("unsaturated", "saturated")
 RENDER_MODES = (None, "rgb_array", "human")
 
 #: the most RK4 steps per env step: a control period of 10 s, the length of the shortest built-in
@@ -109,6 +111,12 @@ class EnvConfig:
         "virtual", "str",
         'residual mode: "virtual" (the correction is added to the base controller\'s tau, 5 entries) | '
         '"actuators" (added to its actuators, 4 entries).')
+    residual_base: str = _argument(
+        "unsaturated", "str",
+        'residual mode with `residual_space="actuators"`: what the correction is added to, "unsaturated" (the base '
+        'controller\'s actuator command as computed, which may lie far outside the actuator box) | "saturated" (that '
+        "command clipped to the box first, so that with `residual_scale` >= 2 an action reaches every point of the "
+        "box); the sum is saturated in both, and action 0 gives the base controller's applied command in both.")
     frame_skip: int = _argument(
         1, "int",
         "RK4 steps of 0.01 s per env step, in [1, 1000] (the control period is 0.01 s x frame_skip, at most 10 s, "
@@ -228,6 +236,11 @@ class EnvConfig:
                     f"got action_mode={self.action_mode!r}; use one of ['exact', 'paper']"
                 )
         choice("residual_space", self.residual_space, RESIDUAL_SPACES)
+        choice("residual_base", self.residual_base, RESIDUAL_BASES)
+        if self.residual_base != "unsaturated" and (self.action_mode, self.residual_space) != ("residual", "actuators"):
+            raise ValueError(f"residual_base={self.residual_base!r} sets what an actuator-space residual is added to, "
+                             f"got action_mode={self.action_mode!r}, residual_space={self.residual_space!r}; pass "
+                             "residual_base='unsaturated', or action_mode='residual' with residual_space='actuators'")
         fs = self.frame_skip
         if isinstance(fs, (bool, np.bool_)) or not isinstance(fs, (int, np.integer)) or not 1 <= fs <= MAX_FRAME_SKIP:
             raise ValueError(f"frame_skip must be an int >= 1 and <= {MAX_FRAME_SKIP} ({FRAME_SKIP_REASON}), got "
@@ -475,6 +488,7 @@ class EnvConfig:
         # actuator-space residuals only: a virtual residual enters through the controller's tau alone
         if self.action_mode == "residual" and self.residual_space == "actuators":
             C[SC.residual_actuator_scale:SC.residual_actuator_scale + 4] = self.residual_actuator_scale
+            C[SC.residual_base_saturated] = 1.0 if self.residual_base == "saturated" else 0.0
         C[SC.residual_tau_scale:SC.residual_tau_scale + 5] = self.residual_tau_scale
         C[SC.hover_thrust] = self.params.hover_thrust
         C[SC.lag_on] = 1.0 if tc > 0 else 0.0

@@ -38,7 +38,8 @@ CONST = Columns("env_constants", [
     ("hover_thrust", 1), ("lag_on", 1), ("wind_on", 1), ("noise_on", 1),
     ("p_nominal", 10), ("lam", 5), ("kg", 5), ("dt_control", 1),
     ("consistent_plant", 1),  # 1.0: the plant integrates the consistent model (docs/model.md)
-], version=2)
+    ("residual_base_saturated", 1),  # 1.0: an actuator-space residual is added to the base command clipped to the box
+], version=3)
 CODES = Columns("env_codes", [("mode", 1), ("alloc", 1), ("imap", 1), ("res_virtual", 1), ("ref", 1),
                              ("action_dim", 1)], version=1)
 #: the physics lane block of a step: the RK4 rows, then the body reference and rates for the

@@ -70,7 +70,9 @@ class SoftPVTOLEnv(gym.Env):
     :class:`~softpvtol_gym.control.PassivityController` with the nominal ``params`` and the loop
     ``controller_loop``: by default "bounded" (exact allocation, arm references fed forward with bounded
     rates, desired curvatures within 0.6 rad) for allocation "exact", "paper" for "paper"; it is fed the
-    measured state, and action 0 reproduces it exactly. ``residual_gate=sigma`` multiplies the clipped
+    measured state, and action 0 reproduces it exactly. An actuator-space residual is added to the base
+    controller's command as computed (``residual_base="unsaturated"``) or clipped to the actuator box
+    (``"saturated"``: a command far outside the box cannot absorb the correction). ``residual_gate=sigma`` multiplies the clipped
     residual by g = 1 - exp(-rho^2 / sigma^2), rho^2 = e_x^2 + e_z^2 + e_theta^2 + edot_x^2 + edot_z^2 +
     edot_theta^2 of the measured body errors (position, attitude and their rates; SI units) of the last
     observation: the residual is exactly 0 at zero tracking error, with zero slope there
@@ -180,6 +182,7 @@ class SoftPVTOLEnv(gym.Env):
     | `input_map` | `str` | `"paper"` | "paper" \| "exact": the input map tau = B(q) a of the paper's model (as printed, or the virtual work of the thrusts at the tips): the plant's under `model="paper"` and the one the controllers assume. |
     | `allocation` | `str \| None` | `None` | virtual and residual modes: how body forces become thrusts, "exact" \| "paper" \| "ideal" (tau applied directly, virtual mode only, no saturation); None: "exact", or the `controller_loop`'s. |
     | `residual_space` | `str` | `"virtual"` | residual mode: "virtual" (the correction is added to the base controller's tau, 5 entries) \| "actuators" (added to its actuators, 4 entries). |
+    | `residual_base` | `str` | `"unsaturated"` | residual mode with `residual_space="actuators"`: what the correction is added to, "unsaturated" (the base controller's actuator command as computed, which may lie far outside the actuator box) \| "saturated" (that command clipped to the box first, so that with `residual_scale` >= 2 an action reaches every point of the box); the sum is saturated in both, and action 0 gives the base controller's applied command in both. |
     | `frame_skip` | `int` | `1` | RK4 steps of 0.01 s per env step, in [1, 1000] (the control period is 0.01 s x frame_skip, at most 10 s, the shortest built-in episode; the analytic controllers need <= 0.012 s). |
     | `max_episode_seconds` | `float \| None` | `None` | episode length [s] (truncation), from one control step to 1e9 s (the clock t = steps x dt keeps a resolution below 1e-6 s); None: the task's (hover, setpoint 10 s, track_paper 40 s, track_random 20 s). |
     | `tier_options` | `dict \| None` | `None` | overrides of the tier's numbers: `mismatch_scale` (in [0, 1), default 0.2; the scaled plant parameters must stay within the `SoftPVTOLParams` bounds), `wind_std` [N] (in [0, 1e20], 3), `wind_correlation_time` [s] (in (0, 1e9], 1), `obs_noise_scale` (x the noise stds, in [0, 1e8], 1), `actuator_time_constant` [s] (in [0, 1e9], 0.05); an option given by hand switches its effect on. |
@@ -228,6 +231,7 @@ class SoftPVTOLEnv(gym.Env):
         input_map: str = "paper",
         allocation: str | None = None,
         residual_space: str = "virtual",
+        residual_base: str = "unsaturated",
         frame_skip: int = 1,
         max_episode_seconds: float | None = None,
         tier_options: dict | None = None,

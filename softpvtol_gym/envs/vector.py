@@ -56,6 +56,7 @@ class SoftPVTOLVectorEnv(VectorEnv):
         input_map: str = "paper",
         allocation: str | None = None,
         residual_space: str = "virtual",
+        residual_base: str = "unsaturated",
         frame_skip: int = 1,
         max_episode_seconds: float | None = None,
         tier_options: dict | None = None,

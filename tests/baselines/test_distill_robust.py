@@ -118,6 +118,9 @@ def test_each_dagger_round_gets_its_share_of_the_schedule(tmp_path):
     ({"residual_on": "pid"}, "residual_on must be None or a loop the residual mode takes as its base"),
     ({"residual_on": "extended"}, r"residual_on .* got 'extended'"),
     ({"residual_on": "ideal"}, r"residual_on .* got 'ideal'"),
+    ({"residual_base": "saturated"}, "'saturated' only with residual_on .* got residual_base='saturated' with "
+                                     "residual_on=None"),
+    ({"residual_on": "integral", "residual_base": "clipped"}, r"residual_base must be one of \['unsaturated', "),
 ])
 def test_bad_mixture_settings_are_refused_with_what_was_given(changes, words):
     with pytest.raises(ConfigError, match=words):
@@ -132,7 +135,8 @@ def test_the_command_takes_the_mixture_and_the_schedule_and_refuses_bad_ones_in_
     for argv, words in ((["--teacher-shares", "0.5,x"], "--teacher-shares must be comma-separated shares"),
                         (["--rounds", "3", "--teacher-shares", "0.5"], "one share in [0, 1] per DAgger round"),
                         (["--also-task", "track_random"], "also_tasks must be distinct names"),
-                        (["--residual-on", "pid"], "residual_on must be None or a loop")):
+                        (["--residual-on", "pid"], "residual_on must be None or a loop"),
+                        (["--residual-base", "saturated"], "'saturated' only with residual_on")):
         with pytest.raises(SystemExit) as exc:
             run_command("distill", argv)
         err = capsys.readouterr().err.strip().splitlines()
@@ -300,16 +304,19 @@ def test_the_loop_beside_the_env_gives_the_envs_base_command():
     assert max(gaps) < 1e-3 and np.isfinite(gaps).all()
 
 
-def test_residual_labels_are_the_corrections_from_the_loop_to_the_teacher():
-    """The teacher flying through the residual mode: each label is clip((teacher - loop) / scale, -1, 1), against a
-    reference stepped by hand; applied, the correction gives the plant the teacher's own command."""
+@pytest.mark.parametrize("residual_base", ["unsaturated", "saturated"])
+def test_residual_labels_are_the_corrections_from_the_loop_to_the_teacher(residual_base):
+    """The teacher flying through the residual mode: each label is clip((teacher - base) / scale, -1, 1), base the
+    loop's command (clipped to the actuator box on the saturated base), against a reference stepped by hand;
+    applied, the correction gives the plant the teacher's own command, always on the saturated base."""
     from softpvtol_gym.baselines.training.teachers import RESIDUAL_STUDENT_SCALE, teacher_policy
 
     obs, labels = collect(LinearTeacher(), "hover", "nominal", 2, 7, env_options=STUDENT_OPTIONS,
-                          residual_on="integral")
+                          residual_on="integral", residual_base=residual_base)
     teacher, loop = LinearTeacher(), teacher_policy("integral", "hover", STUDENT_OPTIONS)
     env = SoftPVTOLVectorEnv(num_envs=2, action_mode="residual", task="hover", controller_loop="integral",
-                             residual_space="actuators", residual_scale=RESIDUAL_STUDENT_SCALE, **STUDENT_OPTIONS)
+                             residual_space="actuators", residual_scale=RESIDUAL_STUDENT_SCALE,
+                             residual_base=residual_base, **STUDENT_OPTIONS)
     observation, _ = env.reset(seed=7)
     start = np.ones(2, bool)
     for k in range(20):
@@ -317,13 +324,15 @@ def test_residual_labels_are_the_corrections_from_the_loop_to_the_teacher():
         clipped, _ = loop.predict(observation, episode_start=start)
         base = loop.unclipped_actions()  # the loop's command before the box's clip
         np.testing.assert_array_equal(np.clip(base, -1, 1).astype(np.float32), clipped)
+        if residual_base == "saturated":
+            base = np.clip(base, -1, 1)
         start[:] = False
         label = np.clip((wanted.astype(np.float32).astype(np.float64) - base) / RESIDUAL_STUDENT_SCALE, -1, 1)
         np.testing.assert_array_equal(labels[2 * k:2 * k + 2], label.astype(np.float32))
         np.testing.assert_array_equal(obs[2 * k:2 * k + 2], observation)
         observation, *_ = env.step(label.astype(np.float32))
         reachable = np.abs(wanted - base) < RESIDUAL_STUDENT_SCALE  # where the correction is in the residual's range
-        assert reachable.any()
+        assert reachable.all() if residual_base == "saturated" else reachable.any()
         np.testing.assert_allclose(env.applied_actions()[reachable], wanted[reachable], rtol=0, atol=1e-3)
 
 
@@ -343,3 +352,14 @@ def test_a_residual_student_is_a_run_of_the_residual_mode_on_its_loop(tmp_path):
         assert len(r["labels_at_clip"]) == 4 and all(0.0 <= v <= 1.0 for v in r["labels_at_clip"])
     # the round's evaluation flew the student in the residual mode (its action space: 4 corrections)
     assert loaded.model.action_space.shape == (4,) and result["record"]["rounds"][0]["evaluation"]["nominal"]
+    assert "residual_base" not in run.env_options  # the env's default: the loop's command as computed
+
+
+def test_a_residual_student_on_the_saturated_base_flies_and_is_evaluated_on_it():
+    config = DistillConfig(**{**MIXTURE, "also_tasks": (), "tiers": ("nominal",), "residual_on": "integral",
+                              "residual_base": "saturated"})
+    assert config.student_env_options["residual_base"] == "saturated"
+    assert config.run_config().env_options["residual_base"] == "saturated"
+    env = SoftPVTOLVectorEnv(num_envs=1, action_mode=config.action_mode, **{
+        k: v for k, v in config.run_config().env_options.items()}, controller_loop="integral")
+    assert env.config.residual_base == "saturated"

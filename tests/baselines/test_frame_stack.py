@@ -187,8 +187,8 @@ def test_env_options_are_parsed_without_eval():
         parse_env_options(["residual_scale"])
     with pytest.raises(ConfigError, match=r"unknown env option 'tier'; a run may set \['residual_scale'"):
         parse_env_options(["tier=hard"])
-    assert set(ENV_OPTION_KEYS) == {"residual_scale", "residual_space", "residual_gate", "observe_error_integral",
-                                    "error_integral_limit", "error_integral_error_limit"}
+    assert set(ENV_OPTION_KEYS) == {"residual_scale", "residual_space", "residual_base", "residual_gate",
+                                    "observe_error_integral", "error_integral_limit", "error_integral_error_limit"}
     assert parse_env_options(["error_integral_error_limit=0.5"]) == {"error_integral_error_limit": 0.5}
     assert parse_env_options(["observe_error_integral=true", "residual_gate=0.1"]) == \
         {"observe_error_integral": True, "residual_gate": 0.1}

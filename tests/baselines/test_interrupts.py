@@ -249,3 +249,33 @@ def test_an_interrupt_that_surfaces_as_another_error_is_still_an_interrupt(capsy
 
     with pytest.raises(RuntimeError, match="a real bug"):
         command_main("train.py", crash, "test")([])
+
+
+# ------------------------------------------------------------------------------- a signal inside LLVM
+def _frame_in(filename: str):
+    """A frame whose code lives in ``filename``."""
+    scope: dict = {}
+    exec(compile("import sys\nframe = sys._getframe()", filename, "exec"), scope)
+    return scope["frame"]
+
+
+@pytest.mark.parametrize("handler, exc_type, signum", [
+    (args_mod._raise_terminated, args_mod.Terminated, signal.SIGTERM),
+    (args_mod._raise_interrupt, KeyboardInterrupt, signal.SIGINT)])
+def test_a_signal_inside_llvm_is_delivered_again_not_lost(monkeypatch, handler, exc_type, signum):
+    """ctypes prints and drops an exception raised in LLVM's callbacks (a kernel compiling when SIGTERM came): the
+    handler sends the signal again a moment later instead; outside LLVM it raises at once."""
+    import llvmlite
+
+    sent = []
+    monkeypatch.setattr(args_mod.os, "kill", lambda pid, s: sent.append((pid, s)))
+    monkeypatch.setattr(args_mod, "_signals_received", [])
+    inside = _frame_in(os.path.join(os.path.dirname(llvmlite.__file__), "binding", "executionengine.py"))
+    handler(signum, inside)  # no exception: it would be lost
+    deadline = time.monotonic() + 5.0
+    while not sent and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert sent == [(os.getpid(), signum)] and args_mod._signals_received == []
+    with pytest.raises(exc_type):
+        handler(signum, _frame_in(__file__))
+    assert args_mod._signals_received == [signum]

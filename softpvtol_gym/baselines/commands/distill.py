@@ -80,6 +80,9 @@ def build_parser(prog: str = "distill.py") -> Parser:
                     help="the student is a residual on this passivity loop (e.g. integral: the env's residual mode in "
                          "the actuator space) and learns the correction from the loop's command to the teacher's "
                          "(default: the student commands the actuators)")
+    ap.add_argument("--residual-base", default=DEFAULTS.residual_base, choices=("unsaturated", "saturated"),
+                    help="with --residual-on: the correction is added to the loop's command as computed (default) or "
+                         "to that command clipped to the actuator box (saturated)")
     ap.add_argument("--history", type=int_arg(1, MAX_FRAME_STACK), default=DEFAULTS.history, metavar="K",
                     help="the student sees its last K observations, oldest first (a frame stack; default 1: the "
                          "current one)")
@@ -125,7 +128,7 @@ def _main(argv, layout: Layout, prog: str) -> int:
                                balance_actions=args.balance_actions, teacher_share=args.teacher_share,
                                history=args.history, privileged=args.privileged,
                                teacher_shares=_shares(args.teacher_shares, ap), also_tasks=tuple(args.also_tasks),
-                               residual_on=args.residual_on)
+                               residual_on=args.residual_on, residual_base=args.residual_base)
     except ConfigError as exc:
         ap.error(str(exc))
     out = args.out or Path("runs") / f"distilled_{config.teacher}_{config.task}_s{config.seed}"

@@ -35,13 +35,13 @@ NON_ALGO_KEYS = ("policy", "n_envs", "n_timesteps", "normalize", "frame_stack")
 #: the most observations ``frame_stack`` may stack (a bound on the policy's input, 64 floats per observation)
 MAX_FRAME_STACK = 64
 #: env arguments a run may set besides mode, task, tier and base loop (RunConfig.env_options, train.py --env):
-#: the residual mode's residual scale, the space the residual acts in and its gate, and the error-integral
-#: observation (softpvtol_gym EnvConfig fields). They define the policy's interface, so the run's training and
-#: evaluation envs both get them
-ENV_OPTION_KEYS = ("residual_scale", "residual_space", "residual_gate", "observe_error_integral",
+#: the residual mode's residual scale, the space the residual acts in, what it is added to and its gate, and the
+#: error-integral observation (softpvtol_gym EnvConfig fields). They define the policy's interface, so the run's
+#: training and evaluation envs both get them
+ENV_OPTION_KEYS = ("residual_scale", "residual_space", "residual_base", "residual_gate", "observe_error_integral",
                    "error_integral_limit", "error_integral_error_limit")
 #: the env options that shape the residual action (residual mode only); the others apply in every mode
-RESIDUAL_ONLY_ENV_OPTIONS = ("residual_scale", "residual_space", "residual_gate")
+RESIDUAL_ONLY_ENV_OPTIONS = ("residual_scale", "residual_space", "residual_base", "residual_gate")
 #: env arguments of the run's training env only (RunConfig.train_env_options, train.py --train-env): the
 #: training aids (extra reward terms, wider starts) that change what the agent is trained on but
 #: not its interface; evaluations (periodic, leaderboard) use the task's own reward and starts

@@ -155,8 +155,12 @@ class RunConfig:
             if key in RESIDUAL_ONLY_ENV_OPTIONS and self.action_mode != "residual":
                 raise ConfigError(f"env option {key} acts on the residual action mode only; this run's action mode "
                                   f"is {self.action_mode!r} (leave {key} out)")
+            # residual_base is checked with the space it acts in (only the actuator space has a base to clip)
+            context = {"residual_space": opts["residual_space"]} if key == "residual_base" and \
+                "residual_space" in opts else {}
             try:
-                env_config_class(action_mode=self.action_mode, controller_loop=self.controller_loop, **{key: value})
+                env_config_class(action_mode=self.action_mode, controller_loop=self.controller_loop, **context,
+                                 **{key: value})
             except (ValueError, TypeError) as exc:
                 raise ConfigError(f"{what} {key}: {exc}") from None
 

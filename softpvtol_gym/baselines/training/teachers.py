@@ -53,8 +53,8 @@ def teacher_policy(name: str, task: str, env_options: dict | None = None):
 def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=None,
             env_options: dict | None = None, progress=None,
             teacher_share: float = 0.0, history: int = 1, privileged: bool = False,
-            residual_on: str | None = None,
-            residual_scale: float = RESIDUAL_STUDENT_SCALE) -> tuple[np.ndarray, np.ndarray]:
+            residual_on: str | None = None, residual_scale: float = RESIDUAL_STUDENT_SCALE,
+            residual_base: str = "unsaturated") -> tuple[np.ndarray, np.ndarray]:
     """(observations (n, d), teacher actions (n, 4)) of ``episodes`` seeded episodes (seeds seed + i) on the
     actuators mode: flown by the teacher (``student=None``) or by ``student`` with the teacher labelling
     every observation the student visits; with ``teacher_share`` p > 0 the teacher's action is applied instead of
@@ -76,12 +76,14 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
     "actuators"``, ``residual_scale``), the student commands corrections, and the labels are the corrections that
     turn the loop's action into the teacher's, clip((teacher - loop) / residual_scale, -1, 1), with the loop's
     action computed beside the env on the observations the env's loop acts on (:func:`teacher_policy` of the loop:
-    its command before the actuator box's clip, to which the env adds the correction). A teacher with memory of its
-    inputs is told the actuators the plant got."""
+    its command before the actuator box's clip, to which the env adds the correction; with ``residual_base=
+    "saturated"`` that command clipped to the box, as the env's option of that name adds it). A teacher with memory
+    of its inputs is told the actuators the plant got."""
     options = dict(STUDENT_ENV_OPTIONS if env_options is None else env_options)
     loop = None if residual_on is None else teacher_policy(residual_on, task, options)
     if loop is not None:
-        options.update(controller_loop=residual_on, residual_space="actuators", residual_scale=residual_scale)
+        options.update(controller_loop=residual_on, residual_space="actuators", residual_scale=residual_scale,
+                       **({} if residual_base == "unsaturated" else {"residual_base": residual_base}))
     env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode="actuators" if loop is None else "residual", task=task,
                              tier=tier, **options)
     obs, _ = env.reset(seed=seed)
@@ -96,7 +98,9 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
         label, _ = teacher.predict(seen, episode_start=start, deterministic=True)
         if loop is not None:  # the correction from the loop's action to the teacher's
             loop.predict(obs, episode_start=start, deterministic=True)
-            base = loop.unclipped_actions()  # the env adds the correction to the loop's unsaturated command
+            base = loop.unclipped_actions()  # the env adds the correction to the loop's command as computed
+            if residual_base == "saturated":  # or to that command clipped to the actuator box
+                base = np.clip(base, -1.0, 1.0)
             label = np.clip((label.astype(np.float64) - base) / residual_scale, -1.0, 1.0).astype(np.float32)
         action = label if student is None else student.predict(obs, episode_start=start, deterministic=True)[0]
         if draws is not None:

@@ -79,14 +79,42 @@ class Terminated(KeyboardInterrupt):
 _signals_received: list[int] = []
 
 
-def _raise_terminated(signum, frame):
+#: how long a signal that arrived inside LLVM waits before it is delivered again [s]
+REDELIVERY_SECONDS = 0.05
+
+
+def _inside_llvm(frame) -> bool:
+    """Whether ``frame`` (the one a signal interrupted) runs inside llvmlite, e.g. in one of the ctypes callbacks
+    by which LLVM reports a kernel it compiled: an exception raised there is printed and dropped by ctypes."""
+    llvmlite = sys.modules.get("llvmlite")
+    if llvmlite is None or not getattr(llvmlite, "__file__", None):
+        return False
+    root = os.path.dirname(llvmlite.__file__) + os.sep
+    while frame is not None:
+        if frame.f_code.co_filename.startswith(root):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _deliver(signum, frame, exc_type: type[BaseException]) -> None:
+    """Raise ``exc_type`` for the signal, or, inside LLVM (where the exception would be lost and the command would
+    go on), send the signal again after :data:`REDELIVERY_SECONDS`, until it arrives outside."""
+    if _inside_llvm(frame):
+        timer = threading.Timer(REDELIVERY_SECONDS, os.kill, (os.getpid(), signum))
+        timer.daemon = True
+        timer.start()
+        return
     _signals_received.append(signum)
-    raise Terminated()
+    raise exc_type()
+
+
+def _raise_terminated(signum, frame):
+    _deliver(signum, frame, Terminated)
 
 
 def _raise_interrupt(signum, frame):
-    _signals_received.append(signum)
-    raise KeyboardInterrupt()
+    _deliver(signum, frame, KeyboardInterrupt)
 
 
 def interrupted(exc: BaseException, kept: str) -> BaseException:
