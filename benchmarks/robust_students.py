@@ -3,6 +3,7 @@
     python benchmarks/robust_students.py                  # every variant, one process each
     python benchmarks/robust_students.py --only NAME ...  # these variants again, the others' results kept
     python benchmarks/robust_students.py --render-only    # the table again from the JSON
+    python benchmarks/robust_students.py --crashes NAME   # where the kept student of NAME crashes on hover
 
 Each variant is one distillation (:func:`softpvtol_gym.baselines.training.distill.distill`) of the MPC, seed 0,
 changed from :data:`BASE` in the settings it names: the teacher's DAgger on a mixture of the randomised tiers and
@@ -51,6 +52,10 @@ VARIANTS = {
     "tier mixture, history 20 (0.2 s), privileged": {"privileged": True, "history": 20},
     "tier mixture, history 4, privileged, residual on the integral loop": {"privileged": True,
                                                                            "residual_on": "integral"},
+    "tier mixture, history 4, privileged, residual on the saturated integral loop": {
+        "privileged": True, "residual_on": "integral", "residual_base": "saturated"},
+    "tier mixture, history 20 (0.2 s), privileged, residual on the saturated integral loop": {
+        "privileged": True, "history": 20, "residual_on": "integral", "residual_base": "saturated"},
 }
 
 
@@ -108,6 +113,35 @@ def markdown_table(report: dict) -> str:
     return "\n".join(lines)
 
 
+def print_crashes(name: str, keep: Path, tiers=("noisy", "hard", "model_gap")) -> None:
+    """Each crash of variant ``name``'s kept student on its hover evaluation episodes: the tier, the episode, the
+    time, the env's termination reason and the state the step started from."""
+    import numpy as np
+    import torch
+
+    from softpvtol_gym import SoftPVTOLVectorEnv
+    from softpvtol_gym.baselines.training.distill import DISTILL_EVAL_SEED
+    from softpvtol_gym.baselines.training.policy import LearnedPolicy
+
+    torch.set_num_threads(1)
+    policy, run = LearnedPolicy.load(keep / slug(name))
+    n = BASE["eval_episodes"]
+    for tier in tiers:
+        env = SoftPVTOLVectorEnv(num_envs=n, action_mode=run.action_mode, task="hover", tier=tier,
+                                 controller_loop=run.controller_loop, **run.env_options)
+        obs, _ = env.reset(seed=DISTILL_EVAL_SEED + 1_000 * BASE["seed"])
+        start, done = np.ones(n, bool), np.zeros(n, bool)
+        while not done.all():
+            action, _ = policy.predict(obs, episode_start=start, deterministic=True)
+            start[:] = False
+            q = env.state[0].copy()
+            obs, _, term, trunc, info = env.step(action)
+            for i in np.flatnonzero(term & ~done):
+                print(f"hover {tier} episode {i}: t = {info['time'][i]:.2f} s, {info['termination_reason'][i]}, "
+                      f"q = {np.round(q[i], 2).tolist()}")
+            done |= term | trunc
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--workers", type=int, default=len(VARIANTS), help="processes at once (default: one per variant)")
@@ -116,7 +150,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=OUT, help="default: %(default)s")
     ap.add_argument("--doc", type=Path, default=DOC, help="the page with the table's markers (default: %(default)s)")
     ap.add_argument("--render-only", action="store_true", help="only write the table from --out")
+    ap.add_argument("--crashes", choices=list(VARIANTS), metavar="VARIANT",
+                    help="print where the kept student of VARIANT crashes on hover's noisy, hard and model_gap tiers")
     args = ap.parse_args(argv)
+    if args.crashes:
+        print_crashes(args.crashes, args.keep)
+        return 0
     if args.workers < 1:
         ap.error(f"--workers must be >= 1, got {args.workers}")
     if args.render_only:

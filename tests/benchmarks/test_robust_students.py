@@ -54,3 +54,20 @@ def test_no_variant_reaches_the_issues_crash_goal_and_the_page_says_so():
 
 def test_render_only_writes_the_table_from_the_json(tmp_path, capsys):
     check_render_only(bench, COMMITTED, tmp_path, capsys)
+
+
+def test_the_saturated_base_removes_the_clip_and_the_noisy_crash_and_the_page_says_what_it_costs():
+    """In words: on the saturated base few labels clip (against 42-43 % of the arm labels on the unsaturated one),
+    no track_random noisy episode crashes, and it crashes more than the actuator students on hard and model_gap."""
+    text = (ROOT / "benchmarks" / "STUDIES.md").read_text()
+    section = text[text.index("## Robust students"):text.index("## Running on Ray")]
+    plain = VARIANTS["tier mixture, history 4, privileged"]["evaluation"]
+    unsaturated = VARIANTS["tier mixture, history 4, privileged, residual on the integral loop"]
+    saturated = VARIANTS["tier mixture, history 4, privileged, residual on the saturated integral loop"]
+    assert max(saturated["labels_at_clip"]) <= 0.02 < 0.4 < min(unsaturated["labels_at_clip"][2:])
+    assert crashes(saturated["evaluation"]["noisy"]) == 0 and crashes(unsaturated["evaluation"]["noisy"]) == 8
+    assert saturated["evaluation"]["noisy"]["mean_rms_position_error_steady"] < saturated["teacher"]["noisy"][
+        "mean_rms_position_error_steady"]
+    for cell in ("hard", "model_gap"):
+        assert crashes(saturated["evaluation"][cell]) == 4 > crashes(plain[cell])
+    assert "1-2 % of the labels clip" in section and "4 of 8 on track_random hard and model_gap" in section
