@@ -87,9 +87,10 @@ def _inside_llvm(frame) -> bool:
     """Whether ``frame`` (the one a signal interrupted) runs inside llvmlite, e.g. in one of the ctypes callbacks
     by which LLVM reports a kernel it compiled: an exception raised there is printed and dropped by ctypes."""
     llvmlite = sys.modules.get("llvmlite")
-    if llvmlite is None or not getattr(llvmlite, "__file__", None):
+    locations = list(getattr(llvmlite, "__path__", None) or [])  # the package's folder, once it is imported
+    if not locations:
         return False
-    root = os.path.dirname(llvmlite.__file__) + os.sep
+    root = os.path.join(locations[0], "")
     while frame is not None:
         if frame.f_code.co_filename.startswith(root):
             return True
