@@ -72,8 +72,8 @@ class SoftPVTOLEnv(gym.Env):
     rates, desired curvatures within 0.6 rad) for allocation "exact", "paper" for "paper"; it is fed the
     measured state, and action 0 reproduces it exactly. An actuator-space residual is added to the base
     controller's command as computed (``residual_base="unsaturated"``) or clipped to the actuator box
-    (``"saturated"``: a command far outside the box cannot absorb the correction). ``residual_gate=sigma`` multiplies the clipped
-    residual by g = 1 - exp(-rho^2 / sigma^2), rho^2 = e_x^2 + e_z^2 + e_theta^2 + edot_x^2 + edot_z^2 +
+    (``"saturated"``: a command far outside the box cannot absorb the correction). ``residual_gate=sigma``
+    multiplies the clipped residual by g = 1 - exp(-rho^2 / sigma^2), rho^2 = e_x^2 + e_z^2 + e_theta^2 + edot_x^2 + edot_z^2 +
     edot_theta^2 of the measured body errors (position, attitude and their rates; SI units) of the last
     observation: the residual is exactly 0 at zero tracking error, with zero slope there
     (``info["residual_gate"]``: the g applied). Finite out-of-range actions are clipped

@@ -83,7 +83,7 @@ def collect(teacher, task: str, tier: str, episodes: int, seed: int, student=Non
     loop = None if residual_on is None else teacher_policy(residual_on, task, options)
     if loop is not None:
         options.update(controller_loop=residual_on, residual_space="actuators", residual_scale=residual_scale,
-                       **({} if residual_base == "unsaturated" else {"residual_base": residual_base}))
+                       residual_base=residual_base)
     env = SoftPVTOLVectorEnv(num_envs=episodes, action_mode="actuators" if loop is None else "residual", task=task,
                              tier=tier, **options)
     obs, _ = env.reset(seed=seed)
