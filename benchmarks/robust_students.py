@@ -56,6 +56,12 @@ VARIANTS = {
         "privileged": True, "residual_on": "integral", "residual_base": "saturated"},
     "tier mixture, history 20 (0.2 s), privileged, residual on the saturated integral loop": {
         "privileged": True, "history": 20, "residual_on": "integral", "residual_base": "saturated"},
+    # recovery data: a quarter of the episodes start turned and spinning, a fifth round, the teacher's share held
+    "tier mixture, history 4, privileged, turned starts, 5 rounds": {
+        "privileged": True, "attitude_fraction": 0.25, "rounds": 5, "teacher_shares": [0.5, 0.5, 0.2, 0.0]},
+    "tier mixture, history 4, privileged, turned starts, 5 rounds, residual on the saturated integral loop": {
+        "privileged": True, "attitude_fraction": 0.25, "rounds": 5, "teacher_shares": [0.5, 0.5, 0.2, 0.0],
+        "residual_on": "integral", "residual_base": "saturated"},
 }
 
 

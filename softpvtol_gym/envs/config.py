@@ -200,7 +200,9 @@ class EnvConfig:
         '"task" (the task\'s starting states, see Starting State) | "wide": deviations from the reference at '
         "t = 0 uniform in +/-(6 m, 8 m, 0.7 rad, 0.5 rad, 0.5 rad) on q and +/-(1 m/s, 1 m/s, 0.5, 0.5, 0.5 rad/s) "
         "on qdot (x `start_error_scale`), positions truncated to |x| <= 19 m, 0 <= z <= 19 m: starts like "
-        "track_paper's (5 m beside, 7 m below, tilted 0.63 rad) around any task's reference.")
+        "track_paper's (5 m beside, 7 m below, tilted 0.63 rad) around any task's reference | \"attitude\": the "
+        "same in +/-(1 m, 1 m, 1.2 rad, 0.6 rad, 0.6 rad) and +/-(0.5 m/s, 0.5 m/s, 2, 1, 1 rad/s): turned and "
+        "spinning near the reference (recovery).")
 
     def __post_init__(self) -> None:
         if self.actuator_limits is not None:

@@ -33,7 +33,7 @@ N_STATE_UNIFORMS = UNIFORMS.widths["state"]
 MAX_START_ERROR_SCALE = 10.0
 START_SCALE_REASON = ("x the task's starting deviation from the reference; at 10 the hover perturbation reaches "
                       "10 m and 3 rad, and positions are clipped into the start box")
-START_DISTRIBUTIONS = ("task", "wide")
+START_DISTRIBUTIONS = ("task", "wide", "attitude")
 
 
 def sample_episodes(cfg, u: np.ndarray, start_error_scale: float | None = None) -> dict[str, np.ndarray]:
@@ -78,6 +78,12 @@ def sample_episodes(cfg, u: np.ndarray, start_error_scale: float | None = None) 
 #: and on qdot [m/s, rad/s]
 WIDE_Q = (6.0, 8.0, 0.7, 0.5, 0.5)
 WIDE_QD = (1.0, 1.0, 0.5, 0.5, 0.5)
+#: ``start_distribution="attitude"``: likewise, near the reference in position but turned, bent and spinning: the
+#: states a controller has to recover from (the body up to 1.2 rad, turning at up to 2 rad/s)
+ATTITUDE_Q = (1.0, 1.0, 1.2, 0.6, 0.6)
+ATTITUDE_QD = (0.5, 0.5, 2.0, 1.0, 1.0)
+#: the half-widths (on q, on qdot) of the start distributions that draw their deviations uniformly
+START_HALF_WIDTHS = {"wide": (WIDE_Q, WIDE_QD), "attitude": (ATTITUDE_Q, ATTITUDE_QD)}
 #: the box that reshaped starts are kept in: |x| <= START_X, START_Z_MIN <= z <= START_Z_MAX, |q_arm| <=
 #: START_ARM (1 m inside the termination box, the ground limit 1 m below; the arms 0.1 pi inside the model's
 #: validity)
@@ -92,7 +98,8 @@ def shape_starts(cfg, u: np.ndarray, refp: np.ndarray, q0: np.ndarray, qd0: np.n
       start box (|x| <= 19 m, 0 <= z <= 19 m, |q_arm| <= 0.9 pi);
     * "wide": deviations scale x WIDE_Q c, scale x WIDE_QD c' from the episode's uniforms u (N, 10)
       (c = 2 u - 1); x and z uniform on the part of [ref - scale w, ref + scale w] inside the start box (a
-      truncated uniform: no starts piled up on the box's edge), the arms clipped.
+      truncated uniform: no starts piled up on the box's edge), the arms clipped;
+    * "attitude": the same with ATTITUDE_Q, ATTITUDE_QD (near the reference, turned and spinning).
     """
     n = u.shape[0]
     pos, vel, _ = cfg.task_spec.evaluate(np.zeros(n), refp)
@@ -102,12 +109,13 @@ def shape_starts(cfg, u: np.ndarray, refp: np.ndarray, q0: np.ndarray, qd0: np.n
     qdr[:, :3] = vel
     lo = np.array([-START_X, START_Z_MIN])
     hi = np.array([START_X, START_Z_MAX])
-    if cfg.start_distribution == "wide":
+    if cfg.start_distribution in START_HALF_WIDTHS:
+        wq, wqd = (np.asarray(w) for w in START_HALF_WIDTHS[cfg.start_distribution])
         c = 2.0 * u - 1.0
-        q = qr + scale * np.asarray(WIDE_Q) * c[:, :5]
-        qd = qdr + scale * np.asarray(WIDE_QD) * c[:, 5:]
-        a = np.maximum(qr[:, :2] - scale * np.asarray(WIDE_Q[:2]), lo)
-        b = np.minimum(qr[:, :2] + scale * np.asarray(WIDE_Q[:2]), hi)
+        q = qr + scale * wq * c[:, :5]
+        qd = qdr + scale * wqd * c[:, 5:]
+        a = np.maximum(qr[:, :2] - scale * wq[:2], lo)
+        b = np.minimum(qr[:, :2] + scale * wq[:2], hi)
         q[:, :2] = np.where(a <= b, a + u[:, :2] * (b - a), np.clip(qr[:, :2], lo, hi))
     else:
         q = qr + scale * (q0 - qr)

@@ -147,7 +147,9 @@ class SoftPVTOLEnv(gym.Env):
     qdot; arm references 0; positions then clipped into |x| <= 19 m, 0 <= z <= 19 m, arms into ±0.9 pi);
     ``start_distribution="wide"`` draws the deviations uniformly in ±(6 m, 8 m, 0.7 rad, 0.5 rad, 0.5 rad)
     and ±(1 m/s, 1 m/s, 0.5 rad/s x 3) (x the scale; x, z uniform on the part inside that box), around any
-    task's reference: starts like track_paper's. Both use the episode's own uniforms (no extra draws).
+    task's reference: starts like track_paper's; ``start_distribution="attitude"`` likewise in ±(1 m, 1 m,
+    1.2 rad, 0.6 rad, 0.6 rad) and ±(0.5 m/s, 0.5 m/s, 2 rad/s, 1 rad/s, 1 rad/s): near the reference, turned,
+    bent and spinning (recovery). All use the episode's own uniforms (no extra draws).
     ``reset(options={"start_error_scale": s})`` sets the scale for that reset,
     ``env.set_start_error_scale(s)`` for every later one (a curriculum).
 
@@ -198,7 +200,7 @@ class SoftPVTOLEnv(gym.Env):
     | `action_rate_penalty` | `float` | `0.0` | w >= 0 (at most 100): adds the reward term action_rate = -w mean((a_t - a_(t-1))^2) of the clipped actions (0 at an episode's first step; in [-4 w, 0]); 0: no term. |
     | `residual_gate` | `float \| None` | `None` | residual mode: sigma > 0 (at most 1e6): the residual action is multiplied by the gate g = 1 - exp(-rho^2 / sigma^2) of the measured tracking error rho^2 = e_x^2 + e_z^2 + e_theta^2 + edot_x^2 + edot_z^2 + edot_theta^2 (SI units: m, rad, m/s, rad/s) at the start of the step, so the correction is exactly 0 at zero error and its slope there is 0 (the base loop alone near the reference); None: no gate. |
     | `start_error_scale` | `float` | `1.0` | scales the starting state's deviation from the reference at t = 0 (q0 - q_ref(0), qdot0 - qdot_ref(0); arm references 0), in [0, 10]; 0: starts on the reference; positions are then clipped into \|x\| <= 19 m, 0 <= z <= 19 m, arms into +/-0.9 pi. A curriculum sets it per reset (reset option `start_error_scale`) or for every later reset, autoresets included (`env.set_start_error_scale(s)`). |
-    | `start_distribution` | `str` | `"task"` | "task" (the task's starting states, see Starting State) \| "wide": deviations from the reference at t = 0 uniform in +/-(6 m, 8 m, 0.7 rad, 0.5 rad, 0.5 rad) on q and +/-(1 m/s, 1 m/s, 0.5, 0.5, 0.5 rad/s) on qdot (x `start_error_scale`), positions truncated to \|x\| <= 19 m, 0 <= z <= 19 m: starts like track_paper's (5 m beside, 7 m below, tilted 0.63 rad) around any task's reference. |
+    | `start_distribution` | `str` | `"task"` | "task" (the task's starting states, see Starting State) \| "wide": deviations from the reference at t = 0 uniform in +/-(6 m, 8 m, 0.7 rad, 0.5 rad, 0.5 rad) on q and +/-(1 m/s, 1 m/s, 0.5, 0.5, 0.5 rad/s) on qdot (x `start_error_scale`), positions truncated to \|x\| <= 19 m, 0 <= z <= 19 m: starts like track_paper's (5 m beside, 7 m below, tilted 0.63 rad) around any task's reference \| "attitude": the same in +/-(1 m, 1 m, 1.2 rad, 0.6 rad, 0.6 rad) and +/-(0.5 m/s, 0.5 m/s, 2, 1, 1 rad/s): turned and spinning near the reference (recovery). |
 
     An unknown argument is a TypeError naming the valid ones.
 

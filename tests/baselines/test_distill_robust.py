@@ -121,6 +121,9 @@ def test_each_dagger_round_gets_its_share_of_the_schedule(tmp_path):
     ({"residual_base": "saturated"}, "'saturated' only with residual_on .* got residual_base='saturated' with "
                                      "residual_on=None"),
     ({"residual_on": "integral", "residual_base": "clipped"}, r"residual_base must be one of \['unsaturated', "),
+    ({"attitude_fraction": 1.5}, r"attitude_fraction must be a share in \[0, 1\], got 1.5"),
+    ({"attitude_fraction": True}, r"attitude_fraction must be a share in \[0, 1\], got True"),
+    ({"episodes": 4, "wide_fraction": 0.5, "attitude_fraction": 0.75}, r"start 2 \+ 3 of the 4 episodes per round"),
 ])
 def test_bad_mixture_settings_are_refused_with_what_was_given(changes, words):
     with pytest.raises(ConfigError, match=words):
@@ -136,7 +139,8 @@ def test_the_command_takes_the_mixture_and_the_schedule_and_refuses_bad_ones_in_
                         (["--rounds", "3", "--teacher-shares", "0.5"], "one share in [0, 1] per DAgger round"),
                         (["--also-task", "track_random"], "also_tasks must be distinct names"),
                         (["--residual-on", "pid"], "residual_on must be None or a loop"),
-                        (["--residual-base", "saturated"], "'saturated' only with residual_on")):
+                        (["--residual-base", "saturated"], "'saturated' only with residual_on"),
+                        (["--wide-fraction", "0.5", "--attitude-fraction", "0.75"], "more than there are")):
         with pytest.raises(SystemExit) as exc:
             run_command("distill", argv)
         err = capsys.readouterr().err.strip().splitlines()
@@ -152,6 +156,24 @@ def test_the_command_takes_the_mixture_and_the_schedule_and_refuses_bad_ones_in_
     assert sorted(p.name for p in (out / DATASET_DIR).iterdir()) == [
         "round_00_nominal.npz", "round_00_track_random_nominal.npz", "round_01_nominal.npz",
         "round_01_track_random_nominal.npz"]
+
+
+def test_a_round_flies_the_task_starts_then_the_wide_then_the_turned_ones_from_consecutive_seeds():
+    from softpvtol_gym.baselines.training.distill import _collect_round
+
+    config = DistillConfig(**{**MIXTURE, "episodes": 4, "wide_fraction": 0.25, "attitude_fraction": 0.25})
+    assert (config.wide_episodes(), config.attitude_episodes()) == (1, 1)
+    teacher = LinearTeacher()
+    obs, labels = _collect_round(teacher, config, "hover", "nominal", 40, None, None)
+    parts = [collect(teacher, "hover", "nominal", count, first, env_options={**config.env_options,
+                                                                            "start_distribution": start})
+             for count, first, start in ((2, 40, "task"), (1, 42, "wide"), (1, 43, "attitude"))]
+    np.testing.assert_array_equal(obs, np.concatenate([p[0] for p in parts]))
+    np.testing.assert_array_equal(labels, np.concatenate([p[1] for p in parts]))
+    # the turned episode starts turned: its first observation differs from the task's start of that seed
+    turned_start = parts[2][0][0]
+    task_start = collect(teacher, "hover", "nominal", 1, 43, env_options=config.env_options)[0][0]
+    assert not np.array_equal(turned_start, task_start)
 
 
 # ------------------------------------------------------------------------- the actuators' true lagged state

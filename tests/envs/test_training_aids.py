@@ -11,7 +11,7 @@ import softpvtol_gym  # noqa: F401
 from softpvtol_gym import PassivityPolicy, SoftPVTOLEnv, SoftPVTOLVectorEnv
 from softpvtol_gym.control import LOOPS
 from softpvtol_gym.envs.config import EnvConfig
-from softpvtol_gym.envs.episodes import START_X, START_Z_MAX, START_Z_MIN, WIDE_Q
+from softpvtol_gym.envs.episodes import ATTITUDE_Q, ATTITUDE_QD, START_X, START_Z_MAX, START_Z_MIN, WIDE_Q
 from softpvtol_gym.envs.reward import REWARD_TERMS
 from softpvtol_gym.tasks import PAPER_Q0
 
@@ -266,6 +266,28 @@ def test_wide_starts_cover_track_papers_start_inside_the_box(task):
     venv.close()
 
 
+@pytest.mark.parametrize("task", ["hover", "track_random"])
+def test_attitude_starts_are_turned_and_spinning_near_the_reference(task):
+    venv = SoftPVTOLVectorEnv(num_envs=400, task=task, start_distribution="attitude")
+    venv.reset(seed=0)
+    s = venv.sim
+    dev, dev_rate = s.q - s.qr * np.array([1, 1, 1, 0, 0]), s.qd - s.qdr * np.array([1, 1, 1, 0, 0])
+    assert (np.abs(dev) <= np.array(ATTITUDE_Q) + 1e-12).all()
+    assert (np.abs(dev_rate) <= np.array(ATTITUDE_QD) + 1e-12).all()
+    # the body turned beyond 1 rad, spinning faster than 1.5 rad/s, and the positions within 1 m
+    assert np.abs(dev[:, 2]).max() > 1.0 and np.abs(dev_rate[:, 2]).max() > 1.5
+    assert np.abs(dev[:, :2]).max() <= 1.0 + 1e-12
+    # the same episode seeds as the task's starts: only the start's shape differs
+    plain = SoftPVTOLVectorEnv(num_envs=400, task=task)
+    plain.reset(seed=0)
+    np.testing.assert_array_equal(plain.sim.qr, s.qr)
+    assert not np.array_equal(plain.sim.q, s.q)
+    _, _, term, _, _ = venv.step(np.zeros((400, 4)))
+    assert not term.any()
+    venv.close()
+    plain.close()
+
+
 # ------------------------------------------------------------------------------ single = vector, resume
 def test_single_and_vector_envs_agree_bit_for_bit_with_every_aid():
     kw = dict(action_mode="residual", task="track_random", tier="hard", controller_loop="integral",
@@ -372,7 +394,7 @@ def test_checkpoint_resume_restores_the_aids_memory():
     ({"residual_gate": math.nan, "action_mode": "residual"}, "residual_gate"),
     ({"start_error_scale": -0.5}, r"start_error_scale must be in \[0, 10\]"),
     ({"start_error_scale": 11.0}, r"start_error_scale must be in \[0, 10\]"),
-    ({"start_distribution": "paper"}, r"start_distribution must be one of \['task', 'wide'\]"),
+    ({"start_distribution": "paper"}, r"start_distribution must be one of \['task', 'wide', 'attitude'\]"),
 ])
 def test_bad_aid_arguments_are_refused(kwargs, match):
     with pytest.raises(ValueError, match=match):

@@ -61,6 +61,9 @@ def build_parser(prog: str = "distill.py") -> Parser:
     ap.add_argument("--wide-fraction", type=float_arg(0.0, 1.0), default=DEFAULTS.wide_fraction, metavar="F",
                     help="the share of each round's episodes that start far from the reference, like track_paper's "
                          "(the env's start_distribution='wide'; default 0)")
+    ap.add_argument("--attitude-fraction", type=float_arg(0.0, 1.0), default=DEFAULTS.attitude_fraction, metavar="F",
+                    help="the share of each round's episodes that start near the reference but turned (up to 1.2 rad), "
+                         "bent and spinning: recovery data (the env's start_distribution='attitude'; default 0)")
     ap.add_argument("--teacher-integral", action=argparse.BooleanOptionalAction, default=DEFAULTS.teacher_integral,
                     help="observe the error integrals as a teacher with integral action integrates them (its error "
                          "clip and limit; default on; --no-teacher-integral: the env's raw integrals)")
@@ -124,7 +127,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
                                net_arch=_net_arch(args.net_arch, ap), rounds=args.rounds, episodes=args.episodes,
                                epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
                                eval_episodes=args.eval_episodes, precision_scale=args.precision_scale,
-                               wide_fraction=args.wide_fraction, teacher_integral=args.teacher_integral,
+                               wide_fraction=args.wide_fraction, attitude_fraction=args.attitude_fraction,
+                               teacher_integral=args.teacher_integral,
                                balance_actions=args.balance_actions, teacher_share=args.teacher_share,
                                history=args.history, privileged=args.privileged,
                                teacher_shares=_shares(args.teacher_shares, ap), also_tasks=tuple(args.also_tasks),

@@ -257,17 +257,19 @@ def distill(config: DistillConfig, run_dir: Path, resume: bool = False, progress
 def _collect_round(teacher, config: DistillConfig, task: str, tier: str, seed: int, student, bar,
                    teacher_share: float = 0.0) -> tuple:
     """One round's dataset on one task and tier: ``config.episodes`` episodes from seed ``seed`` on, the last
-    ``config.wide_episodes()`` of them started wide; with a student, the teacher acts at a step with probability
-    ``teacher_share``."""
-    wide = config.wide_episodes()
+    ``config.wide_episodes()`` before the last ``config.attitude_episodes()`` started wide, those turned; with a
+    student, the teacher acts at a step with probability ``teacher_share``."""
+    wide, turned = config.wide_episodes(), config.attitude_episodes()
     parts = []
-    for count, first, start in ((config.episodes - wide, seed, "task"), (wide, seed + config.episodes - wide, "wide")):
+    first = seed
+    for count, start in ((config.episodes - wide - turned, "task"), (wide, "wide"), (turned, "attitude")):
         if count:
             parts.append(collect(teacher, task, tier, count, first, student=student, progress=bar,
                                  env_options={**config.env_options, "start_distribution": start},
                                  teacher_share=teacher_share, history=config.history,
                                  privileged=config.privileged, residual_on=config.residual_on,
                                  residual_scale=RESIDUAL_STUDENT_SCALE, residual_base=config.residual_base))
+        first += count
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 

@@ -30,7 +30,7 @@ MAX_ROUNDS = 50
 #: settings added after runs were made, with the value those runs had (a resumed run keeps it)
 EARLIER_DEFAULTS = {"wide_fraction": 0.0, "teacher_integral": False, "balance_actions": False, "teacher_share": 0.0,
                     "history": 1, "privileged": False, "teacher_shares": [], "also_tasks": [],
-                   "residual_on": None, "residual_base": "unsaturated"}
+                   "residual_on": None, "residual_base": "unsaturated", "attitude_fraction": 0.0}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,6 +56,10 @@ class DistillConfig:
         wide_fraction: the share of each round's episodes (rounded) that start like track_paper's, far from the
             reference (the env's ``start_distribution="wide"``); the others start as the task does. The student
             then also learns to recover from errors of metres, which the task's own starts never show it.
+        attitude_fraction: the share of each round's episodes (rounded) that start near the reference but turned
+            (up to 1.2 rad), bent and spinning (the env's ``start_distribution="attitude"``): the states a student
+            that has lost its attitude must recover from, which neither the teacher's flights nor the task's starts
+            visit. Together with ``wide_fraction`` at most every episode.
         teacher_integral: the student observes the error integrals as a teacher with integral action integrates
             them (:func:`~softpvtol_gym.baselines.training.teachers.student_env_options`); False: as the env
             does by default (raw errors). No effect for a teacher without integral action.
@@ -117,6 +121,7 @@ class DistillConfig:
     also_tasks: tuple = ()
     residual_on: str | None = None
     residual_base: str = "unsaturated"
+    attitude_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("tiers", "net_arch", "teacher_shares", "also_tasks"):
@@ -150,9 +155,14 @@ class DistillConfig:
         for name in ("teacher_integral", "balance_actions", "privileged"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{name} must be a bool, got {getattr(self, name)!r}")
-        w = self.wide_fraction
-        if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0.0 <= w <= 1.0:
-            raise ConfigError(f"wide_fraction must be a share in [0, 1], got {w!r}")
+        for name in ("wide_fraction", "attitude_fraction"):
+            w = getattr(self, name)
+            if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0.0 <= w <= 1.0:
+                raise ConfigError(f"{name} must be a share in [0, 1], got {w!r}")
+        if self.wide_episodes() + self.attitude_episodes() > self.episodes:
+            raise ConfigError(f"wide_fraction {self.wide_fraction!r} and attitude_fraction {self.attitude_fraction!r} "
+                              f"start {self.wide_episodes()} + {self.attitude_episodes()} of the {self.episodes} "
+                              f"episodes per round: more than there are; give shares that sum to at most 1")
         p = self.teacher_share
         if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 <= p < 1.0:
             raise ConfigError(f"teacher_share must be a probability in [0, 1), got {p!r}")
@@ -238,6 +248,10 @@ class DistillConfig:
     def wide_episodes(self) -> int:
         """The episodes of each round and tier that start wide (``wide_fraction`` of ``episodes``, rounded)."""
         return int(round(self.wide_fraction * self.episodes))
+
+    def attitude_episodes(self) -> int:
+        """The episodes of each round and tier that start turned (``attitude_fraction`` of ``episodes``, rounded)."""
+        return int(round(self.attitude_fraction * self.episodes))
 
     def run_config(self, dataset_size: int = 1) -> RunConfig:
         """The student's run config: PPO on its action mode (:attr:`action_mode`) with the error integrals
