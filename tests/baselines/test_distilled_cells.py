@@ -40,6 +40,10 @@ def write_spec(path, cells: str):
     ("{teacher: integral, task: hover, tier: nominal, colour: red}", "unknown keys ['colour']"),
     ("{teacher: integral, task: hover, tier: nominal}, {teacher: integral, task: hover, tier: nominal}",
      "repeats the cell"),
+    ("{teacher: integral, task: hover, tier: nominal, options: {also_tiers: noisy}}",
+     "options.also_tiers must be a list of tiers flown besides 'nominal', got 'noisy'"),
+    ("{teacher: integral, task: hover, tier: nominal, options: {also_tiers: [nominal]}}",
+     "tiers must be distinct names"),
 ])
 def test_bad_distilled_cells_are_refused_naming_the_key(tmp_path, cell, words):
     with pytest.raises(ConfigError, match=r"distilled\[\d\]") as info:
@@ -210,3 +214,20 @@ def test_a_residual_students_cell_is_a_job_of_the_residual_mode_with_the_mixture
     assert (config.residual_on, config.teacher_shares, config.also_tasks) == ("integral", (0.5, 0.0),
                                                                                ("track_random",))
     assert config.run_config().action_mode == "residual"
+
+
+def test_a_privileged_mixture_cell_flies_its_tier_and_the_others_and_its_results_say_privileged(tmp_path):
+    import dataclasses
+
+    from softpvtol_gym.baselines.leaderboard.stats import _privileged
+
+    spec = write_spec(tmp_path / "spec.yml", "{teacher: mpc, task: hover, tier: nominal, variant: robust, "
+                                             "options: {privileged: true, also_tiers: [noisy, hard], "
+                                             "also_tasks: [track_random]}}, " + TINY)
+    robust, plain = [j for j in load_jobs(spec) if j.policy == "distilled"]
+    config = distill_config(robust.teacher, robust.task, robust.train_tier, robust.seed, robust.distill_options)
+    assert config.tiers == ("nominal", "noisy", "hard") and config.privileged
+    assert config.tasks == ("hover", "track_random") and robust.name == "distilled-mpc-robust_hover_nominal/seed_0"
+    # the job as its result records it (JSON): privileged; the plain student is not
+    as_recorded = [json.loads(json.dumps(dataclasses.asdict(j))) for j in (robust, plain)]
+    assert [_privileged(j) for j in as_recorded] == [True, False]

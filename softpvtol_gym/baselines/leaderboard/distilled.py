@@ -9,8 +9,9 @@ A spec's ``distilled`` list holds one mapping per cell::
 ``teacher`` (a name of :data:`~softpvtol_gym.baselines.training.teachers.TEACHERS`), ``task`` and ``tier`` (the
 tier the student's episodes fly) are required; ``variant`` (a slug) tells two cells of the same teacher, task and
 tier apart; ``options`` are :class:`~softpvtol_gym.baselines.training.distill.DistillConfig` fields other than
-``teacher``, ``task``, ``tiers`` and ``seed`` (the job's seed is the run's). The spec's checks are in
-:mod:`~softpvtol_gym.baselines.leaderboard.spec`. Each seed of the spec is one job
+``teacher``, ``task``, ``tiers`` and ``seed`` (the job's seed is the run's), and ``also_tiers``: the tiers the
+episodes fly besides ``tier`` (a mixture: DistillConfig's ``tiers`` is ``tier`` and then these). The spec's checks
+are in :mod:`~softpvtol_gym.baselines.leaderboard.spec`. Each seed of the spec is one job
 (:mod:`~softpvtol_gym.baselines.leaderboard.jobs`): the student is distilled in ``<job>.run/`` and its model
 files, ``distill.json`` and ``distill_config.json`` are copied into the job's folder. :func:`rounds_table` and
 :func:`ablation_table` are the docs' tables of the students (``softpvtol leaderboard`` writes them).
@@ -29,13 +30,15 @@ from softpvtol_gym.baselines.util.safe_load import loads_json
 
 #: the DistillConfig fields a cell fixes itself (an entry's ``options`` may not set them)
 FIXED_FIELDS = ("teacher", "task", "tiers", "seed")
+#: the option that adds tiers to a cell's own (DistillConfig's ``tiers``: the cell's ``tier``, then these)
+ALSO_TIERS = "also_tiers"
 #: what a distilled job's folder keeps besides the model files
 RECORD_FILES = (DISTILL_FILE, "distill_config.json")
 
 
 def option_fields() -> tuple:
     """The DistillConfig fields an entry's ``options`` may set."""
-    return tuple(f.name for f in dataclasses.fields(DistillConfig) if f.name not in FIXED_FIELDS)
+    return (*(f.name for f in dataclasses.fields(DistillConfig) if f.name not in FIXED_FIELDS), ALSO_TIERS)
 
 
 def distill_config(teacher: str, task: str, tier: str, seed: int, options) -> DistillConfig:
@@ -45,7 +48,10 @@ def distill_config(teacher: str, task: str, tier: str, seed: int, options) -> Di
     if unknown:
         raise ConfigError(f"options {unknown} are not distillation settings; valid ones are {list(option_fields())}")
     options = {k: tuple(v) if isinstance(v, list) else v for k, v in options.items()}
-    return DistillConfig(teacher=teacher, task=task, tiers=(tier,), seed=seed, **options)
+    also = options.pop(ALSO_TIERS, ())
+    if isinstance(also, (str, bytes)) or not hasattr(also, "__iter__"):
+        raise ConfigError(f"options.{ALSO_TIERS} must be a list of tiers flown besides {tier!r}, got {also!r}")
+    return DistillConfig(teacher=teacher, task=task, tiers=(tier, *also), seed=seed, **options)
 
 
 def train_distilled(job, run_dir: Path) -> float:

@@ -146,7 +146,8 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, inference: str | None
                 cells.append({
                     "entry": entry_label(j, task), "policy": j["policy"], "action_mode": j["action_mode"],
                     "recipe": j.get("recipe"), "teacher": j.get("teacher"), "variant": j.get("variant"),
-                    "task": task, "train_task": j["task"], "train_tier": j["train_tier"], "tier": tier,
+                    "privileged": _privileged(j), "task": task, "train_task": j["task"],
+                    "train_tier": j["train_tier"], "tier": tier,
                     "seed": j["seed"], "timesteps": j.get("timesteps") or None, "checkpoint": rec["checkpoint"],
                     "train_seconds": rec["train_seconds"],
                     "eval_seed": j["eval_seed"], "episodes": episodes, "summary": _summary(episodes),
@@ -154,6 +155,13 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, inference: str | None
                     "roundoff": rec.get("roundoff", {}).get(task, {}).get(tier, []),
                 })
     return cells, missing
+
+
+def _privileged(job: dict) -> bool:
+    """Whether a job's record is a distilled student of a privileged teacher (one that labels from the true state)."""
+    options = job.get("distill_options") or []
+    return job.get("policy") == "distilled" and any(
+        isinstance(o, (list, tuple)) and len(o) == 2 and o[0] == "privileged" and o[1] is True for o in options)
 
 
 def _number(v, allow_bool: bool = False) -> bool:
@@ -357,6 +365,7 @@ def aggregate(cells: list[dict], deterministic: set | None = None) -> list[dict]
                "action_mode": group[0]["action_mode"], "train_task": group[0].get("train_task", task),
                "train_tier": group[0]["train_tier"], "recipe": group[0].get("recipe"),
                "teacher": group[0].get("teacher"), "variant": group[0].get("variant"),
+               **({"privileged": True} if group[0].get("privileged") else {}),
                "runs": len(group), "episodes": len(group[0]["episodes"]), "deterministic": det,
                "ci_over": ("none (one run of a deterministic task and tier)" if det and len(group) == 1 else
                            "training seeds only (a deterministic task and tier)" if det else
