@@ -159,9 +159,8 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, inference: str | None
 
 def _privileged(job: dict) -> bool:
     """Whether a job's record is a distilled student of a privileged teacher (one that labels from the true state)."""
-    options = job.get("distill_options") or []
-    return job.get("policy") == "distilled" and any(
-        isinstance(o, (list, tuple)) and len(o) == 2 and o[0] == "privileged" and o[1] is True for o in options)
+    return job.get("policy") == "distilled" and ["privileged", True] in [list(o) for o in job.get("distill_options")
+                                                                         or [] if isinstance(o, (list, tuple))]
 
 
 def _number(v, allow_bool: bool = False) -> bool:
