@@ -4,6 +4,7 @@
     python benchmarks/robust_students.py --only NAME ...  # these variants again, the others' results kept
     python benchmarks/robust_students.py --render-only    # the table again from the JSON
     python benchmarks/robust_students.py --crashes NAME   # where the kept student of NAME crashes on hover
+    python benchmarks/robust_students.py --teacher-recovery  # the MPC from turned starts, into the JSON and table
 
 Each variant is one distillation (:func:`softpvtol_gym.baselines.training.distill.distill`) of the MPC, seed 0,
 changed from :data:`BASE` in the settings it names: the teacher's DAgger on a mixture of the randomised tiers and
@@ -116,6 +117,8 @@ def markdown_table(report: dict) -> str:
         shares = v.get("labels_at_clip")
         clip = "" if shares is None else ", ".join(f"{100 * x:.0f} %" for x in shares)
         lines.append(f"| {variant} | {v['samples']:,} | {v['loss_last_epoch']:.2e} | {clip} | {v['seconds']:.0f} |")
+    if "teacher_recovery" in report:
+        lines.append(recovery_table(report["teacher_recovery"]))
     return "\n".join(lines)
 
 
@@ -148,6 +151,43 @@ def print_crashes(name: str, keep: Path, tiers=("noisy", "hard", "model_gap")) -
             done |= term | trunc
 
 
+#: the teacher's episodes from turned starts (the env's start_distribution="attitude") per task and tier: seeds
+#: 3,100,000 + i (the tuning range, apart from the evaluation episodes)
+RECOVERY_EPISODES, RECOVERY_SEED = 8, 3_100_000
+
+
+def teacher_recovery() -> dict:
+    """Per task and tier of the mixture: the MPC's crashes and last-half error from turned starts."""
+    import torch
+
+    from softpvtol_gym.baselines.evaluation import run_episodes, summarize
+    from softpvtol_gym.baselines.training.distill import DistillConfig
+    from softpvtol_gym.baselines.training.teachers import teacher_policy
+
+    torch.set_num_threads(1)
+    options = {**DistillConfig(teacher=BASE["teacher"], tiers=("noisy",)).env_options, "start_distribution": "attitude"}
+    out = {}
+    for task in [BASE["task"], *BASE["also_tasks"]]:
+        teacher = teacher_policy(BASE["teacher"], task, options)
+        for tier in MIXTURE:
+            s = summarize(run_episodes(teacher, "actuators", task, tier, RECOVERY_EPISODES, RECOVERY_SEED,
+                                       env_kwargs=options))
+            out[f"{task} {tier}"] = {"crashes": round(s["crash_rate"] * s["episodes"]), "episodes": s["episodes"],
+                                     "last_half": s.get("mean_rms_position_error_steady")}
+    return out
+
+
+def recovery_table(recovery: dict) -> str:
+    """The teacher's recoveries from turned starts, one row per task and tier."""
+    lines = ["", f"The teacher (MPC) from turned starts (`start_distribution=\"attitude\"`, {RECOVERY_EPISODES} "
+             f"episodes per task and tier from seed {RECOVERY_SEED:,}; `--teacher-recovery`):", "",
+             "| task and tier | crashes | last half [m] |", "|---|---|---|"]
+    for cell, r in recovery.items():
+        half = "crashed" if r["last_half"] is None else f"{r['last_half']:.2e}"
+        lines.append(f"| {cell} | {r['crashes']}/{r['episodes']} | {half} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--workers", type=int, default=len(VARIANTS), help="processes at once (default: one per variant)")
@@ -158,7 +198,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--render-only", action="store_true", help="only write the table from --out")
     ap.add_argument("--crashes", choices=list(VARIANTS), metavar="VARIANT",
                     help="print where the kept student of VARIANT crashes on hover's noisy, hard and model_gap tiers")
+    ap.add_argument("--teacher-recovery", action="store_true",
+                    help="run the teacher from turned starts on every task and tier, keep it in --out, write the table")
     args = ap.parse_args(argv)
+    if args.teacher_recovery:
+        report = json.loads(args.out.read_text())
+        report["teacher_recovery"] = teacher_recovery()
+        atomic_write_text(args.out, json.dumps(report, indent=1))
+        args.render_only = True
     if args.crashes:
         print_crashes(args.crashes, args.keep)
         return 0
@@ -176,7 +223,9 @@ def main(argv: list[str] | None = None) -> int:
         run = {"commit": _commit(), "workers": min(args.workers, len(names)), "cpus": os.cpu_count()}
         fresh = {n: {**r, **run} for n, r in zip(names, results, strict=True)}
         kept = json.loads(args.out.read_text())["variants"] if args.only and args.out.is_file() else {}
-        report = {"base": BASE, "variants": {n: fresh.get(n, kept.get(n)) for n in VARIANTS if n in fresh or n in kept}}
+        earlier = json.loads(args.out.read_text()) if args.out.is_file() else {}
+        report = {"base": BASE, "variants": {n: fresh.get(n, kept.get(n)) for n in VARIANTS if n in fresh or n in kept},
+                  **({"teacher_recovery": earlier["teacher_recovery"]} if "teacher_recovery" in earlier else {})}
         atomic_write_text(args.out, json.dumps(report, indent=1))
     if write_block(BLOCK, SOURCE, markdown_table(report), args.doc):
         print(f"wrote the table into {args.doc}")
