@@ -219,7 +219,8 @@ def test_a_residual_students_cell_is_a_job_of_the_residual_mode_with_the_mixture
 def test_a_privileged_mixture_cell_flies_its_tier_and_the_others_and_its_results_say_privileged(tmp_path):
     import dataclasses
 
-    from softpvtol_gym.baselines.leaderboard.stats import _privileged
+    from softpvtol_gym.baselines.leaderboard.distilled import student_fields
+    from softpvtol_gym.baselines.leaderboard.stats import entry_label
 
     spec = write_spec(tmp_path / "spec.yml", "{teacher: mpc, task: hover, tier: nominal, variant: robust, "
                                              "options: {privileged: true, also_tiers: [noisy, hard], "
@@ -228,6 +229,9 @@ def test_a_privileged_mixture_cell_flies_its_tier_and_the_others_and_its_results
     config = distill_config(robust.teacher, robust.task, robust.train_tier, robust.seed, robust.distill_options)
     assert config.tiers == ("nominal", "noisy", "hard") and config.privileged
     assert config.tasks == ("hover", "track_random") and robust.name == "distilled-mpc-robust_hover_nominal/seed_0"
-    # the job as its result records it (JSON): privileged; the plain student is not
+    # the job as its result records it (JSON): privileged, trained on a mixture; the plain student neither
     as_recorded = [json.loads(json.dumps(dataclasses.asdict(j))) for j in (robust, plain)]
-    assert [_privileged(j) for j in as_recorded] == [True, False]
+    assert [student_fields(j) for j in as_recorded] == [
+        {"privileged": True, "trained_on": "hover + track_random, 3 tiers"}, {}]
+    assert entry_label(as_recorded[0]) == "distilled mpc robust (trained on hover + track_random, 3 tiers)"
+    assert entry_label(as_recorded[1]) == "distilled integral (trained on nominal)"

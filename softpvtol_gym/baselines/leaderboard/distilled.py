@@ -60,6 +60,19 @@ def train_distilled(job, run_dir: Path) -> float:
     return float(distill(config, run_dir, resume=True)["record"]["seconds"])
 
 
+def student_fields(job: dict) -> dict:
+    """What a job's record (``eval.json``'s ``job``) adds to its leaderboard rows: ``"privileged": True`` for the
+    student of a privileged teacher, ``"trained_on"`` (its tasks and how many tiers) for a student of a mixture;
+    {} for every other job."""
+    pairs = (job.get("distill_options") or []) if job.get("policy") == "distilled" else []
+    options = {p[0]: p[1] for p in pairs if isinstance(p, (list, tuple)) and len(p) == 2 and isinstance(p[0], str)}
+    out = {"privileged": True} if options.get("privileged") is True else {}
+    tiers, tasks = list(options.get(ALSO_TIERS) or []), list(options.get("also_tasks") or [])
+    if tiers or tasks:
+        out["trained_on"] = f"{' + '.join([job['task'], *tasks])}, {1 + len(tiers)} tiers"
+    return out
+
+
 def recorded_seconds(out: Path) -> float | None:
     """The distillation's seconds as its ``distill.json`` in ``out`` records them (None where it does not)."""
     try:
@@ -83,7 +96,8 @@ def rounds_table(records: dict[str, list[dict]]) -> str:
     """A Markdown table of the distilled cells round by round: per cell (``records``: cell name -> the seeds'
     ``distill.json`` records) and round, the median over the seeds of each seed's mean student error per window on
     its evaluation episodes (seeds whose student crashed in that window left out), and the crashed episodes of all
-    seeds; below each cell, its teacher's on the same episodes."""
+    seeds; below each cell, its teacher's on the same episodes. A cell evaluated on several tasks or tiers (a
+    mixture) shows its last round only."""
     def cell_values(summaries: list[dict]) -> str:
         out = []
         for key, _ in ROUND_WINDOWS:
@@ -98,7 +112,8 @@ def rounds_table(records: dict[str, list[dict]]) -> str:
              "|---|---|---|---|---|---|---|---|---|"]
     for cell, recs in records.items():
         first = recs[0]
-        for k, r in enumerate(first["rounds"]):
+        rounds = list(enumerate(first["rounds"]))
+        for k, r in rounds if len(first["rounds"][0]["evaluation"]) == 1 else rounds[-1:]:  # a mixture: its last
             samples = int(np.median([rec["rounds"][k]["aggregate"] for rec in recs]))
             for tier in r["evaluation"]:
                 students = [rec["rounds"][k]["evaluation"][tier]["student"] for rec in recs]
@@ -131,6 +146,9 @@ ABLATION_ENTRIES = (
      "PPO student-history-finetune (trained on model_gap)"),
     ("students of the MPC, 64 x 64 (5 rounds of 32 episodes, the teacher acting at a step with probability 0.5^k)",
      "distilled mpc small (trained on nominal)"),
+    ("robust students of the MPC, 256 x 256: privileged teacher, DAgger on hover and track_random and 5 tiers, turned "
+     "starts, history 4 (5 rounds of 8 episodes per task and tier)",
+     "distilled mpc robust (trained on track_random + hover, 5 tiers)"),
     ("the teacher", "passivity-integral"),
     ("the MPC", "mpc"),
 )

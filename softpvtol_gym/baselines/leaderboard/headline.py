@@ -58,7 +58,8 @@ def headline(data: dict) -> dict | None:
                     "disjoint": _disjoint_below(b["rms_position_error_ci"], a["rms_position_error_ci"]),
                     "crash_no_higher": b["crash_rate"] <= a["crash_rate"]})
     name, train_task, train_tier = best
-    return {"policy": f"{name} trained on {train_task} ({train_tier} tier)", "rows": out}
+    mixture = next(iter(complete[best].values())).get("trained_on")
+    return {"policy": f"{name} trained on {mixture or f'{train_task} ({train_tier} tier)'}", "rows": out}
 
 
 def _key(v: float | None) -> float:

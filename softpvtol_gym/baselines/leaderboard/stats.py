@@ -54,6 +54,7 @@ from softpvtol_gym.baselines.evaluation import (
     summarize,
     window_scores,
 )
+from softpvtol_gym.baselines.leaderboard.distilled import student_fields
 from softpvtol_gym.baselines.leaderboard.episodes import ROUNDOFF_SHIFT_M
 from softpvtol_gym.baselines.leaderboard.jobs import (
     EVAL_FILE,
@@ -106,7 +107,8 @@ def entry_label(job: dict, task: str | None = None) -> str:
     """The row label of a job evaluated on ``task`` (default: its own): a learned entry names the tier it was
     trained on, and the task too where that is not the one evaluated."""
     if is_learned(job["policy"]):
-        where = job["train_tier"] if task in (None, job["task"]) else f"{job['task']}, {job['train_tier']}"
+        where = student_fields(job).get("trained_on") or (
+            job["train_tier"] if task in (None, job["task"]) else f"{job['task']}, {job['train_tier']}")
         return f"{learned_name(job)} (trained on {where})"
     return job["policy"]
 
@@ -146,7 +148,7 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, inference: str | None
                 cells.append({
                     "entry": entry_label(j, task), "policy": j["policy"], "action_mode": j["action_mode"],
                     "recipe": j.get("recipe"), "teacher": j.get("teacher"), "variant": j.get("variant"),
-                    "privileged": _privileged(j), "task": task, "train_task": j["task"],
+                    **student_fields(j), "task": task, "train_task": j["task"],
                     "train_tier": j["train_tier"], "tier": tier,
                     "seed": j["seed"], "timesteps": j.get("timesteps") or None, "checkpoint": rec["checkpoint"],
                     "train_seconds": rec["train_seconds"],
@@ -155,12 +157,6 @@ def collect(root: Path = RUNS_DIR, spec: Path = SPEC_FILE, inference: str | None
                     "roundoff": rec.get("roundoff", {}).get(task, {}).get(tier, []),
                 })
     return cells, missing
-
-
-def _privileged(job: dict) -> bool:
-    """Whether a job's record is a distilled student of a privileged teacher (one that labels from the true state)."""
-    return job.get("policy") == "distilled" and ["privileged", True] in [list(o) for o in job.get("distill_options")
-                                                                         or [] if isinstance(o, (list, tuple))]
 
 
 def _number(v, allow_bool: bool = False) -> bool:
@@ -364,7 +360,7 @@ def aggregate(cells: list[dict], deterministic: set | None = None) -> list[dict]
                "action_mode": group[0]["action_mode"], "train_task": group[0].get("train_task", task),
                "train_tier": group[0]["train_tier"], "recipe": group[0].get("recipe"),
                "teacher": group[0].get("teacher"), "variant": group[0].get("variant"),
-               **({"privileged": True} if group[0].get("privileged") else {}),
+               **{k: group[0][k] for k in ("privileged", "trained_on") if k in group[0]},
                "runs": len(group), "episodes": len(group[0]["episodes"]), "deterministic": det,
                "ci_over": ("none (one run of a deterministic task and tier)" if det and len(group) == 1 else
                            "training seeds only (a deterministic task and tier)" if det else
