@@ -146,6 +146,9 @@ ABLATION_ENTRIES = (
      "PPO student-history-finetune (trained on model_gap)"),
     ("students of the MPC, 64 x 64 (5 rounds of 32 episodes, the teacher acting at a step with probability 0.5^k)",
      "distilled mpc small (trained on nominal)"),
+    ("robust students of the MPC, 256 x 256: privileged teacher, DAgger on hover and track_random and 5 tiers, turned "
+     "starts, history 4 (5 rounds of 8 episodes per task and tier)",
+     "distilled mpc robust (trained on track_random + hover, 5 tiers)"),
     ("the teacher", "passivity-integral"),
     ("the MPC", "mpc"),
 )
