@@ -17,8 +17,9 @@ from softpvtol_gym.baselines.util.archive import ArchiveError, archive_members, 
 from tests.conftest import RESULTS, ROOT, UP, copy_run
 from tests.package.test_no_outside_paths import MACHINE
 
-#: what the tracked results may weigh and count (the trained runs and the per-episode detail are archives)
-MAX_TRACKED_BYTES, MAX_TRACKED_FILES = 15_000_000, 200
+#: what the tracked results may weigh and count (the trained runs and the per-episode detail are archives; the
+#: bulk is the students' float32 weights, about 0.4 MB per 256 x 256 seed, which compress little)
+MAX_TRACKED_BYTES, MAX_TRACKED_FILES = 18_000_000, 200
 
 
 def _tracked_results() -> list[str]:

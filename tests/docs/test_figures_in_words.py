@@ -116,6 +116,19 @@ def test_the_mpc_students():
     _has("They crash under noise and on `model_gap`.")
 
 
+def test_the_robust_mpc_students():
+    entry = "distilled mpc robust (trained on track_random + hover, 5 tiers)"
+    rows = [r for r in ROWS if r["entry"] == entry]
+    def crashes(task: str) -> str:
+        counts = [_row(entry, task, tier) for tier in ("noisy", "hard", "model_gap")]
+        assert all(r["crash_episodes"] == 100 for r in counts)
+        return f"{counts[0]['crashes']}, {counts[1]['crashes']} and {counts[2]['crashes']} of 100"
+
+    _has(f"crash in {crashes('track_random')} `track_random` noisy, hard and `model_gap` episodes and in "
+         f"{crashes('hover')} hover ones, at {_us_range(rows)} per robot; they win no cell")
+    assert not any(w["learned"]["entry"] == entry and w["winner"] == "learned" for w in WINDOWS)
+
+
 def test_the_fine_tuned_students():
     finetuned = _row("PPO student-finetune (trained on nominal)", "track_random", "nominal")
     mpc = _row("mpc", "track_random", "nominal")
