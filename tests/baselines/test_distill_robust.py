@@ -121,6 +121,9 @@ def test_each_dagger_round_gets_its_share_of_the_schedule(tmp_path):
     ({"residual_base": "saturated"}, "'saturated' only with residual_on .* got residual_base='saturated' with "
                                      "residual_on=None"),
     ({"residual_on": "integral", "residual_base": "clipped"}, r"residual_base must be one of \['unsaturated', "),
+    ({"residual_scale": 0.5}, r"residual_scale=0.5 sets a residual student's authority, but residual_on is None"),
+    ({"residual_on": "integral", "residual_scale": 0.0}, r"residual_scale must be a number in \(0, 100\]"),
+    ({"residual_on": "integral", "residual_scale": math.nan}, r"residual_scale must be a number .* got nan"),
     ({"attitude_fraction": 1.5}, r"attitude_fraction must be a share in \[0, 1\], got 1.5"),
     ({"attitude_fraction": True}, r"attitude_fraction must be a share in \[0, 1\], got True"),
     ({"episodes": 4, "wide_fraction": 0.5, "attitude_fraction": 0.75}, r"start 2 \+ 3 of the 4 episodes per round"),
@@ -140,6 +143,7 @@ def test_the_command_takes_the_mixture_and_the_schedule_and_refuses_bad_ones_in_
                         (["--also-task", "track_random"], "also_tasks must be distinct names"),
                         (["--residual-on", "pid"], "residual_on must be None or a loop"),
                         (["--residual-base", "saturated"], "'saturated' only with residual_on"),
+                        (["--residual-scale", "0.25"], "residual_scale=0.25 sets a residual student's authority"),
                         (["--wide-fraction", "0.5", "--attitude-fraction", "0.75"], "more than there are")):
         with pytest.raises(SystemExit) as exc:
             run_command("distill", argv)
@@ -326,21 +330,22 @@ def test_the_loop_beside_the_env_gives_the_envs_base_command():
     assert max(gaps) < 1e-3 and np.isfinite(gaps).all()
 
 
-@pytest.mark.parametrize("residual_base", ["unsaturated", "saturated"])
-def test_residual_labels_are_the_corrections_from_the_loop_to_the_teacher(residual_base):
+@pytest.mark.parametrize("residual_base, scale", [("unsaturated", 2.0), ("saturated", 2.0), ("saturated", 0.25)])
+def test_residual_labels_are_the_corrections_from_the_loop_to_the_teacher(residual_base, scale):
     """The teacher flying through the residual mode: each label is clip((teacher - base) / scale, -1, 1), base the
     loop's command (clipped to the actuator box on the saturated base), against a reference stepped by hand;
-    applied, the correction gives the plant the teacher's own command, always on the saturated base."""
-    from softpvtol_gym.baselines.training.teachers import RESIDUAL_STUDENT_SCALE, teacher_policy
+    applied, the correction gives the plant the teacher's own command, always on the saturated base at full
+    authority (scale 2) and where the teacher is within the bounded residual's reach (scale 0.25)."""
+    from softpvtol_gym.baselines.training.teachers import teacher_policy
 
     obs, labels = collect(LinearTeacher(), "hover", "nominal", 2, 7, env_options=STUDENT_OPTIONS,
-                          residual_on="integral", residual_base=residual_base)
+                          residual_on="integral", residual_base=residual_base, residual_scale=scale)
     teacher, loop = LinearTeacher(), teacher_policy("integral", "hover", STUDENT_OPTIONS)
     env = SoftPVTOLVectorEnv(num_envs=2, action_mode="residual", task="hover", controller_loop="integral",
-                             residual_space="actuators", residual_scale=RESIDUAL_STUDENT_SCALE,
+                             residual_space="actuators", residual_scale=scale,
                              residual_base=residual_base, **STUDENT_OPTIONS)
     observation, _ = env.reset(seed=7)
-    start = np.ones(2, bool)
+    start, beyond = np.ones(2, bool), np.zeros(2, bool)
     for k in range(20):
         wanted = teacher.label(observation)
         clipped, _ = loop.predict(observation, episode_start=start)
@@ -349,13 +354,16 @@ def test_residual_labels_are_the_corrections_from_the_loop_to_the_teacher(residu
         if residual_base == "saturated":
             base = np.clip(base, -1, 1)
         start[:] = False
-        label = np.clip((wanted.astype(np.float32).astype(np.float64) - base) / RESIDUAL_STUDENT_SCALE, -1, 1)
+        label = np.clip((wanted.astype(np.float32).astype(np.float64) - base) / scale, -1, 1)
         np.testing.assert_array_equal(labels[2 * k:2 * k + 2], label.astype(np.float32))
         np.testing.assert_array_equal(obs[2 * k:2 * k + 2], observation)
         observation, *_ = env.step(label.astype(np.float32))
-        reachable = np.abs(wanted - base) < RESIDUAL_STUDENT_SCALE  # where the correction is in the residual's range
-        assert reachable.all() if residual_base == "saturated" else reachable.any()
+        reachable = np.abs(wanted - base) < scale  # where the correction is in the residual's range
+        assert reachable.all() if (residual_base, scale) == ("saturated", 2.0) else reachable.any()
+        beyond |= ~reachable.all(axis=1)
         np.testing.assert_allclose(env.applied_actions()[reachable], wanted[reachable], rtol=0, atol=1e-3)
+    if scale < 2.0:  # a bounded residual: somewhere the teacher lies beyond its reach and is labelled at the clip
+        assert beyond.any() and (np.abs(labels) == 1.0).any()
 
 
 def test_a_residual_student_is_a_run_of_the_residual_mode_on_its_loop(tmp_path):
@@ -381,6 +389,9 @@ def test_a_residual_student_on_the_saturated_base_flies_and_is_evaluated_on_it()
     config = DistillConfig(**{**MIXTURE, "also_tasks": (), "tiers": ("nominal",), "residual_on": "integral",
                               "residual_base": "saturated"})
     assert config.student_env_options["residual_base"] == "saturated"
+    assert config.student_env_options["residual_scale"] == 2.0  # the default: full authority
+    bounded = DistillConfig(**{**MIXTURE, "tiers": ("nominal",), "residual_on": "integral", "residual_scale": 0.25})
+    assert bounded.run_config().env_options["residual_scale"] == 0.25
     assert config.run_config().env_options["residual_base"] == "saturated"
     env = SoftPVTOLVectorEnv(num_envs=1, action_mode=config.action_mode, **{
         k: v for k, v in config.run_config().env_options.items()}, controller_loop="integral")

@@ -86,6 +86,10 @@ def build_parser(prog: str = "distill.py") -> Parser:
     ap.add_argument("--residual-base", default=DEFAULTS.residual_base, choices=("unsaturated", "saturated"),
                     help="with --residual-on: the correction is added to the loop's command as computed (default) or "
                          "to that command clipped to the actuator box (saturated)")
+    ap.add_argument("--residual-scale", type=float, default=DEFAULTS.residual_scale, metavar="S",
+                    help="with --residual-on: the residual's authority, the correction at +-1 as a fraction of the "
+                         "actuator half-ranges, in (0, 100] (default %(default)s: any command of the box; below it "
+                         "a bounded residual on the loop)")
     ap.add_argument("--history", type=int_arg(1, MAX_FRAME_STACK), default=DEFAULTS.history, metavar="K",
                     help="the student sees its last K observations, oldest first (a frame stack; default 1: the "
                          "current one)")
@@ -132,7 +136,8 @@ def _main(argv, layout: Layout, prog: str) -> int:
                                balance_actions=args.balance_actions, teacher_share=args.teacher_share,
                                history=args.history, privileged=args.privileged,
                                teacher_shares=_shares(args.teacher_shares, ap), also_tasks=tuple(args.also_tasks),
-                               residual_on=args.residual_on, residual_base=args.residual_base)
+                               residual_on=args.residual_on, residual_base=args.residual_base,
+                               residual_scale=args.residual_scale)
     except ConfigError as exc:
         ap.error(str(exc))
     out = args.out or Path("runs") / f"distilled_{config.teacher}_{config.task}_s{config.seed}"

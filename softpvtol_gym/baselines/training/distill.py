@@ -49,7 +49,6 @@ from softpvtol_gym.baselines.training.imitation import action_gap, actor_paramet
 from softpvtol_gym.baselines.training.loop import prepare, torch_threads
 from softpvtol_gym.baselines.training.policy import LearnedPolicy
 from softpvtol_gym.baselines.training.teachers import (
-    RESIDUAL_STUDENT_SCALE,
     TEACHERS,
     collect,
     teacher_policy,
@@ -268,7 +267,7 @@ def _collect_round(teacher, config: DistillConfig, task: str, tier: str, seed: i
                                  env_options={**config.env_options, "start_distribution": start},
                                  teacher_share=teacher_share, history=config.history,
                                  privileged=config.privileged, residual_on=config.residual_on,
-                                 residual_scale=RESIDUAL_STUDENT_SCALE, residual_base=config.residual_base))
+                                 residual_scale=config.residual_scale, residual_base=config.residual_base))
         first += count
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 

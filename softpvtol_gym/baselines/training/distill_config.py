@@ -30,7 +30,8 @@ MAX_ROUNDS = 50
 #: settings added after runs were made, with the value those runs had (a resumed run keeps it)
 EARLIER_DEFAULTS = {"wide_fraction": 0.0, "teacher_integral": False, "balance_actions": False, "teacher_share": 0.0,
                     "history": 1, "privileged": False, "teacher_shares": [], "also_tasks": [],
-                   "residual_on": None, "residual_base": "unsaturated", "attitude_fraction": 0.0}
+                   "residual_on": None, "residual_base": "unsaturated", "attitude_fraction": 0.0,
+                   "residual_scale": RESIDUAL_STUDENT_SCALE}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,7 +89,7 @@ class DistillConfig:
             and both tracking tasks.
         residual_on: None: the student commands the actuators. A passivity loop (a name of ``LOOPS`` the residual
             mode takes as its base, e.g. ``"integral"``): the student is a residual on it, the env's residual mode
-            with ``residual_space="actuators"`` and ``residual_scale`` :data:`RESIDUAL_STUDENT_SCALE`, and learns the
+            with ``residual_space="actuators"`` and ``residual_scale``, and learns the
             correction that turns the loop's command into the teacher's, (teacher - loop) / scale clipped to
             [-1, 1] (the loop computed beside the env on the same observations, clipped to the actuator box). At
             zero correction the student flies the loop itself: the loop's integral action holds the steady state,
@@ -97,6 +98,11 @@ class DistillConfig:
             ``"unsaturated"``, the loop's command as computed (a command far outside the actuator box, such as the
             arm torques a loop computes from noisy rates, leaves labels at the clip), or ``"saturated"``, the command
             clipped to the box, from which a correction in [-1, 1] reaches any command of the box.
+        residual_scale: with ``residual_on``, the residual's authority (the env's ``residual_scale`` in the actuator
+            space: the correction at +-1 as a fraction of (T_max/2, T_max/2, tau_max, tau_max)), in (0, 100].
+            :data:`RESIDUAL_STUDENT_SCALE` (2): a correction reaches any command of the box; below it the student
+            may move the loop's command only so far (a bounded residual: the teacher's corrections beyond it are
+            labelled at the clip), so that the loop's own robustness bounds what the student can spoil.
     """
 
     teacher: str = "integral"
@@ -122,6 +128,7 @@ class DistillConfig:
     residual_on: str | None = None
     residual_base: str = "unsaturated"
     attitude_fraction: float = 0.0
+    residual_scale: float = RESIDUAL_STUDENT_SCALE
 
     def __post_init__(self) -> None:
         for name in ("tiers", "net_arch", "teacher_shares", "also_tasks"):
@@ -188,6 +195,14 @@ class DistillConfig:
             raise ConfigError(f"residual_base must be one of {list(RESIDUAL_BASES)}, and 'saturated' only with "
                               f"residual_on (a residual student), got residual_base={self.residual_base!r} with "
                               f"residual_on={self.residual_on!r}")
+        scale = self.residual_scale
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0.0 < scale <= 100.0:
+            raise ConfigError(f"residual_scale must be a number in (0, 100] (the residual's authority as a fraction "
+                              f"of the actuator half-ranges), got {scale!r}")
+        if scale != RESIDUAL_STUDENT_SCALE and self.residual_on is None:
+            raise ConfigError(f"residual_scale={scale!r} sets a residual student's authority, but residual_on is "
+                              f"None (the student commands the actuators); give residual_on (e.g. 'integral') or "
+                              f"leave residual_scale at {RESIDUAL_STUDENT_SCALE}")
         if self.privileged and not any("noise" in get_tier(t).effects for t in self.tiers):
             raise ConfigError(f"privileged labels differ from the plain ones only under sensor noise, and the tiers "
                               f"{list(self.tiers)} have none: it would change nothing; add a tier with noise "
@@ -242,7 +257,7 @@ class DistillConfig:
         if self.residual_on is None:
             return self.env_options
         options = {**self.env_options, "controller_loop": self.residual_on, "residual_space": "actuators",
-                   "residual_scale": RESIDUAL_STUDENT_SCALE}
+                   "residual_scale": self.residual_scale}
         return options if self.residual_base == "unsaturated" else {**options, "residual_base": self.residual_base}
 
     def wide_episodes(self) -> int:
