@@ -63,30 +63,82 @@ VARIANTS = {
     "tier mixture, history 4, privileged, turned starts, 5 rounds, residual on the saturated integral loop": {
         "privileged": True, "attitude_fraction": 0.25, "rounds": 5, "teacher_shares": [0.5, 0.5, 0.2, 0.0],
         "residual_on": "integral", "residual_base": "saturated"},
+    # a bounded residual: the student may move the saturated loop's command by at most a quarter (a half) of the
+    # actuator half-ranges, so that the loop, which crashes nowhere, bounds what the student can spoil
+    "tier mixture, history 4, privileged, turned starts, 5 rounds, bounded residual (0.25) on the saturated "
+    "integral loop": {
+        "privileged": True, "attitude_fraction": 0.25, "rounds": 5, "teacher_shares": [0.5, 0.5, 0.2, 0.0],
+        "residual_on": "integral", "residual_base": "saturated", "residual_scale": 0.25},
+    "tier mixture, history 4, privileged, turned starts, 5 rounds, bounded residual (0.5) on the saturated "
+    "integral loop": {
+        "privileged": True, "attitude_fraction": 0.25, "rounds": 5, "teacher_shares": [0.5, 0.5, 0.2, 0.0],
+        "residual_on": "integral", "residual_base": "saturated", "residual_scale": 0.5},
 }
 
 
-def run_variant(name: str, keep: str) -> dict:
-    """Distil one variant into ``keep``/<variant>; its last round's evaluation and seconds, the teacher's."""
+def run_variant(name: str, keep: str, seed: int = 0) -> dict:
+    """Distil one variant with run seed ``seed`` into ``keep``/<variant folder>; its last round's evaluation and
+    seconds, the teacher's."""
     import torch
 
-    from softpvtol_gym.baselines.training.distill import DistillConfig, distill
+    from softpvtol_gym.baselines.training.distill import distill
 
     torch.set_num_threads(1)
-    settings = {**BASE, **VARIANTS[name]}
-    config = DistillConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in settings.items()})
     t0 = time.perf_counter()
-    record = distill(config, Path(keep) / slug(name), resume=True)["record"]
+    record = distill(variant_config(name, seed), Path(keep) / slug(name, seed), resume=True)["record"]
+    return variant_result(name, record, time.perf_counter() - t0)
+
+
+def variant_config(name: str, seed: int = 0):
+    """The :class:`~softpvtol_gym.baselines.training.distill.DistillConfig` of variant ``name`` at run seed ``seed``."""
+    from softpvtol_gym.baselines.training.distill import DistillConfig
+
+    settings = {**BASE, **VARIANTS[name], "seed": seed}
+    return DistillConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in settings.items()})
+
+
+def variant_result(name: str, record: dict, seconds: float) -> dict:
+    """What the JSON keeps of a variant's distillation record (``distill.json``): its last round's evaluation, the
+    teacher's (round 0), the data and the seconds."""
     last = record["rounds"][-1]
-    return {"settings": VARIANTS[name], "seconds": time.perf_counter() - t0, "loss_last_epoch": last["loss_last_epoch"],
+    return {"settings": VARIANTS[name], "seconds": seconds, "loss_last_epoch": last["loss_last_epoch"],
             "samples": last["aggregate"], "labels_at_clip": last.get("labels_at_clip"),
             "evaluation": {cell: row["student"] for cell, row in last["evaluation"].items()},
             "teacher": {cell: row["teacher"] for cell, row in record["rounds"][0]["evaluation"].items()}}
 
 
-def slug(name: str) -> str:
-    """A variant's folder name."""
-    return "".join(c if c.isalnum() else "_" for c in name).strip("_")
+#: the variant that the leaderboard's ``distilled mpc robust`` cell runs at seeds 0-4, and that cell's run folder
+LEADERBOARD_VARIANT = "tier mixture, history 4, privileged, turned starts, 5 rounds"
+LEADERBOARD_CELL = ROOT / "results" / "leaderboard_runs" / "distilled-mpc-robust_track_random_nominal"
+
+
+def leaderboard_seeds(cell: Path = LEADERBOARD_CELL) -> dict:
+    """Seed -> result of :data:`LEADERBOARD_VARIANT` from the leaderboard cell's runs of seeds 1 and up (their
+    ``distill.json``; ``python baselines/results.py unpack`` puts them there), each checked to have the variant's
+    settings at its seed."""
+    import dataclasses
+
+    from softpvtol_gym.baselines.training.distill_config import EARLIER_DEFAULTS
+
+    out = {}
+    for folder in sorted(cell.glob("seed_*"), key=lambda f: int(f.name.removeprefix("seed_"))):
+        seed = int(folder.name.removeprefix("seed_"))
+        if seed == 0:
+            continue
+        record = json.loads((folder / "distill.json").read_text())
+        expected = json.loads(json.dumps(dataclasses.asdict(variant_config(LEADERBOARD_VARIANT, seed))))
+        if {k: record["config"].get(k, EARLIER_DEFAULTS.get(k)) for k in expected} != expected:
+            raise SystemExit(f"{folder}: its settings are not those of the variant {LEADERBOARD_VARIANT!r} at seed "
+                             f"{seed}")
+        out[str(seed)] = variant_result(LEADERBOARD_VARIANT, record, record["seconds"])
+    if not out:
+        raise SystemExit(f"no runs of seed 1 and up under {cell}: run `python baselines/results.py unpack` first")
+    return out
+
+
+def slug(name: str, seed: int = 0) -> str:
+    """A variant's folder name (seed 0's without a suffix)."""
+    return "".join(c if c.isalnum() else "_" for c in name).strip("_") + (f"_seed_{seed}" if seed else "")
 
 
 def markdown_table(report: dict) -> str:
@@ -119,6 +171,40 @@ def markdown_table(report: dict) -> str:
         lines.append(f"| {variant} | {v['samples']:,} | {v['loss_last_epoch']:.2e} | {clip} | {v['seconds']:.0f} |")
     if "teacher_recovery" in report:
         lines.append(recovery_table(report["teacher_recovery"]))
+    if "seeds" in report:
+        lines.append(seeds_table(report))
+    return "\n".join(lines)
+
+
+#: the cells of the seeds table: where the students crash and the MPC hardly does
+CRASH_CELLS = ("noisy", "hard", "model_gap", "hover noisy", "hover hard", "hover model_gap")
+
+
+def _pairs(runs: list[dict], cells: list[str]) -> list[dict]:
+    """The student's and the teacher's summaries of each run in each of ``cells``."""
+    return [{k: v[k][c] for k in ("evaluation", "teacher")} for v in runs for c in cells]
+
+
+def seeds_table(report: dict) -> str:
+    """Per variant with further seeds and per seed: the crashes of the last round's student and the teacher's on the
+    evaluation episodes of that seed, in :data:`CRASH_CELLS` and over every task and tier; then their sums."""
+    def crashes(summaries: list[dict]) -> str:
+        return "{} ({})".format(*(sum(round(s[k]["crash_rate"] * s[k]["episodes"]) for s in summaries)
+                                  for k in ("evaluation", "teacher")))
+
+    n = report["base"]["eval_episodes"]
+    head = " | ".join(c if " " in c else f"track_random {c}" for c in CRASH_CELLS)
+    lines = ["", f"Over seeds (`--seed S`; the leaderboard cell's seeds with `--leaderboard-seeds`): crashes of the "
+             f"last round's student (the teacher's in brackets) in {n} evaluation episodes per task and tier and seed, "
+             "from seed 3,000,000 + 1,000 S:", "",
+             f"| variant | seed | {head} | all cells |", "|---|---|" + "---|" * (len(CRASH_CELLS) + 1)]
+    for name, by_seed in report["seeds"].items():
+        runs = sorted({"0": report["variants"][name], **by_seed}.items(), key=lambda kv: int(kv[0]))
+        rows = [(seed, [v]) for seed, v in runs] + [(f"all {len(runs)}", [v for _, v in runs])]
+        for seed, vs in rows:
+            per_cell = [crashes(_pairs(vs, [c])) for c in CRASH_CELLS]
+            every = _pairs(vs, list(vs[0]["evaluation"]))
+            lines.append(f"| {name} | {seed} | {' | '.join(per_cell)} | {crashes(every)} of {len(every) * n} |")
     return "\n".join(lines)
 
 
@@ -198,12 +284,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--render-only", action="store_true", help="only write the table from --out")
     ap.add_argument("--crashes", choices=list(VARIANTS), metavar="VARIANT",
                     help="print where the kept student of VARIANT crashes on hover's noisy, hard and model_gap tiers")
+    ap.add_argument("--seed", type=int, default=0,
+                    help="the run seed of the variants (default 0: the table's; another seed goes to the seeds table)")
+    ap.add_argument("--leaderboard-seeds", action="store_true",
+                    help=f"take the seeds 1-4 of {LEADERBOARD_VARIANT!r} from the leaderboard cell's runs into the "
+                         "seeds table (run `python baselines/results.py unpack` first)")
     ap.add_argument("--teacher-recovery", action="store_true",
                     help="run the teacher from turned starts on every task and tier, keep it in --out, write the table")
     args = ap.parse_args(argv)
     if args.teacher_recovery:
         report = json.loads(args.out.read_text())
         report["teacher_recovery"] = teacher_recovery()
+        atomic_write_text(args.out, json.dumps(report, indent=1))
+        args.render_only = True
+    if args.leaderboard_seeds:
+        report = json.loads(args.out.read_text())
+        report.setdefault("seeds", {})[LEADERBOARD_VARIANT] = {
+            **report.get("seeds", {}).get(LEADERBOARD_VARIANT, {}), **leaderboard_seeds()}
         atomic_write_text(args.out, json.dumps(report, indent=1))
         args.render_only = True
     if args.crashes:
@@ -219,13 +316,21 @@ def main(argv: list[str] | None = None) -> int:
         with temporary_environment(worker_env):
             pool = multiprocessing.get_context("spawn").Pool(min(args.workers, len(names)))
         with pool:
-            results = pool.starmap(run_variant, [(n, str(args.keep)) for n in names])
+            results = pool.starmap(run_variant, [(n, str(args.keep), args.seed) for n in names])
         run = {"commit": _commit(), "workers": min(args.workers, len(names)), "cpus": os.cpu_count()}
         fresh = {n: {**r, **run} for n, r in zip(names, results, strict=True)}
-        kept = json.loads(args.out.read_text())["variants"] if args.only and args.out.is_file() else {}
         earlier = json.loads(args.out.read_text()) if args.out.is_file() else {}
+        seeds = earlier.get("seeds", {})
+        if args.seed:  # another seed: the table's variants stay, the seeds table gets these
+            kept = earlier["variants"]
+            for n, r in fresh.items():
+                seeds[n] = {**seeds.get(n, {}), str(args.seed): r}
+            fresh = {}
+        else:
+            kept = earlier["variants"] if args.only and earlier else {}
         report = {"base": BASE, "variants": {n: fresh.get(n, kept.get(n)) for n in VARIANTS if n in fresh or n in kept},
-                  **({"teacher_recovery": earlier["teacher_recovery"]} if "teacher_recovery" in earlier else {})}
+                  **({"teacher_recovery": earlier["teacher_recovery"]} if "teacher_recovery" in earlier else {}),
+                  **({"seeds": {n: seeds[n] for n in VARIANTS if n in seeds}} if seeds else {})}
         atomic_write_text(args.out, json.dumps(report, indent=1))
     if write_block(BLOCK, SOURCE, markdown_table(report), args.doc):
         print(f"wrote the table into {args.doc}")
