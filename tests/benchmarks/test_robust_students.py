@@ -155,3 +155,20 @@ def test_leaderboard_seeds_are_taken_only_with_the_variants_settings(tmp_path):
     (cell / "seed_1" / "distill.json").write_text(json.dumps(record))
     with pytest.raises(SystemExit, match="seed_1: its settings are not those of the variant"):
         bench.leaderboard_seeds(cell)
+
+
+def test_the_committed_seeds_are_runs_of_their_variants_and_the_page_counts_their_hover_crashes():
+    """The seeds table's runs have their variant's settings and every cell; in words, the leaderboard cell's five
+    seeds crash in 11, 13 and 10 of 40 hover noisy, hard and model_gap episodes."""
+    seeds = COMMITTED["seeds"]
+    assert set(seeds) <= set(VARIANTS) and bench.LEADERBOARD_VARIANT in seeds
+    for name, by_seed in seeds.items():
+        assert by_seed and all(int(seed) > 0 for seed in by_seed)
+        for v in by_seed.values():
+            assert v["settings"] == bench.VARIANTS[name] and list(v["evaluation"]) == CELLS
+    runs = [VARIANTS[bench.LEADERBOARD_VARIANT], *seeds[bench.LEADERBOARD_VARIANT].values()]
+    assert len(runs) == 5
+    counts = [sum(crashes(v["evaluation"][f"hover {tier}"]) for v in runs) for tier in ("noisy", "hard", "model_gap")]
+    section = " ".join((ROOT / "benchmarks" / "STUDIES.md").read_text().split())
+    assert (f"they crash in {counts[0]} of 40 hover noisy, {counts[1]} of 40 hover hard and {counts[2]} of 40 hover "
+            "model_gap episodes (the seeds table above") in section
