@@ -172,3 +172,11 @@ def test_the_committed_seeds_are_runs_of_their_variants_and_the_page_counts_thei
     section = " ".join((ROOT / "benchmarks" / "STUDIES.md").read_text().split())
     assert (f"they crash in {counts[0]} of 40 hover noisy, {counts[1]} of 40 hover hard and {counts[2]} of 40 hover "
             "model_gap episodes (the seeds table above") in section
+
+
+def test_the_bounded_residual_crashes_nowhere_on_two_seeds_and_the_page_says_so():
+    runs = [VARIANTS[BOUNDED.format(0.25)], *COMMITTED["seeds"][BOUNDED.format(0.25)].values()]
+    student, teacher = (sum(crashes(v[k][c]) for v in runs for c in CELLS) for k in ("evaluation", "teacher"))
+    assert len(runs) == 2 and student == 0
+    section = " ".join((ROOT / "benchmarks" / "STUDIES.md").read_text().split())
+    assert f"0 in {len(runs) * len(CELLS) * 8} over two seeds, the MPC {teacher}" in section
