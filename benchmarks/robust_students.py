@@ -46,6 +46,10 @@ MIXTURE = ["nominal", "noisy", "hard", "mismatch", "model_gap"]
 BASE = dict(teacher="mpc", task="track_random", also_tasks=["hover"], tiers=MIXTURE, seed=0, net_arch=[256, 256],
             rounds=4, episodes=8, epochs=20, batch_size=1024, learning_rate=1e-3, eval_episodes=8,
             wide_fraction=0.25, teacher_shares=[0.5, 0.2, 0.0], history=4)
+#: recovery data: a quarter of the episodes start turned and spinning, a fifth round, the teacher's share held
+TURNED = {"privileged": True, "attitude_fraction": 0.25, "rounds": 5, "teacher_shares": [0.5, 0.5, 0.2, 0.0]}
+#: the student as a residual on the integral loop's command clipped to the actuator box
+SATURATED_RESIDUAL = {"residual_on": "integral", "residual_base": "saturated"}
 #: name -> the settings it changes, in the table's order
 VARIANTS = {
     "tier mixture, history 4": {},
@@ -54,25 +58,18 @@ VARIANTS = {
     "tier mixture, history 4, privileged, residual on the integral loop": {"privileged": True,
                                                                            "residual_on": "integral"},
     "tier mixture, history 4, privileged, residual on the saturated integral loop": {
-        "privileged": True, "residual_on": "integral", "residual_base": "saturated"},
+        "privileged": True, **SATURATED_RESIDUAL},
     "tier mixture, history 20 (0.2 s), privileged, residual on the saturated integral loop": {
-        "privileged": True, "history": 20, "residual_on": "integral", "residual_base": "saturated"},
-    # recovery data: a quarter of the episodes start turned and spinning, a fifth round, the teacher's share held
-    "tier mixture, history 4, privileged, turned starts, 5 rounds": {
-        "privileged": True, "attitude_fraction": 0.25, "rounds": 5, "teacher_shares": [0.5, 0.5, 0.2, 0.0]},
+        "privileged": True, "history": 20, **SATURATED_RESIDUAL},
+    "tier mixture, history 4, privileged, turned starts, 5 rounds": TURNED,
     "tier mixture, history 4, privileged, turned starts, 5 rounds, residual on the saturated integral loop": {
-        "privileged": True, "attitude_fraction": 0.25, "rounds": 5, "teacher_shares": [0.5, 0.5, 0.2, 0.0],
-        "residual_on": "integral", "residual_base": "saturated"},
+        **TURNED, **SATURATED_RESIDUAL},
     # a bounded residual: the student may move the saturated loop's command by at most a quarter (a half) of the
     # actuator half-ranges, so that the loop, which crashes nowhere, bounds what the student can spoil
     "tier mixture, history 4, privileged, turned starts, 5 rounds, bounded residual (0.25) on the saturated "
-    "integral loop": {
-        "privileged": True, "attitude_fraction": 0.25, "rounds": 5, "teacher_shares": [0.5, 0.5, 0.2, 0.0],
-        "residual_on": "integral", "residual_base": "saturated", "residual_scale": 0.25},
+    "integral loop": {**TURNED, **SATURATED_RESIDUAL, "residual_scale": 0.25},
     "tier mixture, history 4, privileged, turned starts, 5 rounds, bounded residual (0.5) on the saturated "
-    "integral loop": {
-        "privileged": True, "attitude_fraction": 0.25, "rounds": 5, "teacher_shares": [0.5, 0.5, 0.2, 0.0],
-        "residual_on": "integral", "residual_base": "saturated", "residual_scale": 0.5},
+    "integral loop": {**TURNED, **SATURATED_RESIDUAL, "residual_scale": 0.5},
 }
 
 
@@ -121,8 +118,8 @@ def leaderboard_seeds(cell: Path = LEADERBOARD_CELL) -> dict:
     from softpvtol_gym.baselines.training.distill_config import EARLIER_DEFAULTS
 
     out = {}
-    for folder in sorted(cell.glob("seed_*"), key=lambda f: int(f.name.removeprefix("seed_"))):
-        seed = int(folder.name.removeprefix("seed_"))
+    for seed in sorted(int(f.name.removeprefix("seed_")) for f in cell.glob("seed_*")):
+        folder = cell / f"seed_{seed}"
         if seed == 0:
             continue
         record = json.loads((folder / "distill.json").read_text())
@@ -299,8 +296,8 @@ def main(argv: list[str] | None = None) -> int:
         args.render_only = True
     if args.leaderboard_seeds:
         report = json.loads(args.out.read_text())
-        report.setdefault("seeds", {})[LEADERBOARD_VARIANT] = {
-            **report.get("seeds", {}).get(LEADERBOARD_VARIANT, {}), **leaderboard_seeds()}
+        seeds = report.setdefault("seeds", {})
+        seeds[LEADERBOARD_VARIANT] = {**seeds.get(LEADERBOARD_VARIANT, {}), **leaderboard_seeds()}
         atomic_write_text(args.out, json.dumps(report, indent=1))
         args.render_only = True
     if args.crashes:
