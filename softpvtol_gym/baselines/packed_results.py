@@ -5,7 +5,10 @@ committed packed, under ``<results>/archive/``:
 
 - each job folder of ``leaderboard_runs/``, ``ablation_runs/`` and ``distill_runs/`` as one reproducible
   ``.tar.xz`` (``archive/leaderboard_runs/<job>.tar.xz`` holds ``leaderboard_runs/<job>/``);
-- ``leaderboard.json`` (every entry's per-episode metrics) as ``archive/leaderboard.json.xz``.
+- ``leaderboard.json`` as ``archive/leaderboard.json.xz``, in its thin form
+  (:mod:`~softpvtol_gym.baselines.util.shared_lists`): its per-episode metrics are those of the jobs'
+  ``eval.json``, so the archive refers to them there, and unpacking rebuilds the file byte for byte (checked
+  against its sha256) once the job folders are unpacked.
 
 :func:`unpack` writes the folders and files back where the commands read and write them (``leaderboard_runs/...``
 and ``leaderboard.json`` are not tracked: they are built from the archives); :func:`pack` writes the archives
@@ -35,6 +38,7 @@ from softpvtol_gym.baselines.util.archive import (
     unpack_file,
 )
 from softpvtol_gym.baselines.util.atomic import atomic_dir, atomic_write_bytes, atomic_write_text
+from softpvtol_gym.baselines.util.shared_lists import RebuildError, is_thin, thick, thin
 
 ARCHIVE_DIR = "archive"
 #: the folders of the results whose sub-folders are archived one by one
@@ -44,6 +48,8 @@ PACKED_FILES = ("leaderboard.json",)
 #: which archive each unpacked folder or file came from (not tracked), and the lock that one unpack at a time holds
 RECORD_FILE, LOCK_FILE = ".unpacked.json", ".unpack.lock"
 FOLDER_SUFFIX, FILE_SUFFIX = ".tar.xz", ".xz"
+#: a packed file -> (the folder, the file name) of the JSON files whose lists its thin form refers to
+SHARED_SOURCES = {"leaderboard.json": ("leaderboard_runs", "eval.json")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,6 +98,43 @@ def kept_files(folder: Path) -> dict[str, bytes]:
             if not any(p.startswith(".") or p.endswith(".run") or p == "datasets" for p in name.split("/"))}
 
 
+def _source_names(results: Path, name: str) -> list[str]:
+    """The names (relative to ``results``) of the files that ``name``'s thin form may refer to."""
+    folder, file = SHARED_SOURCES.get(name, (None, None))
+    if folder is None or not (results / folder).is_dir():
+        return []
+    return sorted(p.relative_to(results).as_posix() for p in (results / folder).rglob(file)
+                  if not any(part.startswith(".") or part.endswith(".run") for part in p.relative_to(results).parts))
+
+
+def _packed_file_bytes(results: Path, p: Packed) -> bytes:
+    """What the archive of the file ``p`` holds: its thin form where it has one, else its bytes."""
+    data = p.target.read_bytes()
+    names = _source_names(results, p.target.name)
+    thinned = thin(data, {n: (results / n).read_bytes() for n in names}) if names else None
+    return data if thinned is None else thinned
+
+
+def _unpacked_file_bytes(results: Path, p: Packed, data: bytes) -> bytes:
+    """The file that the archive ``data`` of ``p`` unpacks to (a thin form rebuilt from the unpacked job folders);
+    ArchiveError where it cannot be."""
+    content = unpack_file(data, p.key)
+    if not is_thin(content):
+        return content
+    allowed = set(_source_names(results, p.target.name))
+
+    def read(name: str) -> bytes:
+        if name not in allowed:  # only the files it may refer to, never a path of the archive's choosing
+            raise KeyError(name)
+        return (results / name).read_bytes()
+
+    try:
+        return thick(content, read)
+    except (RebuildError, ValueError, TypeError, KeyError) as exc:
+        raise ArchiveError(f"{p.key} does not rebuild {p.target.name} from the unpacked job folders ({exc}); "
+                           "unpack --force replaces folders of other versions") from None
+
+
 def _sha256(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
@@ -136,7 +179,7 @@ def _unpack(results: Path, force: bool) -> tuple[list[Packed], list[Packed]]:
                     (tmp / name).parent.mkdir(parents=True, exist_ok=True)
                     (tmp / name).write_bytes(content)
         else:
-            atomic_write_bytes(p.target, unpack_file(data, str(p.archive)))
+            atomic_write_bytes(p.target, _unpacked_file_bytes(results, p, data))
         records[p.key] = sha
         done.append(p)
     if done:
@@ -160,7 +203,7 @@ def pack(results: Path) -> list[Packed]:
                     compact_checkpoint(folder)
             data = pack_files(kept_files(p.target))
         else:
-            data = pack_file(p.target.read_bytes())
+            data = pack_file(_packed_file_bytes(results, p))
         if not p.archive.is_file() or p.archive.read_bytes() != data:
             atomic_write_bytes(p.archive, data)
             changed.append(p)
@@ -197,7 +240,7 @@ def differences(results: Path) -> list[str]:
                         out.append(f"{p.target / name} is not in {p.key} (pack it)")
                     elif want[name] != have[name]:
                         out.append(f"{p.target / name} differs from {p.key}")
-            elif unpack_file(data, p.key) != p.target.read_bytes():
+            elif _unpacked_file_bytes(results, p, data) != p.target.read_bytes():
                 out.append(f"{p.target} differs from {p.key}")
         except ArchiveError as exc:
             out.append(str(exc))

@@ -13,13 +13,15 @@ import pytest
 
 from softpvtol_gym.baselines.checkpoints.compact import compact_checkpoint, optimizer_tensors
 from softpvtol_gym.baselines.packed_results import ARCHIVE_DIR, archives, differences, pack, unpack
-from softpvtol_gym.baselines.util.archive import ArchiveError, archive_members, folder_files, pack_files
+from softpvtol_gym.baselines.util.archive import ArchiveError, archive_members, folder_files, pack_file, pack_files
+from softpvtol_gym.baselines.util.shared_lists import FORMAT_KEY, REF_KEY, is_thin
 from tests.conftest import RESULTS, ROOT, UP, copy_run
 from tests.package.test_no_outside_paths import MACHINE
 
-#: what the tracked results may weigh and count (the trained runs and the per-episode detail are archives; the
-#: bulk is the students' float32 weights, about 0.4 MB per 256 x 256 seed, which compress little)
-MAX_TRACKED_BYTES, MAX_TRACKED_FILES = 18_000_000, 200
+#: what the tracked results may weigh and count (the trained runs and the per-episode detail are archives, the
+#: leaderboard JSON a thin one; the bulk is the float32 weights, about 0.4 MB per 256 x 256 seed, which compress
+#: little)
+MAX_TRACKED_BYTES, MAX_TRACKED_FILES = 15_000_000, 200
 
 
 def _tracked_results() -> list[str]:
@@ -145,6 +147,39 @@ def test_pack_then_unpack_gives_the_same_folders(tiny_run, tmp_path):
     assert unpacked == [k for k in kept if "datasets" not in k.parts]
     assert differences(clone) == []
     assert unpack(clone) == ([], [])  # unchanged archives: nothing unpacked again
+
+
+def test_the_leaderboard_json_is_archived_thin_and_rebuilt_from_the_job_folders(tmp_path):
+    results = tmp_path / "results"
+    episodes = [{"rms_position_error": 0.1 * k + 1e-17, "crashed": k == 2} for k in range(3)]
+    (results / "leaderboard_runs" / "job_a" / "seed_0").mkdir(parents=True)
+    (results / "leaderboard_runs" / "job_a" / "seed_0" / "eval.json").write_text(
+        json.dumps({"eval": {"nominal": episodes}}))
+    board = json.dumps({"meta": {}, "cells": [{"entry": "a", "episodes": episodes}] * 50}, indent=1).encode()
+    (results / "leaderboard.json").write_bytes(board)
+    pack(results)
+    archived = lzma.decompress((results / ARCHIVE_DIR / "leaderboard.json.xz").read_bytes())
+    assert is_thin(archived) and b"rms_position_error" not in archived  # the episodes: referred to, not copied
+
+    clone = tmp_path / "clone"
+    clone.mkdir()
+    subprocess.run(["cp", "-r", str(results / ARCHIVE_DIR), str(clone)], check=True)
+    unpack(clone)
+    assert (clone / "leaderboard.json").read_bytes() == board
+    assert differences(clone) == []
+    (clone / "leaderboard_runs" / "job_a" / "seed_0" / "eval.json").write_text("{}")  # a job folder edited by hand
+    assert any("leaderboard_runs/job_a/seed_0/eval.json is not the file it was made from" in d
+               for d in differences(clone))
+
+
+def test_a_thin_archive_reads_no_file_of_its_own_choosing(tmp_path):
+    (tmp_path / ARCHIVE_DIR).mkdir()
+    (tmp_path / "secret.json").write_text('{"x": [{"a": 1}]}')
+    crafted = {FORMAT_KEY: 1, "sha256": "0" * 64, "sources": {}, "document": {"x": {REF_KEY: ["secret.json", "x"]}}}
+    (tmp_path / ARCHIVE_DIR / "leaderboard.json.xz").write_bytes(pack_file(json.dumps(crafted).encode()))
+    with pytest.raises(ArchiveError, match="secret.json is missing"):
+        unpack(tmp_path)
+    assert not (tmp_path / "leaderboard.json").exists()
 
 
 def test_unpack_keeps_a_folder_no_archive_wrote_unless_forced(tiny_run, tmp_path):
