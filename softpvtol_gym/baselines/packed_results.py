@@ -12,8 +12,9 @@ committed packed, under ``<results>/archive/``:
 
 :func:`unpack` writes the folders and files back where the commands read and write them (``leaderboard_runs/...``
 and ``leaderboard.json`` are not tracked: they are built from the archives); :func:`pack` writes the archives
-of what the commands wrote, first dropping the optimizers' state from each finished checkpoint
-(:mod:`~softpvtol_gym.baselines.checkpoints.compact`); :func:`differences` lists where the two disagree. Which
+of what the commands wrote, first dropping the optimizers' state from each finished checkpoint, and the critic
+from each finished PPO run but the distilled students (:mod:`~softpvtol_gym.baselines.checkpoints.compact`);
+:func:`differences` lists where the two disagree. Which
 archive an unpacked folder came from is recorded in ``<results>/.unpacked.json`` (sha256 of each archive), so
 that an unpack after ``git pull`` replaces exactly the folders whose archive changed, and never a folder that
 no archive wrote (a job run here and not packed yet) unless asked to.
@@ -45,6 +46,8 @@ ARCHIVE_DIR = "archive"
 PACKED_FOLDERS = ("leaderboard_runs", "ablation_runs", "distill_runs")
 #: the files of the results archived on their own
 PACKED_FILES = ("leaderboard.json",)
+#: the record a distilled student's checkpoint folder holds (softpvtol distill's)
+DISTILL_RECORD = "distill.json"
 #: which archive each unpacked folder or file came from (not tracked), and the lock that one unpack at a time holds
 RECORD_FILE, LOCK_FILE = ".unpacked.json", ".unpack.lock"
 FOLDER_SUFFIX, FILE_SUFFIX = ".tar.xz", ".xz"
@@ -200,7 +203,8 @@ def pack(results: Path) -> list[Packed]:
             for folder in checkpoint_folders(p.target):
                 inside = folder.relative_to(p.target).parts  # a run still training keeps its optimizer
                 if not any(part.endswith(".run") or part == "checkpoints" for part in inside):
-                    compact_checkpoint(folder)
+                    # a distilled student keeps its critic: fine-tuning runs start from it, critic included
+                    compact_checkpoint(folder, drop_value_function=not (folder / DISTILL_RECORD).is_file())
             data = pack_files(kept_files(p.target))
         else:
             data = pack_file(_packed_file_bytes(results, p))

@@ -65,6 +65,9 @@ def test_committed_checkpoints_hold_no_optimizer_state():
         with safe_open(str(model), "numpy") as f:
             assert optimizer_tensors(f.keys(), meta) == [], model
         assert all(not o["params_with_state"] for o in meta["optimizers"].values()), model
+        with safe_open(str(model), "numpy") as f:  # the critic: kept by the students fine-tuning starts from only
+            has_critic = any("value_net" in name for name in f.keys())
+        assert has_critic == (model.parent / "distill.json").is_file(), model
 
 
 def test_pack_is_reproducible_and_reads_back(tmp_path):
@@ -120,6 +123,41 @@ def test_compact_checkpoint_keeps_the_policy_and_drops_the_moments(tiny_run, tmp
         assert np.array_equal(a.numpy(), b.numpy())
     assert after.policy.optimizer.state_dict()["state"] == {}
     assert before.policy.optimizer.state_dict()["state"] != {}
+
+
+def test_compact_checkpoint_can_drop_the_critic_and_the_actor_replays_unchanged(tiny_run, tmp_path):
+    from safetensors import safe_open
+
+    from softpvtol_gym.baselines.checkpoints.load import load_folder
+    from softpvtol_gym.baselines.errors import CheckpointError
+
+    run = copy_run(tiny_run, tmp_path / "run")
+    before, _, _, _ = load_folder(run)
+    assert compact_checkpoint(run, drop_value_function=True) is True
+    assert compact_checkpoint(run, drop_value_function=True) is False
+    with safe_open(str(run / "model.safetensors"), "numpy") as f:
+        kept = set(f.keys())
+    meta = json.loads((run / "model.json").read_text())
+    assert meta["tensors_dropped"] and not kept & set(meta["tensors_dropped"])
+    assert all("value_net" in name for name in meta["tensors_dropped"])
+    after, _, _, _ = load_folder(run)
+    again, _, _, _ = load_folder(run)
+    obs = np.random.default_rng(0).normal(size=(5, *before.observation_space.shape)).astype(np.float32)
+    assert np.array_equal(before.predict(obs, deterministic=True)[0], after.predict(obs, deterministic=True)[0])
+    b, a, c = before.policy.state_dict(), after.policy.state_dict(), again.policy.state_dict()
+    for name in b:
+        critic = f"policy/{name}" in meta["tensors_dropped"]
+        assert np.array_equal(b[name].numpy(), a[name].numpy()) != critic, name  # the critic: a fresh one
+        assert np.array_equal(a[name].numpy(), c[name].numpy()), name  # the same fresh one on every load
+
+    meta["tensors_dropped"].append("policy/not_a_tensor")
+    (run / "model.json").write_text(json.dumps(meta, indent=1))
+    from softpvtol_gym.baselines.checkpoints.manifest import read_manifest, write_manifest
+
+    manifest = read_manifest(run)
+    write_manifest(run, list(manifest["files"]), manifest["algo"], manifest["num_timesteps"], manifest["kind"])
+    with pytest.raises(CheckpointError, match="tensors_dropped names tensors the model does not have"):
+        load_folder(run)
 
 
 def test_pack_then_unpack_gives_the_same_folders(tiny_run, tmp_path):

@@ -1,11 +1,14 @@
-"""A finished run's checkpoint without what only further training needs: the optimizers' moments.
+"""A finished run's checkpoint without what only further training needs: the optimizers' moments, and the critic.
 
 A run's final model (``model.safetensors`` + ``model.json``) keeps the Adam moments of its optimizers so that
-it can be trained on. A committed result is never trained on (a fine-tuning run takes the policy's weights
-only, :func:`~softpvtol_gym.baselines.training.imitation.init_from_run`), and the moments are two thirds of the
-file. :func:`compact_checkpoint` drops them: the optimizer keeps its parameter groups, with no per-parameter
-state (an optimizer loaded from it starts with fresh moments, as a new one does). The policy, the value net,
-the normalisation statistics and the config are kept byte for byte, so every evaluation replays unchanged.
+it can be trained on. A committed result is never trained on, and the moments are two thirds of the file.
+:func:`compact_checkpoint` drops them: the optimizer keeps its parameter groups, with no per-parameter state (an
+optimizer loaded from it starts with fresh moments, as a new one does). With ``drop_value_function`` it also
+drops a PPO policy's value function (its critic, about half of a 64 x 64 policy's weights): model.json lists the
+tensors dropped (``tensors_dropped``), and a model loaded from it has the critic a new model of the run's config
+and seed starts with, so that fine-tuning from it starts a critic afresh. The packed results drop it from every
+finished PPO run but the distilled students (the fine-tuning cells start from a student, critic included). The
+actor, the normalisation statistics and the config are kept byte for byte, so every evaluation replays unchanged.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from softpvtol_gym.baselines.checkpoints.manifest import (
     read_verified,
     write_manifest,
 )
-from softpvtol_gym.baselines.checkpoints.model_state import sorted_metadata
+from softpvtol_gym.baselines.checkpoints.model_state import DROPPED_KEY, sorted_metadata
 from softpvtol_gym.baselines.errors import CheckpointError
 from softpvtol_gym.baselines.util.atomic import atomic_write_bytes, atomic_write_text
 
@@ -33,9 +36,18 @@ def optimizer_tensors(names, meta: dict) -> list[str]:
     return sorted(n for n in names if prefixes and n.startswith(prefixes))
 
 
-def compact_checkpoint(folder: Path) -> bool:
-    """Drop the optimizers' state from the checkpoint in ``folder`` (verified first) and rewrite its manifest;
-    False if it holds none (then nothing is written). CheckpointError for a folder that does not verify."""
+def value_function_tensors(names, meta: dict) -> list[str]:
+    """The tensor names among ``names`` that are a PPO policy's value function (its critic); [] for other
+    algorithms."""
+    if meta.get("algo") != "ppo":
+        return []
+    return sorted(n for n in names if n.startswith(("policy/value_net.", "policy/mlp_extractor.value_net.")))
+
+
+def compact_checkpoint(folder: Path, drop_value_function: bool = False) -> bool:
+    """Drop the optimizers' state (and, with ``drop_value_function``, a PPO policy's critic) from the checkpoint
+    in ``folder`` (verified first) and rewrite its manifest; False if it holds none (then nothing is written).
+    CheckpointError for a folder that does not verify."""
     from safetensors import SafetensorError
     from safetensors.numpy import load, save
 
@@ -48,11 +60,14 @@ def compact_checkpoint(folder: Path) -> bool:
     except (SafetensorError, ValueError) as exc:
         raise CheckpointError(f"{folder / MODEL_FILE} is not a readable safetensors file ({exc})") from None
     dropped = optimizer_tensors(tensors, meta)
+    critic = value_function_tensors(tensors, meta) if drop_value_function else []
     stateful = [name for name, o in meta.get("optimizers", {}).items() if o.get("params_with_state")]
-    if not dropped and not stateful:
+    if not dropped and not stateful and not critic:
         return False
     header = json.loads(data[8:8 + int.from_bytes(data[:8], "little")])
-    kept = {k: v for k, v in tensors.items() if k not in set(dropped)}
+    kept = {k: v for k, v in tensors.items() if k not in set(dropped) | set(critic)}
+    if critic:
+        meta[DROPPED_KEY] = sorted({*meta.get(DROPPED_KEY, []), *critic})
     atomic_write_bytes(folder / MODEL_FILE, sorted_metadata(save(kept, metadata=header.get("__metadata__"))))
     for optimizer in meta.get("optimizers", {}).values():
         optimizer["scalar_state"], optimizer["params_with_state"] = {}, []

@@ -29,6 +29,10 @@ from softpvtol_gym.baselines.util.atomic import (
     atomic_write_text,
 )
 
+#: model.json's list of the policy tensors a compacted checkpoint does not keep (a finished PPO run's value
+#: function): loading leaves them as the freshly built model initialises them (seeded with the run's seed)
+DROPPED_KEY = "tensors_dropped"
+
 
 # ------------------------------------------------------------------------------------- the model
 def _torch_objects(model):
@@ -171,6 +175,9 @@ def check_model_meta(meta, source: str) -> None:
             for o in optimizers.values()):
         raise CheckpointError(f"{where}: optimizers must map each optimizer to param_groups (a list), scalar_state "
                               f"(a mapping) and params_with_state (a list of integers)")
+    dropped = meta.get(DROPPED_KEY, [])
+    if not isinstance(dropped, list) or not all(isinstance(n, str) for n in dropped):
+        raise CheckpointError(f"{where}: {DROPPED_KEY} must be a list of tensor names, got {str(dropped)[:60]!r}")
     for key in ("ep_info_buffer", "ep_success_buffer"):
         buf = meta.get(key, [])
         if not isinstance(buf, list) or (key == "ep_info_buffer" and not all(isinstance(e, dict) for e in buf)):
@@ -189,14 +196,21 @@ def load_model_state(model, tensors: dict, meta: dict, source: str) -> None:
     if meta.get("algo") != algo:
         raise CheckpointError(f"{source}: the weights are of a {str(meta.get('algo')).upper()} model, config.yaml "
                               f"says {algo.upper()}")
-    used = set()
+    used, dropped = set(), set(meta.get(DROPPED_KEY, []))
     state_dicts, variables = _torch_objects(model)
+    modules = [f"{name}/{k}" for name, obj in state_dicts if isinstance(obj, torch.nn.Module) for k in obj.state_dict()]
+    unknown = sorted(dropped.difference(modules).union(dropped.intersection(tensors)))
+    if unknown:
+        raise CheckpointError(f"{source}: {MODEL_STATE_FILE}'s {DROPPED_KEY} names tensors the model does not have "
+                              f"or the checkpoint keeps: {unknown[:5]}")
     try:
         for name, obj in state_dicts:
             prefix = f"{name}/"
             if isinstance(obj, torch.nn.Module):
                 sd = {k[len(prefix):]: v for k, v in tensors.items() if k.startswith(prefix)}
                 used.update(prefix + k for k in sd)
+                fresh = obj.state_dict()  # a dropped tensor keeps the freshly built model's value
+                sd.update({k: fresh[k] for k in fresh if prefix + k in dropped})
                 obj.load_state_dict(sd, strict=True)
             else:
                 info = meta["optimizers"][name]
