@@ -9,11 +9,12 @@ tests unpack by themselves.)
 
 The trained runs and the per-episode detail are committed as archives under ``results/archive/``: one
 reproducible ``.tar.xz`` per job folder of ``leaderboard_runs/``, ``ablation_runs/`` and ``distill_runs/``, and
-``leaderboard.json`` as ``.xz`` (``results/README.md`` says what is where). ``unpack`` writes them back where the
+``leaderboard.json`` as ``.xz``, thin: its per-episode metrics refer to the jobs' ``eval.json`` (``results/README.md``
+says what is where). ``unpack`` writes them back where the
 commands read them; it replaces a folder only where its archive changed since it was unpacked, and keeps a
 folder that no archive wrote (a job run here and not packed yet) unless ``--force`` is given. ``pack`` drops the
-optimizers' state from each finished checkpoint (what only further training needs; the policy and its
-evaluations are unchanged) and writes the archives that differ. Exit codes: 0 done (``check``: they agree),
+optimizers' state from each finished checkpoint, and a PPO run's critic but a distilled student's (what only
+further training needs; the actor and its evaluations are unchanged), and writes the archives that differ. Exit codes: 0 done (``check``: they agree),
 1 ``check`` found differences, 2 bad input (one line).
 """
 
