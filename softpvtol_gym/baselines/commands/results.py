@@ -14,8 +14,8 @@ says what is where). ``unpack`` writes them back where the
 commands read them; it replaces a folder only where its archive changed since it was unpacked, and keeps a
 folder that no archive wrote (a job run here and not packed yet) unless ``--force`` is given. ``pack`` drops the
 optimizers' state from each finished checkpoint, and a PPO run's critic but a distilled student's (what only
-further training needs; the actor and its evaluations are unchanged), and writes the archives that differ. Exit codes: 0 done (``check``: they agree),
-1 ``check`` found differences, 2 bad input (one line).
+further training needs; the actor and its evaluations are unchanged), and writes the archives that differ.
+Exit codes: 0 done (``check``: they agree), 1 ``check`` found differences, 2 bad input (one line).
 """
 
 from __future__ import annotations
