@@ -107,30 +107,46 @@ def variant_result(name: str, record: dict, seconds: float) -> dict:
 #: the variant that the leaderboard's ``distilled mpc robust`` cell runs at seeds 0-4, and that cell's run folder
 LEADERBOARD_VARIANT = "tier mixture, history 4, privileged, turned starts, 5 rounds"
 LEADERBOARD_CELL = ROOT / "results" / "leaderboard_runs" / "distilled-mpc-robust_track_random_nominal"
+#: the variant of the ``distilled mpc robust-bounded`` cell
+BOUNDED_VARIANT = ("tier mixture, history 4, privileged, turned starts, 5 rounds, bounded residual (0.25) on the "
+                   "saturated integral loop")
+#: every variant that a leaderboard cell runs -> that cell's run folder
+LEADERBOARD_CELLS = {LEADERBOARD_VARIANT: LEADERBOARD_CELL,
+                     BOUNDED_VARIANT: ROOT / "results" / "leaderboard_runs"
+                     / "distilled-mpc-robust-bounded_track_random_nominal"}
 
 
-def leaderboard_seeds(cell: Path = LEADERBOARD_CELL) -> dict:
-    """Seed -> result of :data:`LEADERBOARD_VARIANT` from the leaderboard cell's runs of seeds 1 and up (their
-    ``distill.json``; ``python baselines/results.py unpack`` puts them there), each checked to have the variant's
-    settings at its seed."""
+def leaderboard_seeds(cell: Path = LEADERBOARD_CELL, variant: str = LEADERBOARD_VARIANT) -> dict:
+    """Seed -> result of ``variant`` from the leaderboard cell's runs of seeds 1 and up (their ``distill.json``;
+    ``python baselines/results.py unpack`` puts them there), each checked to have the variant's settings at its
+    seed."""
     import dataclasses
 
     from softpvtol_gym.baselines.training.distill_config import EARLIER_DEFAULTS
 
     out = {}
-    for seed in sorted(int(f.name.removeprefix("seed_")) for f in cell.glob("seed_*")):
+    for seed in sorted(int(f.name.removeprefix("seed_")) for f in cell.glob("seed_*") if not f.name.endswith(".run")):
         folder = cell / f"seed_{seed}"
         if seed == 0:
             continue
         record = json.loads((folder / "distill.json").read_text())
-        expected = json.loads(json.dumps(dataclasses.asdict(variant_config(LEADERBOARD_VARIANT, seed))))
+        expected = json.loads(json.dumps(dataclasses.asdict(variant_config(variant, seed))))
         if {k: record["config"].get(k, EARLIER_DEFAULTS.get(k)) for k in expected} != expected:
-            raise SystemExit(f"{folder}: its settings are not those of the variant {LEADERBOARD_VARIANT!r} at seed "
-                             f"{seed}")
-        out[str(seed)] = variant_result(LEADERBOARD_VARIANT, record, record["seconds"])
+            raise SystemExit(f"{folder}: its settings are not those of the variant {variant!r} at seed {seed}")
+        out[str(seed)] = variant_result(variant, record, record["seconds"])
     if not out:
         raise SystemExit(f"no runs of seed 1 and up under {cell}: run `python baselines/results.py unpack` first")
     return out
+
+
+def merge_seeds(earlier: dict, taken: dict, variant: str) -> dict:
+    """``earlier`` (seed -> result of ``variant``) with the leaderboard cell's ``taken``; a seed in both must have
+    given the same students (the same evaluations: distillation is deterministic), else SystemExit naming it."""
+    for seed in sorted(set(earlier) & set(taken), key=int):
+        if {k: earlier[seed][k] for k in ("evaluation", "teacher")} != {k: taken[seed][k]
+                                                                          for k in ("evaluation", "teacher")}:
+            raise SystemExit(f"seed {seed} of {variant!r}: the leaderboard cell's run and the probe's differ")
+    return {**earlier, **taken}
 
 
 def slug(name: str, seed: int = 0) -> str:
@@ -284,8 +300,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0,
                     help="the run seed of the variants (default 0: the table's; another seed goes to the seeds table)")
     ap.add_argument("--leaderboard-seeds", action="store_true",
-                    help=f"take the seeds 1-4 of {LEADERBOARD_VARIANT!r} from the leaderboard cell's runs into the "
-                         "seeds table (run `python baselines/results.py unpack` first)")
+                    help="take the seeds 1-4 of the variants that leaderboard cells run from those cells' runs into "
+                         "the seeds table (run `python baselines/results.py unpack` first)")
     ap.add_argument("--teacher-recovery", action="store_true",
                     help="run the teacher from turned starts on every task and tier, keep it in --out, write the table")
     args = ap.parse_args(argv)
@@ -297,7 +313,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.leaderboard_seeds:
         report = json.loads(args.out.read_text())
         seeds = report.setdefault("seeds", {})
-        seeds[LEADERBOARD_VARIANT] = {**seeds.get(LEADERBOARD_VARIANT, {}), **leaderboard_seeds()}
+        for variant, cell in LEADERBOARD_CELLS.items():
+            seeds[variant] = merge_seeds(seeds.get(variant, {}), leaderboard_seeds(cell, variant), variant)
         atomic_write_text(args.out, json.dumps(report, indent=1))
         args.render_only = True
     if args.crashes:

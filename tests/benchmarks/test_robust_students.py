@@ -180,3 +180,14 @@ def test_the_bounded_residual_crashes_nowhere_on_two_seeds_and_the_page_says_so(
     assert len(runs) == 2 and student == 0
     section = " ".join((ROOT / "benchmarks" / "STUDIES.md").read_text().split())
     assert f"0 in {len(runs) * len(CELLS) * 8} over two seeds, the MPC {teacher}" in section
+
+
+def test_a_seed_of_the_probe_and_of_the_leaderboard_cell_must_agree():
+    import pytest
+
+    run = {"evaluation": {"hover hard": _summary(1)}, "teacher": {"hover hard": _summary(0)}, "seconds": 1.0}
+    later = {**run, "seconds": 2.0}  # the same students, timed again
+    assert bench.merge_seeds({"1": run}, {"1": later, "2": run}, "v") == {"1": later, "2": run}
+    other = {**run, "evaluation": {"hover hard": _summary(0)}}
+    with pytest.raises(SystemExit, match="seed 1 of 'v': the leaderboard cell's run and the probe's differ"):
+        bench.merge_seeds({"1": run}, {"1": other}, "v")
