@@ -139,14 +139,12 @@ def leaderboard_seeds(cell: Path = LEADERBOARD_CELL, variant: str = LEADERBOARD_
     return out
 
 
-def merge_seeds(earlier: dict, taken: dict, variant: str) -> dict:
-    """``earlier`` (seed -> result of ``variant``) with the leaderboard cell's ``taken``; a seed in both must have
-    given the same students (the same evaluations: distillation is deterministic), else SystemExit naming it."""
-    for seed in sorted(set(earlier) & set(taken), key=int):
-        if {k: earlier[seed][k] for k in ("evaluation", "teacher")} != {k: taken[seed][k]
-                                                                          for k in ("evaluation", "teacher")}:
-            raise SystemExit(f"seed {seed} of {variant!r}: the leaderboard cell's run and the probe's differ")
-    return {**earlier, **taken}
+def merge_seeds(earlier: dict, taken: dict) -> tuple[dict, list[str]]:
+    """``earlier`` (seed -> result of a variant) with the seeds of the leaderboard cell's ``taken`` that it lacks
+    (a seed in both keeps its earlier run); and the seeds in both whose students differ (their evaluations)."""
+    both = sorted(set(earlier) & set(taken), key=int)
+    differ = [seed for seed in both if any(earlier[seed][k] != taken[seed][k] for k in ("evaluation", "teacher"))]
+    return {**taken, **earlier}, differ
 
 
 def slug(name: str, seed: int = 0) -> str:
@@ -314,7 +312,10 @@ def main(argv: list[str] | None = None) -> int:
         report = json.loads(args.out.read_text())
         seeds = report.setdefault("seeds", {})
         for variant, cell in LEADERBOARD_CELLS.items():
-            seeds[variant] = merge_seeds(seeds.get(variant, {}), leaderboard_seeds(cell, variant), variant)
+            seeds[variant], differ = merge_seeds(seeds.get(variant, {}), leaderboard_seeds(cell, variant))
+            for seed in differ:
+                print(f"seed {seed} of {variant!r}: the leaderboard cell's run gave other students than the probe's "
+                      "(the probe's is kept)")
         atomic_write_text(args.out, json.dumps(report, indent=1))
         args.render_only = True
     if args.crashes:

@@ -182,12 +182,9 @@ def test_the_bounded_residual_crashes_nowhere_on_two_seeds_and_the_page_says_so(
     assert f"0 in {len(runs) * len(CELLS) * 8} over two seeds, the MPC {teacher}" in section
 
 
-def test_a_seed_of_the_probe_and_of_the_leaderboard_cell_must_agree():
-    import pytest
-
+def test_a_seed_of_the_probe_keeps_its_run_and_a_leaderboard_run_that_differs_is_named():
     run = {"evaluation": {"hover hard": _summary(1)}, "teacher": {"hover hard": _summary(0)}, "seconds": 1.0}
     later = {**run, "seconds": 2.0}  # the same students, timed again
-    assert bench.merge_seeds({"1": run}, {"1": later, "2": run}, "v") == {"1": later, "2": run}
+    assert bench.merge_seeds({"1": run}, {"1": later, "2": later}) == ({"1": run, "2": later}, [])
     other = {**run, "evaluation": {"hover hard": _summary(0)}}
-    with pytest.raises(SystemExit, match="seed 1 of 'v': the leaderboard cell's run and the probe's differ"):
-        bench.merge_seeds({"1": run}, {"1": other}, "v")
+    assert bench.merge_seeds({"1": run}, {"1": other}) == ({"1": run}, ["1"])

@@ -149,6 +149,8 @@ ABLATION_ENTRIES = (
     ("robust students of the MPC, 256 x 256: privileged teacher, DAgger on hover and track_random and 5 tiers, turned "
      "starts, history 4 (5 rounds of 8 episodes per task and tier)",
      "distilled mpc robust (trained on track_random + hover, 5 tiers)"),
+    ("the same students as a bounded residual on the integral loop's command clipped to the actuator box (at most a "
+     "quarter of the actuator half-ranges)", "distilled mpc robust-bounded (trained on track_random + hover, 5 tiers)"),
     ("the teacher", "passivity-integral"),
     ("the MPC", "mpc"),
 )
