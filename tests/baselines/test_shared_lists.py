@@ -26,7 +26,8 @@ def test_a_thin_document_refers_to_the_shared_lists_and_rebuilds_byte_for_byte()
 
 
 @pytest.mark.parametrize("data", [b"not json", json.dumps(DOC).encode(),  # not written with indent=1
-                                  json.dumps({"x": [{REF_KEY: 1}]}, indent=1).encode(), b"[1, 2]"])
+                                  json.dumps({"x": [{REF_KEY: 1}]}, indent=1).encode(), b"[1, 2]",
+                                  json.dumps({"x": [{"a": float("nan")}]}, indent=1).encode()])
 def test_a_document_that_would_not_rebuild_exactly_is_stored_whole(data):
     assert thin(data, SOURCES) is None
 
@@ -38,3 +39,8 @@ def test_a_source_that_changed_or_is_missing_is_named():
         thick(thinned, changed.__getitem__)
     with pytest.raises(RebuildError, match="runs/a/eval.json is missing"):
         thick(thinned, {}.__getitem__)
+
+
+def test_a_source_with_nan_is_no_obstacle():
+    sources = {**SOURCES, "runs/b/eval.json": b'{"eval": {"nominal": [{"return": NaN}]}}'}
+    assert thick(thin(DATA, sources), sources.__getitem__) == DATA

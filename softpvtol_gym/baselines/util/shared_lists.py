@@ -31,12 +31,18 @@ def _dump(doc) -> bytes:
 
 
 def _lists(node, path: tuple, out: dict) -> None:
-    """Index every non-empty list under ``node``: its compact JSON -> the keys that lead to it (first found)."""
+    """Index every list of records under ``node``: its key (:func:`_key`) -> the keys that lead to it (first found)."""
     if isinstance(node, dict):
         for key, value in node.items():
             _lists(value, (*path, key), out)
     elif _is_record_list(node):
-        out.setdefault(json.dumps(node, allow_nan=False), path)
+        out.setdefault(_key(node), path)
+
+
+def _key(node) -> str:
+    """A list's index key: its compact JSON (NaN allowed: a source's list with NaN matches no document's, which
+    :func:`thin` has checked to be finite)."""
+    return json.dumps(node)
 
 
 def _is_record_list(node) -> bool:
@@ -74,9 +80,9 @@ def thin(data: bytes, sources: dict[str, bytes]) -> bytes | None:
     be rebuilt byte for byte (then store it whole). Sources that are not JSON objects are left out."""
     try:
         doc = json.loads(data)
-    except ValueError:
-        return None
-    if not isinstance(doc, dict) or _dump(doc) != data or _has_key(doc, REF_KEY) or FORMAT_KEY in doc:
+        if not isinstance(doc, dict) or _dump(doc) != data or _has_key(doc, REF_KEY) or FORMAT_KEY in doc:
+            return None
+    except ValueError:  # not JSON, or holding NaN or infinity (never written with allow_nan=False)
         return None
     index: dict[str, tuple] = {}
     for name in sorted(sources):
@@ -91,7 +97,7 @@ def thin(data: bytes, sources: dict[str, bytes]) -> bytes | None:
         if isinstance(node, dict):
             return {k: replace(v) for k, v in node.items()}
         if isinstance(node, list):
-            ref = index.get(json.dumps(node, allow_nan=False)) if _is_record_list(node) else None
+            ref = index.get(_key(node)) if _is_record_list(node) else None
             return {REF_KEY: list(ref)} if ref is not None else [replace(v) for v in node]
         return node
 
