@@ -50,6 +50,9 @@ from softpvtol_gym.envs.config import EnvConfig  # noqa: E402
 SOURCE = "benchmarks/per_robot_compute.json"
 BLOCK = "per_robot_compute.py"
 CHECKPOINT = "results/leaderboard_runs/ppo_residual_track_random_nominal/seed_0"
+#: the leaderboard's bounded robust student (distilled from the MPC): a 2 x 256 MLP on 4 stacked observations,
+#: a bounded residual on the saturated integral loop
+STUDENT = "results/leaderboard_runs/distilled-mpc-robust-bounded_track_random_nominal/seed_0"
 TASK, TIER = "track_random", "nominal"
 #: (name, what it is) in the order of the table
 CASES = (
@@ -61,6 +64,8 @@ CASES = (
     ("learned-lean", "learned 2 x 64 MLP: `LearnedPolicy` (default, `inference=\"lean\"`)"),
     ("learned-torch", "learned 2 x 64 MLP: `LearnedPolicy(..., inference=\"torch\")` (SB3's `predict` calls)"),
     ("learned-sb3", "learned 2 x 64 MLP: SB3's `model.predict` after `VecNormalize.normalize_obs`"),
+    ("student-lean", "the bounded robust student: 2 x 256 MLP on 4 observations, a residual on the integral loop "
+                     "(`LearnedPolicy`, lean)"),
 )
 
 
@@ -92,6 +97,9 @@ def build_cases(steps: int) -> dict:
     cases["learned-lean"] = (lean, obs)
     cases["learned-torch"] = (torch_path, obs)
     cases["learned-sb3"] = (SB3Predict(lean.model, lean.vecnorm), obs)
+    student, config = LearnedPolicy.load(ROOT / STUDENT)
+    cases["student-lean"] = (student, episode_observations(student, config.action_mode, TASK, TIER, EVAL_SEED_OFFSET,
+                                                           config.eval_env_kwargs(), steps=steps))
     return cases
 
 
@@ -102,6 +110,7 @@ def measure(steps: int, rounds: int) -> dict:
         for name, (policy, obs) in cases.items():
             per_round[name].append(compute_us_single(policy, obs, repeats=1))
     ratios = [a / b for a, b in zip(per_round["learned-lean"], per_round["integral"])]
+    student = [a / b for a, b in zip(per_round["student-lean"], per_round["integral"])]
     timer = ("solves", "solve_ms_median", "solve_ms_p99", "solve_ms_max")
     return {
         "mpc_solver": {name: {k: cases[name][0].stats[k] for k in timer} for name in ("mpc", "mpc-hard")},
@@ -109,6 +118,7 @@ def measure(steps: int, rounds: int) -> dict:
                       "rounds": [round(x, 3) for x in v], "observations": int(len(cases[name][1]))}
                for name, v in per_round.items()},
         "lean_over_integral": float(np.median(ratios)),
+        "student_over_integral": float(np.median(student)),
         "torch_over_lean": float(np.median([a / b for a, b in zip(per_round["learned-torch"],
                                                                    per_round["learned-lean"])])),
     }
@@ -126,7 +136,8 @@ def markdown_table(report: dict) -> str:
         m = report["us"][name]
         lines.append(f"| {what} | {m['median']:.1f} ({m['min_round']:.1f}-{m['max_round']:.1f}) |")
     lines += ["", f"The lean path / the integral loop, per round: {report['lean_over_integral']:.2f}x; SB3's "
-                  f"`predict` calls (`inference=\"torch\"`) / the lean path: {report['torch_over_lean']:.0f}x."]
+                  f"`predict` calls (`inference=\"torch\"`) / the lean path: {report['torch_over_lean']:.0f}x; "
+                  f"the bounded robust student / the integral loop: {report['student_over_integral']:.1f}x."]
     for name, label in (("mpc", "nominal"), ("mpc-hard", "hard")):
         m = report["mpc_solver"][name]
         lines += ["", f"The MPC's step on the {label} tier by its own timer, over all {m['solves']} calls of the run: "
@@ -149,7 +160,8 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     report = {"command": " ".join(["python benchmarks/per_robot_compute.py", *argv]),
               "machine": facts, "steps": args.steps, "rounds": args.rounds, "task": TASK, "tier": TIER,
-              "checkpoint": CHECKPOINT, **measure(args.steps, args.rounds), "loadavg_end": list(os.getloadavg())}
+              "checkpoint": CHECKPOINT, "student": STUDENT, **measure(args.steps, args.rounds),
+              "loadavg_end": list(os.getloadavg())}
     report["seconds"] = round(time.perf_counter() - t0, 1)
     table = markdown_table(report)
     print(table)

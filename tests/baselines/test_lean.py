@@ -6,6 +6,7 @@ alone or in a batch for every kind of policy. Also :func:`compute_us_single`."""
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -169,6 +170,33 @@ def test_lean_computes_the_documented_function():
     plain = LeanMLPPolicy(ops[:2], -np.ones(6), np.ones(6), False, action_dtype=np.float64)  # the float32 obs
     np.testing.assert_allclose(plain.predict(obs[:, :4])[0], np.tanh(obs.astype(np.float64) @ w1.T + b1),
                                rtol=1e-12, atol=1e-12)
+
+
+def _summed_in_order(weight, bias, x):
+    """A linear layer as the lean pass documents it, in plain Python floats: output j is 0.0 plus
+    weight[j, k] * x[k] for k = 0, 1, ... in turn, then plus bias[j] (IEEE double, no fused multiply-add)."""
+    out = []
+    for j in range(weight.shape[0]):
+        acc = 0.0
+        for k in range(weight.shape[1]):
+            acc = acc + float(weight[j, k]) * float(x[k])
+        out.append(acc + float(bias[j]))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_lean_layers_sum_each_output_in_input_order_bit_for_bit(dtype):
+    """The compiled pass (vectorised across outputs) against the layer summed in order in plain Python: the same
+    bits, for a torch model's float32 weights (kept as float32) and for float64 weights (kept as given)."""
+    rng = np.random.default_rng(11)
+    w1, b1 = (rng.normal(size=(37, 19)) * 0.3).astype(dtype), rng.normal(size=37)
+    w2, b2 = (rng.normal(size=(3, 37)) * 0.3).astype(dtype), rng.normal(size=3)
+    obs = rng.normal(size=(20, 19)).astype(np.float32)
+    lean = LeanMLPPolicy([("linear", w1, b1), ("tanh",), ("linear", w2, b2)], -np.full(3, np.inf),
+                         np.full(3, np.inf), False, action_dtype=np.float64)
+    for row, got in zip(obs, lean.predict(obs)[0]):
+        hidden = [math.tanh(v) for v in _summed_in_order(w1, b1, row.astype(np.float64))]  # libm, as the kernel
+        np.testing.assert_array_equal(got, _summed_in_order(w2, b2, hidden))
 
 
 # ------------------------------------------------------------------------------------ batch invariance

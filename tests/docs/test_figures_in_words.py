@@ -266,8 +266,11 @@ def test_the_per_robot_compute_ratios_of_the_guide():
     us = {name: row["median"] for name, row in data["us"].items()}
     _has(f"the lean path of a 2 x 64 MLP costs {data['lean_over_integral']:.1f} times what the integral passivity "
          f"loop costs, SB3's `predict` calls {data['torch_over_lean']:.0f} times the lean path and "
-         f"SB3's `model.predict` {us['learned-sb3'] / us['learned-lean']:.0f} times", BASELINES_PAGE,
+         f"SB3's `model.predict` {us['learned-sb3'] / us['learned-lean']:.0f} times;", BASELINES_PAGE,
          "docs/baselines.md")
+    _has(f"a residual on the integral loop) {data['student_over_integral']:.1f} times the integral loop",
+         BASELINES_PAGE, "docs/baselines.md")
+    _has(f"({us['student-lean']:.0f} µs with today's lean pass, `benchmarks/per_robot_compute.py`)")
 
 
 def test_the_pictures_policy_of_the_guide():

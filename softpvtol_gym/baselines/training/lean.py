@@ -101,9 +101,11 @@ def _forward(h, g, codes, sizes, params, weights, biases):
                 g[j] = 0.0
             for k in range(din):
                 hk = h[k]
-                row = w0 + k * dout
+                # a view of input k's weights: indexed by the loop's own (non-negative) j, the loop needs no
+                # negative-index check and is vectorised across outputs (each output's sum keeps its order)
+                row = weights[w0 + k * dout: w0 + (k + 1) * dout]
                 for j in range(dout):
-                    g[j] += weights[row + j] * hk
+                    g[j] += row[j] * hk
             for j in range(dout):
                 h[j] = g[j] + biases[b0 + j]
             w0 += din * dout
@@ -245,9 +247,14 @@ class LeanMLPPolicy:
         if not (self.low <= self.high).all():
             raise ValueError(f"action_low must be <= action_high, got {self.low} and {self.high}")
         self.action_dtype = np.dtype(action_dtype)
+        flat = np.concatenate(weights)
+        narrow = flat.astype(np.float32)
+        if np.array_equal(narrow.astype(np.float64), flat):
+            # float32 weights (a torch model's) kept as float32: half the memory each pass reads; the kernel
+            # widens each to the same float64 value, so the actions are the same bit for bit
+            flat = narrow
         self._net = (np.asarray(codes, dtype=np.int64), np.asarray(sizes, dtype=np.int64),
-                     np.asarray(params, dtype=np.float64).reshape(-1, 2), np.concatenate(weights),
-                     np.concatenate(biases))
+                     np.asarray(params, dtype=np.float64).reshape(-1, 2), flat, np.concatenate(biases))
         if (obs_mean is None) != (obs_var is None):
             raise ValueError("obs_mean and obs_var go together: pass both (normalised observations) or neither")
         self.normalized = obs_mean is not None
