@@ -186,25 +186,29 @@ def test_committed_checkpoint_reproduces_its_leaderboard_episodes(checkpoint, tr
 
 
 #: analytic cells replayed against the committed leaderboard: each passivity loop on a tier with noise, wind and
-#: mismatch, and the MPC where its episodes are most sensitive to round-off (noisy observations; hover: short)
+#: mismatch (the MPC's: tests/baselines/test_mpc_reproduction.py, under the BLAS kernels its episodes were run with)
 ANALYTIC_REPLAYS = [("passivity-paper", "track_paper", "hard"), ("passivity-bounded", "track_random", "hard"),
                     ("passivity-integral", "track_paper", "hard"), ("passivity-extended", "hover", "wind"),
-                    ("passivity-exact", "track_random", "mismatch"), ("mpc", "hover", "noisy")]
+                    ("passivity-exact", "track_random", "mismatch")]
 
 
-@pytest.mark.slow  # the MPC's four hover episodes: ~10 s
-@pytest.mark.parametrize("entry, task, tier", ANALYTIC_REPLAYS, ids=["-".join(r) for r in ANALYTIC_REPLAYS])
-def test_committed_analytic_cells_reproduce_with_the_current_code(entry, task, tier):
-    """An analytic entry's committed episodes are what the current controller code gives (a change of a
-    controller must re-evaluate its cells: python baselines/run_jobs.py --reevaluate --only <entry>)."""
-    from softpvtol_gym.baselines.evaluation import run_episodes
+def analytic_replay(entry: str, task: str, tier: str) -> tuple[list[dict], list[dict]]:
+    """(the first episodes of an analytic cell run with the current code, the committed ones)."""
     from softpvtol_gym.baselines.leaderboard.jobs import load_jobs
 
     (job,) = [j for j in load_jobs() if j.policy == entry and j.task == task]
     cell = next(c for c in DATA["cells"] if c["entry"] == entry and c["task"] == task and c["tier"] == tier)
     policy, env_kwargs = analytic_policy(job)
     got = run_episodes(policy, job.action_mode, task, tier, REPLAYED_EPISODES, cell["eval_seed"], env_kwargs=env_kwargs)
-    check_replay(got, cell["episodes"])
+    return got, cell["episodes"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("entry, task, tier", ANALYTIC_REPLAYS, ids=["-".join(r) for r in ANALYTIC_REPLAYS])
+def test_committed_analytic_cells_reproduce_with_the_current_code(entry, task, tier):
+    """An analytic entry's committed episodes are what the current controller code gives (a change of a
+    controller must re-evaluate its cells: python baselines/run_jobs.py --reevaluate --only <entry>)."""
+    check_replay(*analytic_replay(entry, task, tier))
 
 
 def test_jobs_run_with_any_executor_and_reevaluate_identically(tmp_path):
