@@ -103,24 +103,26 @@ def build_cases(steps: int) -> dict:
     return cases
 
 
+def median_ratio(per_round: dict, top: str, bottom: str) -> float:
+    """The median over rounds of case ``top``'s time over case ``bottom``'s, each ratio within one round."""
+    return float(np.median([a / b for a, b in zip(per_round[top], per_round[bottom])]))
+
+
 def measure(steps: int, rounds: int) -> dict:
     cases = build_cases(steps)
     per_round = {name: [] for name in cases}
     for _ in range(rounds):
         for name, (policy, obs) in cases.items():
             per_round[name].append(compute_us_single(policy, obs, repeats=1))
-    ratios = [a / b for a, b in zip(per_round["learned-lean"], per_round["integral"])]
-    student = [a / b for a, b in zip(per_round["student-lean"], per_round["integral"])]
     timer = ("solves", "solve_ms_median", "solve_ms_p99", "solve_ms_max")
     return {
         "mpc_solver": {name: {k: cases[name][0].stats[k] for k in timer} for name in ("mpc", "mpc-hard")},
         "us": {name: {"median": float(np.median(v)), "min_round": float(min(v)), "max_round": float(max(v)),
                       "rounds": [round(x, 3) for x in v], "observations": int(len(cases[name][1]))}
                for name, v in per_round.items()},
-        "lean_over_integral": float(np.median(ratios)),
-        "student_over_integral": float(np.median(student)),
-        "torch_over_lean": float(np.median([a / b for a, b in zip(per_round["learned-torch"],
-                                                                   per_round["learned-lean"])])),
+        "lean_over_integral": median_ratio(per_round, "learned-lean", "integral"),
+        "student_over_integral": median_ratio(per_round, "student-lean", "integral"),
+        "torch_over_lean": median_ratio(per_round, "learned-torch", "learned-lean"),
     }
 
 
