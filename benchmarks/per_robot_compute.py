@@ -53,6 +53,8 @@ CHECKPOINT = "results/leaderboard_runs/ppo_residual_track_random_nominal/seed_0"
 #: the leaderboard's bounded robust student (distilled from the MPC): a 2 x 256 MLP on 4 stacked observations,
 #: a bounded residual on the saturated integral loop
 STUDENT = "results/leaderboard_runs/distilled-mpc-robust-bounded_track_random_nominal/seed_0"
+#: the same students at 2 x 64
+SMALL_STUDENT = "results/leaderboard_runs/distilled-mpc-robust-bounded-small_track_random_nominal/seed_0"
 TASK, TIER = "track_random", "nominal"
 #: (name, what it is) in the order of the table
 CASES = (
@@ -66,6 +68,7 @@ CASES = (
     ("learned-sb3", "learned 2 x 64 MLP: SB3's `model.predict` after `VecNormalize.normalize_obs`"),
     ("student-lean", "the bounded robust student: 2 x 256 MLP on 4 observations, a residual on the integral loop "
                      "(`LearnedPolicy`, lean)"),
+    ("student-small-lean", "the same bounded robust student at 2 x 64 (`LearnedPolicy`, lean)"),
 )
 
 
@@ -97,9 +100,10 @@ def build_cases(steps: int) -> dict:
     cases["learned-lean"] = (lean, obs)
     cases["learned-torch"] = (torch_path, obs)
     cases["learned-sb3"] = (SB3Predict(lean.model, lean.vecnorm), obs)
-    student, config = LearnedPolicy.load(ROOT / STUDENT)
-    cases["student-lean"] = (student, episode_observations(student, config.action_mode, TASK, TIER, EVAL_SEED_OFFSET,
-                                                           config.eval_env_kwargs(), steps=steps))
+    for name, folder in (("student-lean", STUDENT), ("student-small-lean", SMALL_STUDENT)):
+        student, config = LearnedPolicy.load(ROOT / folder)
+        cases[name] = (student, episode_observations(student, config.action_mode, TASK, TIER, EVAL_SEED_OFFSET,
+                                                     config.eval_env_kwargs(), steps=steps))
     return cases
 
 
@@ -122,6 +126,7 @@ def measure(steps: int, rounds: int) -> dict:
                for name, v in per_round.items()},
         "lean_over_integral": median_ratio(per_round, "learned-lean", "integral"),
         "student_over_integral": median_ratio(per_round, "student-lean", "integral"),
+        "small_student_over_integral": median_ratio(per_round, "student-small-lean", "integral"),
         "torch_over_lean": median_ratio(per_round, "learned-torch", "learned-lean"),
     }
 
@@ -139,7 +144,8 @@ def markdown_table(report: dict) -> str:
         lines.append(f"| {what} | {m['median']:.1f} ({m['min_round']:.1f}-{m['max_round']:.1f}) |")
     lines += ["", f"The lean path / the integral loop, per round: {report['lean_over_integral']:.2f}x; SB3's "
                   f"`predict` calls (`inference=\"torch\"`) / the lean path: {report['torch_over_lean']:.0f}x; "
-                  f"the bounded robust student / the integral loop: {report['student_over_integral']:.1f}x."]
+                  f"the bounded robust student / the integral loop: {report['student_over_integral']:.1f}x "
+                  f"(at 2 x 64: {report['small_student_over_integral']:.1f}x)."]
     for name, label in (("mpc", "nominal"), ("mpc-hard", "hard")):
         m = report["mpc_solver"][name]
         lines += ["", f"The MPC's step on the {label} tier by its own timer, over all {m['solves']} calls of the run: "
@@ -162,7 +168,8 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     report = {"command": " ".join(["python benchmarks/per_robot_compute.py", *argv]),
               "machine": facts, "steps": args.steps, "rounds": args.rounds, "task": TASK, "tier": TIER,
-              "checkpoint": CHECKPOINT, "student": STUDENT, **measure(args.steps, args.rounds),
+              "checkpoint": CHECKPOINT, "student": STUDENT, "small_student": SMALL_STUDENT,
+              **measure(args.steps, args.rounds),
               "loadavg_end": list(os.getloadavg())}
     report["seconds"] = round(time.perf_counter() - t0, 1)
     table = markdown_table(report)

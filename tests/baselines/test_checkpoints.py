@@ -499,7 +499,7 @@ def test_committed_checkpoints_are_in_the_safe_format():
 
     models = sorted(RUNS_DIR.glob("*/seed_*/model.safetensors"))
     # one per learned job of the spec, 5 seeds each
-    assert len(models) == sum(job.learned for job in load_jobs()) == 130
+    assert len(models) == sum(job.learned for job in load_jobs()) == 135
     ablation = sorted((RUNS_DIR.parent / "ablation_runs").glob("*/seed_*/model.safetensors"))
     assert len(ablation) == 18  # baselines/ablation.yml: 6 recipes x 3 seeds
     for m in models + ablation:

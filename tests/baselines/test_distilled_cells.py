@@ -182,7 +182,7 @@ def test_the_docs_rounds_table_is_generated_from_the_committed_students():
     assert {name: len(seeds) for name, seeds in records.items()} == {
         "distilled integral": 5, "distilled integral small": 5, "distilled integral small-matched": 5,
         "distilled integral small-matched-history": 5, "distilled mpc small": 5, "distilled mpc robust": 5,
-        "distilled mpc robust-bounded": 5}
+        "distilled mpc robust-bounded": 5, "distilled mpc robust-bounded-small": 5}
     assert read_block(*ROUNDS_BLOCK, ROOT / "docs" / "baselines.md") == rounds_table(records).strip()
 
 

@@ -31,6 +31,11 @@ def test_committed_figures_cover_every_kind_and_the_lean_path_is_within_2x_of_th
     # is the one the guide quotes
     assert COMMITTED["us"]["student-lean"]["median"] > COMMITTED["us"]["learned-lean"]["median"]
     assert COMMITTED["student_over_integral"] > COMMITTED["lean_over_integral"]
+    # the same student at 2 x 64 costs less than at 2 x 256, more than the 2 x 64 MLP on one observation
+    assert COMMITTED["us"]["learned-lean"]["median"] < COMMITTED["us"]["student-small-lean"]["median"] \
+        < COMMITTED["us"]["student-lean"]["median"]
+    ratios = ("lean_over_integral", "small_student_over_integral", "student_over_integral")
+    assert COMMITTED[ratios[0]] < COMMITTED[ratios[1]] < COMMITTED[ratios[2]]
 
 
 def test_a_short_run_writes_the_report_and_the_table(tmp_path):

@@ -60,13 +60,14 @@ def _has(phrase: str, text: str = WORDS, where: str = "the README's headline in 
 
 
 BOUNDED = "distilled mpc robust-bounded (trained on track_random + hover, 5 tiers)"
+SMALL_BOUNDED = "distilled mpc robust-bounded-small (trained on track_random + hover, 5 tiers)"
 
 
 def test_model_based_wins_every_noise_free_window_and_every_last_half_window_but_one():
     decided = [w for w in WINDOWS if w["winner"] != "neither"]
     steady = [w for w in decided if w["window"] == "steady" and w["winner"] != "model-based"]
     assert [(w["task"], w["tier"], w["winner"], w["learned"]["entry"]) for w in steady] == [
-        ("track_random", "noisy", "learned", BOUNDED)]
+        ("track_random", "noisy", "learned", SMALL_BOUNDED)]
     noise_free = [w for w in decided if "noise" not in get_tier(w["tier"]).effects]
     assert noise_free and all(w["winner"] == "model-based" for w in noise_free)
     _has("Model-based control wins every decided window of the noise-free tiers, and every decided last-half window "
@@ -155,6 +156,26 @@ def test_the_bounded_robust_students():
          f"`{hover['tier']}`, where the MPC crashes in none), at {_us_range(rows)} per robot")
     _has(f"in {_percent(min(paper)).removesuffix(' %')}-{_percent(max(paper))} of the `track_paper` episodes")
     _has(f"they win {NUMBER_WORDS[len(wins)]} cell{'' if len(wins) == 1 else 's'}")
+
+
+def test_the_small_bounded_robust_students():
+    entry = SMALL_BOUNDED
+    rows = [r for r in ROWS if r["entry"] == entry]
+    def crashes(task: str) -> str:
+        counted = [r for r in rows if r["task"] == task]
+        assert len(counted) == 6 and all(r["crash_episodes"] == 100 for r in counted)
+        return f"{sum(r['crashes'] for r in counted)} of the 600 `{task}`"
+
+    paper = [r["crash_rate"] for r in rows if r["task"] == "track_paper"]
+    wins = [w for w in WINDOWS if w["learned"]["entry"] == entry and w["winner"] == "learned"]
+    bench = json.loads((LAYOUT.root / "benchmarks" / "per_robot_compute.json").read_text())
+    _has(f"At 2 x 64 the same students crash in {crashes('track_random')} episodes and in "
+         f"{crashes('hover').replace(' `hover`', '')} hover ones, in "
+         f"{_percent(min(paper)).removesuffix(' %')}-{_percent(max(paper))} of the `track_paper` ones, at "
+         f"{_us_range(rows)} per robot ({bench['us']['student-small-lean']['median']:.0f} µs by "
+         f"`benchmarks/per_robot_compute.py`, {bench['small_student_over_integral']:.1f} times the integral loop, "
+         f"where the 2 x 256 ones take {bench['us']['student-lean']['median']:.0f} µs); they win "
+         f"{NUMBER_WORDS[len(wins)]} cell{'' if len(wins) == 1 else 's'}")
 
 
 def test_the_fine_tuned_students():
@@ -268,8 +289,9 @@ def test_the_per_robot_compute_ratios_of_the_guide():
          f"loop costs, SB3's `predict` calls {data['torch_over_lean']:.0f} times the lean path and "
          f"SB3's `model.predict` {us['learned-sb3'] / us['learned-lean']:.0f} times;", BASELINES_PAGE,
          "docs/baselines.md")
-    _has(f"a residual on the integral loop) {data['student_over_integral']:.1f} times the integral loop",
-         BASELINES_PAGE, "docs/baselines.md")
+    _has(f"a residual on the integral loop) {data['student_over_integral']:.1f} times the integral loop, and at "
+         f"2 x 64 {data['small_student_over_integral']:.1f} times (the 2 x 64 MLP above, on one observation without "
+         f"a frame stack, {data['lean_over_integral']:.1f} times)", BASELINES_PAGE, "docs/baselines.md")
     _has(f"({us['student-lean']:.0f} µs with today's lean pass, `benchmarks/per_robot_compute.py`)")
 
 

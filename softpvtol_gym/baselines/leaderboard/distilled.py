@@ -151,6 +151,8 @@ ABLATION_ENTRIES = (
      "distilled mpc robust (trained on track_random + hover, 5 tiers)"),
     ("the same students as a bounded residual on the integral loop's command clipped to the actuator box (at most a "
      "quarter of the actuator half-ranges)", "distilled mpc robust-bounded (trained on track_random + hover, 5 tiers)"),
+    ("the same bounded students at 64 x 64",
+     "distilled mpc robust-bounded-small (trained on track_random + hover, 5 tiers)"),
     ("the teacher", "passivity-integral"),
     ("the MPC", "mpc"),
 )
