@@ -59,6 +59,16 @@ def _has(phrase: str, text: str = WORDS, where: str = "the README's headline in 
     assert phrase in text, f"{where} should say {phrase!r}"
 
 
+def _percent_range(rates: list[float]) -> str:
+    """The range of crash rates as the README writes it: ``13-80 %``."""
+    return f"{_percent(min(rates)).removesuffix(' %')}-{_percent(max(rates))}"
+
+
+def _cells(count: int) -> str:
+    """``no cells``, ``one cell``, ``two cells``, ..."""
+    return f"{NUMBER_WORDS[count]} cell{'' if count == 1 else 's'}"
+
+
 BOUNDED = "distilled mpc robust-bounded (trained on track_random + hover, 5 tiers)"
 SMALL_BOUNDED = "distilled mpc robust-bounded-small (trained on track_random + hover, 5 tiers)"
 
@@ -154,28 +164,25 @@ def test_the_bounded_robust_students():
     wins = [w for w in WINDOWS if w["learned"]["entry"] == entry and w["winner"] == "learned"]
     _has(f"crash in none of the 600 `track_random` episodes and in {hover['crashes']} of the 600 hover ones (all "
          f"`{hover['tier']}`, where the MPC crashes in none), at {_us_range(rows)} per robot")
-    _has(f"in {_percent(min(paper)).removesuffix(' %')}-{_percent(max(paper))} of the `track_paper` episodes")
-    _has(f"they win {NUMBER_WORDS[len(wins)]} cell{'' if len(wins) == 1 else 's'}")
+    _has(f"in {_percent_range(paper)} of the `track_paper` episodes")
+    _has(f"they win {_cells(len(wins))}")
 
 
 def test_the_small_bounded_robust_students():
-    entry = SMALL_BOUNDED
-    rows = [r for r in ROWS if r["entry"] == entry]
-    def crashes(task: str) -> str:
+    rows = [r for r in ROWS if r["entry"] == SMALL_BOUNDED]
+    def crashes(task: str) -> int:
         counted = [r for r in rows if r["task"] == task]
         assert len(counted) == 6 and all(r["crash_episodes"] == 100 for r in counted)
-        return f"{sum(r['crashes'] for r in counted)} of the 600 `{task}`"
+        return sum(r["crashes"] for r in counted)
 
     paper = [r["crash_rate"] for r in rows if r["task"] == "track_paper"]
-    wins = [w for w in WINDOWS if w["learned"]["entry"] == entry and w["winner"] == "learned"]
-    bench = json.loads((LAYOUT.root / "benchmarks" / "per_robot_compute.json").read_text())
-    _has(f"At 2 x 64 the same students crash in {crashes('track_random')} episodes and in "
-         f"{crashes('hover').replace(' `hover`', '')} hover ones, in "
-         f"{_percent(min(paper)).removesuffix(' %')}-{_percent(max(paper))} of the `track_paper` ones, at "
-         f"{_us_range(rows)} per robot ({bench['us']['student-small-lean']['median']:.0f} µs by "
-         f"`benchmarks/per_robot_compute.py`, {bench['small_student_over_integral']:.1f} times the integral loop, "
-         f"where the 2 x 256 ones take {bench['us']['student-lean']['median']:.0f} µs); they win "
-         f"{NUMBER_WORDS[len(wins)]} cell{'' if len(wins) == 1 else 's'}")
+    wins = [w for w in WINDOWS if w["learned"]["entry"] == SMALL_BOUNDED and w["winner"] == "learned"]
+    us = json.loads((LAYOUT.root / "benchmarks" / "per_robot_compute.json").read_text())
+    _has(f"At 2 x 64 the same students crash in {crashes('track_random')} of the 600 `track_random` episodes and in "
+         f"{crashes('hover')} of the 600 hover ones, in {_percent_range(paper)} of the `track_paper` ones, at "
+         f"{_us_range(rows)} per robot ({us['us']['student-small-lean']['median']:.0f} µs by "
+         f"`benchmarks/per_robot_compute.py`, {us['small_student_over_integral']:.1f} times the integral loop, "
+         f"where the 2 x 256 ones take {us['us']['student-lean']['median']:.0f} µs); they win {_cells(len(wins))}")
 
 
 def test_the_fine_tuned_students():
