@@ -77,14 +77,6 @@ def _all_finite(values):
 
 
 @_jit
-def normalize_rows(obs, mean, scale, clip, out):
-    """out = the normalised observations ``obs`` (n, d), each entry by :func:`_normalized`."""
-    for r in range(obs.shape[0]):
-        for k in range(obs.shape[1]):
-            out[r, k] = _normalized(obs[r, k], mean[k], scale[k], clip)
-
-
-@_jit
 def _forward(h, g, codes, sizes, params, weights, biases):
     """The operations ``codes`` (:data:`OPS`) in turn on the current vector ``h``, in place (``g``: scratch for a
     linear layer's sums). Operation i maps a vector of ``sizes[i]`` entries to one of ``sizes[i + 1]``: a linear
@@ -127,19 +119,38 @@ def _forward(h, g, codes, sizes, params, weights, biases):
 
 
 @_jit
+def _scratch(sizes):
+    """The vectors a forward pass works in: the current one, the current one at zero error, a layer's sums."""
+    width = 0
+    for d in sizes:
+        width = max(width, d)
+    return np.empty(width), np.empty(width), np.empty(width)
+
+
+@_jit
+def _box(h, h0, at_zero, n_out, squash, low, high, out, r):
+    """Row ``r`` of ``out``: the actor's output ``h`` (minus ``h0`` with ``at_zero``) through SB3's Box handling:
+    ``squash``: low + (y + 1) / 2 (high - low), else y clipped to [low, high]."""
+    for j in range(n_out):
+        v = h[j] - h0[j] if at_zero else h[j]
+        if squash:
+            v = low[j] + 0.5 * (v + 1.0) * (high[j] - low[j])
+        elif v < low[j]:
+            v = low[j]
+        elif v > high[j]:
+            v = high[j]
+        out[r, j] = v
+
+
+@_jit
 def act_rows(obs, mean, scale, clip, zero_index, codes, sizes, params, weights, biases, squash, low, high, out):
     """The actions ``out`` (n, sizes[-1]) of observations ``obs`` (n, sizes[0]), one row after the other.
 
     Per row: the entries normalised (:func:`_normalized`), then the operations (:func:`_forward`). With
     ``zero_index`` not empty (a zero-at-zero policy): minus the output of the same operations on the row with
     those entries at the normalised value of a raw 0, so that a row whose entries there are 0 gets exactly 0.
-    Last SB3's Box handling: ``squash``: low + (y + 1) / 2 (high - low), else y clipped to [low, high]."""
-    width = 0
-    for d in sizes:
-        width = max(width, d)
-    h = np.empty(width)  # the current vector
-    h0 = np.empty(width)  # the current vector of the row at zero error
-    g = np.empty(width)  # a linear layer's sums
+    Last SB3's Box handling (:func:`_box`)."""
+    h, h0, g = _scratch(sizes)
     n_out = sizes[codes.shape[0]]
     at_zero = zero_index.shape[0] > 0
     for r in range(obs.shape[0]):
@@ -153,15 +164,36 @@ def act_rows(obs, mean, scale, clip, zero_index, codes, sizes, params, weights, 
                 h0[k] = _normalized(0.0, mean[k], scale[k], clip)
             _forward(h0, g, codes, sizes, params, weights, biases)
         _forward(h, g, codes, sizes, params, weights, biases)
-        for j in range(n_out):
-            v = h[j] - h0[j] if at_zero else h[j]
-            if squash:
-                v = low[j] + 0.5 * (v + 1.0) * (high[j] - low[j])
-            elif v < low[j]:
-                v = low[j]
-            elif v > high[j]:
-                v = high[j]
-            out[r, j] = v
+        _box(h, h0, at_zero, n_out, squash, low, high, out, r)
+
+
+@_jit
+def act_stacked_rows(obs, mean, scale, clip, starts, stack, codes, sizes, params, weights, biases, squash, low, high,
+                     out):
+    """The actions ``out`` (n, sizes[-1]) of a frame-stacked actor for new observations ``obs`` (n, d), updating
+    the float32 stacks ``stack`` (n, sizes[0] = K d) in place, one row after the other.
+
+    Per row, VecFrameStack's update (:class:`~.stacking.ObservationStack`): the stack emptied (zeros) where
+    ``starts`` is true, else shifted by one observation, oldest out; the new observation normalised
+    (:func:`_normalized`, a float32 value) last. Then the operations (:func:`_forward`) on the stack and SB3's
+    Box handling (:func:`_box`)."""
+    h, h0, g = _scratch(sizes)
+    n_out = sizes[codes.shape[0]]
+    d = obs.shape[1]
+    width = sizes[0]
+    for r in range(obs.shape[0]):
+        if starts[r]:
+            for k in range(width - d):
+                stack[r, k] = 0.0
+        else:
+            for k in range(width - d):
+                stack[r, k] = stack[r, k + d]
+        for k in range(d):
+            stack[r, width - d + k] = _normalized(obs[r, k], mean[k], scale[k], clip)
+        for k in range(width):
+            h[k] = stack[r, k]
+        _forward(h, g, codes, sizes, params, weights, biases)
+        _box(h, h0, False, n_out, squash, low, high, out, r)
 
 
 def _vector(value, name: str, size: int | None = None, infinite: bool = False) -> np.ndarray:
@@ -276,8 +308,6 @@ class LeanMLPPolicy:
                              "an unsquashed action")
         self._zero = zero.astype(np.int64)
         self._stack = ObservationStack(frame_stack, sizes[0]) if frame_stack > 1 else None
-        # a stacked input is normalised already: act_rows gets the identity for it
-        self._identity = (np.zeros(sizes[0]), np.ones(sizes[0]), np.inf)
 
     @classmethod
     def from_sb3(cls, model, vecnorm=None, frame_stack: int | None = None) -> LeanMLPPolicy:
@@ -324,11 +354,10 @@ class LeanMLPPolicy:
         out = np.empty((obs.shape[0], self.action_dim), dtype=self.action_dtype)
         if self._stack is None:
             act_rows(obs, *self._norm, self._zero, *self._net, self.squash, self.low, self.high, out)
-        else:
-            normed = np.empty(obs.shape, dtype=np.float32)
-            normalize_rows(obs, *self._norm, normed)
-            act_rows(self._stack.push(normed, episode_start), *self._identity, self._zero, *self._net, self.squash,
-                     self.low, self.high, out)
+        else:  # the stacks updated and the actor run in one compiled call
+            starts = self._stack.starts(obs, episode_start)
+            act_stacked_rows(obs, *self._norm, starts, self._stack.rows, *self._net, self.squash, self.low, self.high,
+                             out)
         return (out[0] if single else out), state
 
 

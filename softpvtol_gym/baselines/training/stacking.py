@@ -27,6 +27,18 @@ class ObservationStack:
         """The model's input (a new array) for observations ``obs`` (n_envs, width / k). ``episode_start``: n_envs
         bools (true: that sub-env's episode starts, its stack is emptied first), or None: every stack starts on
         the first call (and on a call with another number of sub-envs), later calls continue them."""
+        starts = self.starts(obs, episode_start)
+        dim = obs.shape[1]
+        # VecFrameStack's update: shift by one observation, zeros where an episode starts, the new one last
+        self._stack = np.roll(self._stack, -dim, axis=-1)
+        self._stack[starts] = 0
+        self._stack[:, -dim:] = obs
+        return self._stack.copy()
+
+    def starts(self, obs: np.ndarray, episode_start=None) -> np.ndarray:
+        """The sub-envs whose stacks start with this call (n_envs bools), for observations ``obs`` (n_envs,
+        width / k) and ``episode_start`` as :meth:`push` takes them; the stacks are allocated (zeros) on the first
+        call. :meth:`push` then updates them; a compiled caller updates :attr:`rows` in place the same way."""
         if obs.ndim != 2:
             raise ValueError(f"a frame-stacked policy takes a batch of observations (n_envs, obs_dim), got an "
                              f"array of shape {obs.shape}")
@@ -47,11 +59,12 @@ class ObservationStack:
                 raise ValueError(f"the frame stack holds {0 if self._stack is None else self._stack.shape[0]} "
                                  f"sub-envs, the call has {n}: pass episode_start all true to start new stacks")
             self._stack = np.zeros((n, self.width), dtype=self.dtype)
-        # VecFrameStack's update: shift by one observation, zeros where an episode starts, the new one last
-        self._stack = np.roll(self._stack, -dim, axis=-1)
-        self._stack[starts] = 0
-        self._stack[:, -dim:] = obs
-        return self._stack.copy()
+        return starts
+
+    @property
+    def rows(self) -> np.ndarray | None:
+        """The stacks (n_envs, width), each sub-env's last k observations oldest first; None before the first call."""
+        return self._stack
 
 
 def frame_stack_wrapper(venv):
