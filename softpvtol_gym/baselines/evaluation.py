@@ -219,7 +219,8 @@ def compute_us_single(policy, observations, repeats: int = 3) -> float:
 COMPUTE_OBSERVATIONS = 1000
 #: how the per-robot compute pass is measured (recorded in each job's result: a result measured another way, or
 #: before this was recorded, has its pass run again)
-COMPUTE_PASS = f"closed-loop order, first {COMPUTE_OBSERVATIONS} observations of test episode 0"
+COMPUTE_PASS = (f"closed-loop order, first {COMPUTE_OBSERVATIONS} observations of test episode 0; lean pass: "
+                "each input's weights a view, a frame stack inside the compiled call")
 
 
 def episode_observations(policy, action_mode: str, task: str, tier: str, seed: int,
