@@ -70,6 +70,11 @@ VARIANTS = {
     "integral loop": {**TURNED, **SATURATED_RESIDUAL, "residual_scale": 0.25},
     "tier mixture, history 4, privileged, turned starts, 5 rounds, bounded residual (0.5) on the saturated "
     "integral loop": {**TURNED, **SATURATED_RESIDUAL, "residual_scale": 0.5},
+    # the bounded residual (0.25) with memory long enough to see a parameter error act: 0.1 s and 0.2 s of history
+    "tier mixture, history 10 (0.1 s), privileged, turned starts, 5 rounds, bounded residual (0.25) on the "
+    "saturated integral loop": {**TURNED, **SATURATED_RESIDUAL, "residual_scale": 0.25, "history": 10},
+    "tier mixture, history 20 (0.2 s), privileged, turned starts, 5 rounds, bounded residual (0.25) on the "
+    "saturated integral loop": {**TURNED, **SATURATED_RESIDUAL, "residual_scale": 0.25, "history": 20},
 }
 
 
