@@ -196,3 +196,24 @@ def test_a_seed_of_the_probe_keeps_its_run_and_a_leaderboard_run_that_differs_is
     assert bench.merge_seeds({"1": run}, {"1": later, "2": later}) == ({"1": run, "2": later}, [])
     other = {**run, "evaluation": {"hover hard": _summary(0)}}
     assert bench.merge_seeds({"1": run}, {"1": other}) == ({"1": run}, ["1"])
+
+
+def test_more_history_on_the_bounded_residual_does_no_better_and_the_page_says_so():
+    """In words: 0.1 s and 0.2 s of history on the bounded residual (0.25) crash on hover where 0.04 s does not;
+    their last half on track_random mismatch and model_gap."""
+    section = " ".join((ROOT / "benchmarks" / "STUDIES.md").read_text().split())
+    longer = {h: VARIANTS[f"tier mixture, history {h} ({h / 100:.1f} s), privileged, turned starts, 5 rounds, bounded "
+                          f"residual (0.25) on the saturated integral loop"] for h in (10, 20)}
+    short = VARIANTS[BOUNDED.format(0.25)]
+    assert all(v["settings"]["history"] == h for h, v in longer.items())
+    hover = {h: {c: crashes(v["evaluation"][c]) for c in ("hover noisy", "hover hard")} for h, v in longer.items()}
+    assert hover == {10: {"hover noisy": 1, "hover hard": 0}, 20: {"hover noisy": 1, "hover hard": 1}}
+    assert sum(crashes(short["evaluation"][c]) for c in CELLS) == 0
+
+    def half(v, cell):
+        mantissa, exponent = f"{v['evaluation'][cell]['mean_rms_position_error_steady']:.1e}".split("e")
+        return f"{mantissa}e{int(exponent)}"
+
+    assert (f"(track_random mismatch {half(short, 'mismatch')} m at 0.04 s, {half(longer[10], 'mismatch')} and "
+            f"{half(longer[20], 'mismatch')} m; model_gap {half(short, 'model_gap')}, {half(longer[10], 'model_gap')} "
+            f"and {half(longer[20], 'model_gap')} m): the leaderboard's students keep 4 observations") in section
