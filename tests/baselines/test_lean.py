@@ -201,9 +201,8 @@ def test_lean_layers_sum_each_output_in_input_order_bit_for_bit(dtype):
 
 def test_the_compiled_frame_stack_is_the_readable_stack_bit_for_bit():
     """The stacks updated inside the compiled pass against the readable reference: VecNormalize's normalisation in
-    numpy, :class:`ObservationStack` (VecFrameStack's update) and the unstacked pass on its rows; the same bits,
+    numpy, :class:`ObservationStack` (VecFrameStack's update) and the unstacked lean policy on its rows; the same bits,
     over sub-envs whose episodes start at different steps."""
-    from softpvtol_gym.baselines.training.lean import act_rows
     from softpvtol_gym.baselines.training.stacking import ObservationStack
 
     rng = np.random.default_rng(5)
@@ -214,16 +213,13 @@ def test_the_compiled_frame_stack_is_the_readable_stack_bit_for_bit():
     low, high = -np.full(2, 3.0), np.full(2, 3.0)
     lean = LeanMLPPolicy(ops, low, high, False, obs_mean=mean, obs_var=var, clip_obs=2.5, frame_stack=k,
                          action_dtype=np.float64)
-    reference = ObservationStack(k, k * dim)
-    net = (np.array([0, 1, 0]), np.array([k * dim, 8, 8, 2]), np.zeros((3, 2)),
-           np.concatenate([w1.T.ravel(), w2.T.ravel()]), np.concatenate([b1, b2]))
-    identity = (np.zeros(k * dim), np.ones(k * dim), np.inf)
+    stack = ObservationStack(k, k * dim)
+    unstacked = LeanMLPPolicy(ops, low, high, False, action_dtype=np.float64)  # on the stacked rows, unnormalised
     for step in range(12):
         obs = rng.normal(scale=3.0, size=(n, dim)).astype(np.float32)
         starts = np.ones(n, bool) if step == 0 else rng.random(n) < 0.2
         normed = np.clip((obs - mean) / np.sqrt(var + 1e-8), -2.5, 2.5).astype(np.float32)
-        want = np.empty((n, 2))
-        act_rows(reference.push(normed, starts), *identity, np.zeros(0, np.int64), *net, False, low, high, want)
+        want = unstacked.predict(stack.push(normed, starts))[0]
         np.testing.assert_array_equal(lean.predict(obs, episode_start=starts)[0], want)
 
 
