@@ -18,7 +18,7 @@ The cases are interleaved (one pass of each, ``--rounds`` times) so that a chang
 reaches all of them; the figure is the median over rounds of each round's median, with the rounds' range, and
 the lean path's ratio to the integral loop is the median over rounds of the ratio measured in one round.
 A residual student's ``predict`` is its correction alone: the robot also runs the loop it corrects, and
-``small_student_with_loop_over_integral`` counts both (per round, (student + integral loop) / integral loop).
+``small_student_with_loop_over_integral`` counts both (one loop more than ``small_student_over_integral``).
 ``--readme`` replaces the generated table (block ``per_robot_compute.py``) in the files given.
 """
 
@@ -130,8 +130,7 @@ def measure(steps: int, rounds: int) -> dict:
         "student_over_integral": median_ratio(per_round, "student-lean", "integral"),
         "small_student_over_integral": median_ratio(per_round, "student-small-lean", "integral"),
         # a residual student runs on its base loop: a robot computes both, the loop's command and the correction
-        "small_student_with_loop_over_integral": float(np.median(
-            [(s + i) / i for s, i in zip(per_round["student-small-lean"], per_round["integral"])])),
+        "small_student_with_loop_over_integral": 1.0 + median_ratio(per_round, "student-small-lean", "integral"),
         "torch_over_lean": median_ratio(per_round, "learned-torch", "learned-lean"),
     }
 
